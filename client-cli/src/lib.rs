@@ -1,0 +1,1 @@
+//! Client logic of the `fissure` command: replay, demo, mesh tools, benchmarks.

@@ -1,0 +1,22 @@
+//! The fissure gRPC contract, `fissure.v1`.
+//!
+//! The `.proto` source in `proto/fissure/v1/` is the reference: every message and
+//! field is documented there with its units. This crate re-exports the types that
+//! prost and tonic generate from it, plus the encoded file descriptor set used to
+//! serve gRPC reflection.
+
+/// Generated types of package `fissure.v1`.
+#[allow(missing_docs, clippy::all, clippy::pedantic, rust_2018_idioms)]
+pub mod v1 {
+    tonic::include_proto!("fissure.v1");
+}
+
+/// Encoded `FileDescriptorSet` of `fissure.v1`, for `tonic-reflection`.
+pub const FILE_DESCRIPTOR_SET: &[u8] =
+    include_bytes!(concat!(env!("OUT_DIR"), "/fissure_descriptor.bin"));
+
+/// gRPC metadata key carrying the instrument a haptic stream claims.
+pub const INSTRUMENT_METADATA_KEY: &str = "fissure-instrument";
+
+/// gRPC metadata key carrying the bearer token (`authorization: Bearer <token>`).
+pub const AUTHORIZATION_METADATA_KEY: &str = "authorization";

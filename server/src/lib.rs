@@ -1,0 +1,27 @@
+//! fissure-server: the simulation engine for opening a brain fissure, and its
+//! gRPC service.
+//!
+//! The engine is network-free and data flows one way (DESIGN.md section 1):
+//! pose -> instrument transform -> rays -> pairs -> culled pairs -> enforced
+//! displacements -> FEM solve -> positions and reaction forces -> frames and
+//! forces out.
+//!
+//! * [`mesh`]: the tetrahedral brain model, its boundary surface, generators and
+//!   file formats.
+//! * [`collide`]: the collision method of Fukuhara et al. (2014): source-node
+//!   rays from the spatula faces, collision pairs, history culling, enforced
+//!   displacements.
+//! * [`fem`]: linear-elastic (and large-deformation) FEM with enforced
+//!   displacements and reaction forces.
+//! * [`scene`]: scene files (TOML) that say what is modelled.
+//! * [`sim`]: the force loop and the deformation loop, shared state, recording.
+//! * [`service`]: the tonic adapter of `fissure.v1`.
+//!
+//! Units are SI throughout: m, Pa, N, s.
+
+pub mod collide;
+pub mod fem;
+pub mod mesh;
+pub mod scene;
+pub mod service;
+pub mod sim;

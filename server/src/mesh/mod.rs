@@ -1,0 +1,129 @@
+//! The tetrahedral brain model: nodes, positively oriented tetrahedra and the
+//! boundary surface that the collision pipeline sees.
+//!
+//! Positions are in metres. A tetrahedron `[a, b, c, d]` is positively oriented
+//! when `(b - a) x (c - a) . (d - a) > 0` (six times its signed volume).
+
+pub mod blocks;
+
+use nalgebra::{Point3, Vector3};
+use std::collections::HashMap;
+
+/// Errors in building or validating a mesh; each names the offending element.
+#[derive(Debug, thiserror::Error, Clone, PartialEq)]
+pub enum MeshError {
+    /// A tetrahedron refers to a node index that does not exist.
+    #[error("tetrahedron {tet} refers to node {node}, but the mesh has {nodes} nodes")]
+    NodeOutOfRange { tet: usize, node: u32, nodes: usize },
+    /// A tetrahedron has zero or negative volume.
+    #[error("tetrahedron {tet} is inverted or degenerate (signed volume {volume:e} m^3)")]
+    Inverted { tet: usize, volume: f64 },
+    /// A node coordinate is NaN or infinite.
+    #[error("node {node} has a non-finite coordinate")]
+    NonFinite { node: usize },
+    /// The mesh has no tetrahedra.
+    #[error("the mesh has no tetrahedra")]
+    Empty,
+}
+
+/// A tetrahedral mesh: node positions (m) and positively oriented tetrahedra.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TetMesh {
+    /// Node positions, m.
+    pub nodes: Vec<Point3<f64>>,
+    /// Tetrahedra as node indices, positively oriented.
+    pub tets: Vec<[u32; 4]>,
+}
+
+impl TetMesh {
+    /// Builds a mesh, checking indices, finiteness and orientation.
+    pub fn new(nodes: Vec<Point3<f64>>, tets: Vec<[u32; 4]>) -> Result<Self, MeshError> {
+        if tets.is_empty() {
+            return Err(MeshError::Empty);
+        }
+        if let Some(node) = nodes.iter().position(|p| !p.coords.iter().all(|c| c.is_finite())) {
+            return Err(MeshError::NonFinite { node });
+        }
+        for (tet, t) in tets.iter().enumerate() {
+            if let Some(&node) = t.iter().find(|&&n| n as usize >= nodes.len()) {
+                return Err(MeshError::NodeOutOfRange { tet, node, nodes: nodes.len() });
+            }
+        }
+        let mesh = Self { nodes, tets };
+        for tet in 0..mesh.tets.len() {
+            let volume = mesh.signed_volume(tet);
+            if volume <= 0.0 {
+                return Err(MeshError::Inverted { tet, volume });
+            }
+        }
+        Ok(mesh)
+    }
+
+    /// Signed volume of tetrahedron `tet`, m^3 (positive when well oriented).
+    pub fn signed_volume(&self, tet: usize) -> f64 {
+        let [a, b, c, d] = self.tets[tet].map(|i| self.nodes[i as usize]);
+        (b - a).cross(&(c - a)).dot(&(d - a)) / 6.0
+    }
+
+    /// Axis-aligned bounds of the nodes, m.
+    pub fn bounds(&self) -> (Point3<f64>, Point3<f64>) {
+        let mut lo = Point3::from(Vector3::repeat(f64::INFINITY));
+        let mut hi = Point3::from(Vector3::repeat(f64::NEG_INFINITY));
+        for p in &self.nodes {
+            lo = lo.inf(p);
+            hi = hi.sup(p);
+        }
+        (lo, hi)
+    }
+
+    /// Extracts the boundary: faces used by exactly one tetrahedron, oriented
+    /// outward (counter-clockwise seen from outside).
+    pub fn boundary(&self) -> BoundarySurface {
+        // Faces of a positively oriented tet [a,b,c,d], each listed so that its
+        // right-hand normal points away from the opposite vertex.
+        const FACES: [[usize; 3]; 4] = [[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]];
+        let mut count: HashMap<[u32; 3], (u32, [u32; 3])> = HashMap::new();
+        for t in &self.tets {
+            for f in FACES {
+                let tri = [t[f[0]], t[f[1]], t[f[2]]];
+                let mut key = tri;
+                key.sort_unstable();
+                count.entry(key).and_modify(|e| e.0 += 1).or_insert((1, tri));
+            }
+        }
+        let mut faces: Vec<[u32; 3]> =
+            count.into_values().filter(|(n, _)| *n == 1).map(|(_, tri)| tri).collect();
+        faces.sort_unstable();
+        let mut local = HashMap::new();
+        let mut to_volume = Vec::new();
+        let triangles = faces
+            .iter()
+            .map(|tri| {
+                tri.map(|v| {
+                    *local.entry(v).or_insert_with(|| {
+                        to_volume.push(v);
+                        (to_volume.len() - 1) as u32
+                    })
+                })
+            })
+            .collect();
+        BoundarySurface { triangles, to_volume }
+    }
+}
+
+/// The boundary surface of a [`TetMesh`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct BoundarySurface {
+    /// Triangles as indices into the surface vertices, outward oriented.
+    pub triangles: Vec<[u32; 3]>,
+    /// Surface vertex -> volume node index.
+    pub to_volume: Vec<u32>,
+}
+
+impl BoundarySurface {
+    /// Positions of the surface vertices taken from volume node positions.
+    pub fn gather(&self, nodes: &[Point3<f64>], out: &mut Vec<Point3<f64>>) {
+        out.clear();
+        out.extend(self.to_volume.iter().map(|&v| nodes[v as usize]));
+    }
+}

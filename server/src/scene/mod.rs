@@ -1,0 +1,1 @@
+//! Scene files (TOML): what a scene models, and nothing more.

@@ -1,0 +1,1 @@
+//! The tonic adapter of `fissure.v1`: moves messages, holds no logic.

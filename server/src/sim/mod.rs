@@ -1,0 +1,1 @@
+//! The force loop and the deformation loop, their shared state and recording.
