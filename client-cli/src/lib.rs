@@ -1,1 +1,6 @@
-//! Client logic of the `fissure` command: replay, demo, mesh tools, benchmarks.
+//! Client logic of the `fissure` command: trajectories, replay, the demo, mesh
+//! tools and benchmarks. The binary (`main.rs`) only parses arguments.
+
+pub mod demo;
+pub mod replay;
+pub mod trajectory;

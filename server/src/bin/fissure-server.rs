@@ -1,1 +1,125 @@
-fn main() {}
+//! `fissure-server`: loads a scene and serves `fissure.v1` over gRPC.
+
+use anyhow::{Context, bail};
+use clap::Parser;
+use fissure_server::scene::{DEFAULT_SCENE, Scene};
+use fissure_server::service::{ServeOptions, serve};
+use fissure_server::sim::{SimOptions, Simulation};
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+/// Simulation server for training the opening of a brain fissure: owns the brain
+/// model and the collision pipeline, takes spatula poses from haptic clients and
+/// streams back reaction forces (about 1 kHz) and deformations.
+#[derive(Debug, Parser)]
+#[command(version, about)]
+struct Args {
+    /// Scene: an embedded name (cube, v-valley, u-valley, sylvian,
+    /// interhemispheric) or a path to a scene TOML file.
+    #[arg(long, default_value = DEFAULT_SCENE)]
+    scene: String,
+    /// Address to listen on. Only loopback addresses are accepted unless
+    /// --allow-remote is given.
+    #[arg(long, default_value = "127.0.0.1:50051")]
+    listen: SocketAddr,
+    /// Accept a non-loopback --listen address (exposes the server to the network;
+    /// use with --token and TLS).
+    #[arg(long)]
+    allow_remote: bool,
+    /// Bearer token clients must send (`authorization: Bearer <token>`) to claim
+    /// an instrument. Also read from FISSURE_TOKEN.
+    #[arg(long, env = "FISSURE_TOKEN", hide_env_values = true)]
+    token: Option<String>,
+    /// TLS certificate chain (PEM). Requires --tls-key.
+    #[arg(long, requires = "tls_key")]
+    tls_cert: Option<PathBuf>,
+    /// TLS private key (PEM). Requires --tls-cert.
+    #[arg(long, requires = "tls_cert")]
+    tls_key: Option<PathBuf>,
+    /// Run deformation steps on pose timestamps (deterministic), overriding the scene.
+    #[arg(long)]
+    stepped: bool,
+    /// In stepped mode, how many instruments must be claimed before stepping.
+    #[arg(long, default_value_t = 1)]
+    stepped_clients: usize,
+    /// Append the session (poses, forces, frame summaries) to this recording file.
+    #[arg(long)]
+    record: Option<PathBuf>,
+    /// Largest number of concurrent watchers.
+    #[arg(long, default_value_t = 16)]
+    max_watchers: usize,
+    /// Log filter (tracing's EnvFilter syntax), e.g. `info` or `fissure_server=debug`.
+    #[arg(long, env = "FISSURE_LOG", default_value = "info")]
+    log: String,
+}
+
+#[tokio::main]
+async fn main() -> anyhow::Result<()> {
+    let args = Args::parse();
+    tracing_subscriber::fmt()
+        .with_env_filter(tracing_subscriber::EnvFilter::try_new(&args.log).context("invalid --log filter")?)
+        .with_writer(std::io::stderr)
+        .init();
+    if !args.listen.ip().is_loopback() && !args.allow_remote {
+        bail!(
+            "--listen {} is not a loopback address; pass --allow-remote to expose the server to the network",
+            args.listen
+        );
+    }
+    let tls = match (&args.tls_cert, &args.tls_key) {
+        (Some(c), Some(k)) => Some((
+            std::fs::read(c).with_context(|| format!("reading TLS certificate {}", c.display()))?,
+            std::fs::read(k).with_context(|| format!("reading TLS key {}", k.display()))?,
+        )),
+        _ => None,
+    };
+    let (scene, _) = Scene::load(&args.scene).with_context(|| format!("loading scene {:?}", args.scene))?;
+    let server = serve(args.listen, ServeOptions { token: args.token.clone(), tls }).await?;
+    tracing::info!(addr = %server.addr, scene = %scene.name, "listening; loading the scene");
+    let options = SimOptions {
+        stepped: args.stepped.then_some(true),
+        stepped_clients: args.stepped_clients,
+        recording: args.record.clone(),
+        max_watchers: args.max_watchers,
+    };
+    let sim = tokio::task::spawn_blocking(move || Simulation::start(scene, options))
+        .await?
+        .context("starting the simulation")?;
+    server.set_simulation(sim.clone()).await;
+    tracing::info!("scene loaded; serving");
+    shutdown_signal().await;
+    tracing::info!("shutting down");
+    server.shutdown().await?;
+    tokio::task::spawn_blocking(move || {
+        sim.shutdown();
+        if let Some(rec) = sim.recorder() {
+            rec.finish()
+        } else {
+            Ok(())
+        }
+    })
+    .await?
+    .context("completing the recording")?;
+    Ok(())
+}
+
+async fn shutdown_signal() {
+    let ctrl_c = async {
+        let _ = tokio::signal::ctrl_c().await;
+    };
+    #[cfg(unix)]
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending::<()>().await,
+        }
+    };
+    #[cfg(not(unix))]
+    let term = std::future::pending::<()>();
+    tokio::select! {
+        _ = ctrl_c => {},
+        _ = term => {},
+    }
+}

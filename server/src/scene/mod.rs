@@ -1,1 +1,542 @@
 //! Scene files (TOML): what a scene models, and nothing more.
+//!
+//! A scene names the brain model, the material, the fixed region, the solver
+//! strategy, the collision method, the loops and the instruments. Optional
+//! parts (the skull, a region of interest) are only built when present: the
+//! server computes only what a scene requires.
+//!
+//! Scenes ship embedded in the binary (`cube`, `sylvian`, `interhemispheric`,
+//! `v-valley`, `u-valley`); a path to a `.toml` file loads a user's scene.
+//! Every value is checked by [`Scene::validate`]; an error names the field
+//! (`instrument[1].thickness_m`) and what is wrong with it.
+
+use serde::Deserialize;
+use std::path::{Path, PathBuf};
+
+/// The scenes embedded in the binary, by name.
+pub const EMBEDDED: &[(&str, &str)] = &[
+    ("cube", include_str!("../../scenes/cube.toml")),
+    ("v-valley", include_str!("../../scenes/v-valley.toml")),
+    ("u-valley", include_str!("../../scenes/u-valley.toml")),
+];
+
+/// The default scene.
+pub const DEFAULT_SCENE: &str = "cube";
+
+/// Errors in loading a scene.
+#[derive(Debug, thiserror::Error)]
+pub enum SceneError {
+    /// Neither an embedded scene name nor a readable file.
+    #[error("unknown scene '{name}': not an embedded scene ({known}) and not a readable file")]
+    Unknown { name: String, known: String },
+    /// The file could not be read.
+    #[error("cannot read scene file {path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+    /// TOML syntax or an unknown/mistyped key (the message gives line and column).
+    #[error("scene {origin}: {message}")]
+    Parse { origin: String, message: String },
+    /// A value is out of range or inconsistent.
+    #[error("scene {origin}: field `{field}`: {reason}")]
+    Invalid { origin: String, field: String, reason: String },
+}
+
+/// A scene: everything the server models.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Scene {
+    /// Scene name.
+    pub name: String,
+    /// What the scene models, in a sentence.
+    #[serde(default)]
+    pub description: String,
+    /// The brain model.
+    pub model: ModelSpec,
+    /// The tissue material.
+    pub material: MaterialSpec,
+    /// Regions whose nodes are fixed (a union).
+    #[serde(default)]
+    pub fixed: Vec<Region>,
+    /// The deformation solver.
+    #[serde(default)]
+    pub solver: SolverSpec,
+    /// The collision pipeline.
+    #[serde(default)]
+    pub collision: CollisionSpec,
+    /// Loop rates and safety thresholds.
+    #[serde(default)]
+    pub loops: LoopSpec,
+    /// The instruments (spatulas).
+    #[serde(rename = "instrument")]
+    pub instruments: Vec<InstrumentSpec>,
+    /// The skull, when modelled.
+    #[serde(default)]
+    pub skull: Option<SkullSpec>,
+}
+
+/// Which brain model to build.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
+pub enum ModelSpec {
+    /// A cube `[0, size]^3` with `cells` cells per edge (six tets a cell).
+    Cube {
+        /// Edge length, m.
+        size_m: f64,
+        /// Cells per edge.
+        cells: usize,
+    },
+    /// The paper's V-shaped valley block (60 x 30 x 30 mm).
+    VValley,
+    /// The paper's U-shaped valley block (60 x 30 x 30 mm).
+    UValley,
+    /// The procedural brain phantom at a named preset.
+    Phantom {
+        /// Preset name, e.g. `paper-48k`.
+        preset: String,
+    },
+    /// A tetrahedral mesh file (MSH, VTK/VTU, TetGen), relative to the scene file.
+    File {
+        /// Path to the mesh.
+        path: PathBuf,
+    },
+}
+
+/// Tissue material.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct MaterialSpec {
+    /// Young's modulus, Pa.
+    pub youngs_modulus_pa: f64,
+    /// Poisson's ratio, in [0, 0.5).
+    pub poisson_ratio: f64,
+}
+
+/// A region of nodes.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(untagged, deny_unknown_fields)]
+pub enum Region {
+    /// Nodes inside an axis-aligned box (bounds included), m.
+    Box {
+        /// Lower corner, m.
+        box_min_m: [f64; 3],
+        /// Upper corner, m.
+        box_max_m: [f64; 3],
+    },
+    /// Nodes inside a sphere, m.
+    Sphere {
+        /// Centre, m.
+        centre_m: [f64; 3],
+        /// Radius, m.
+        radius_m: f64,
+    },
+    /// A region the model names (e.g. the phantom's `brain-stem`).
+    Landmark {
+        /// Landmark name.
+        landmark: String,
+    },
+}
+
+impl Region {
+    /// Whether a point (m) lies in the region; landmarks are resolved by the
+    /// model and answer `false` here.
+    pub fn contains(&self, p: [f64; 3]) -> bool {
+        match self {
+            Region::Box { box_min_m: lo, box_max_m: hi } => {
+                (0..3).all(|i| p[i] >= lo[i] && p[i] <= hi[i])
+            }
+            Region::Sphere { centre_m: c, radius_m: r } => {
+                (0..3).map(|i| (p[i] - c[i]).powi(2)).sum::<f64>() <= r * r
+            }
+            Region::Landmark { .. } => false,
+        }
+    }
+}
+
+/// Deformation solver strategy.
+#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum Strategy {
+    /// Eliminate the constrained DOFs and factor each step (exact reference).
+    Direct,
+    /// Factor once, per-step dense compliance block of the contact DOFs.
+    #[default]
+    Compliance,
+    /// Corotational linear elasticity, iterative.
+    Corotational,
+    /// Neo-Hookean hyperelasticity, Newton with line search.
+    NeoHookean,
+}
+
+impl Strategy {
+    /// Name as written in scene files.
+    pub fn name(self) -> &'static str {
+        match self {
+            Strategy::Direct => "direct",
+            Strategy::Compliance => "compliance",
+            Strategy::Corotational => "corotational",
+            Strategy::NeoHookean => "neo-hookean",
+        }
+    }
+}
+
+/// Solver settings.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct SolverSpec {
+    /// Strategy.
+    pub strategy: Strategy,
+    /// Relative residual tolerance of iterative strategies.
+    pub tolerance: f64,
+    /// Iteration limit of iterative strategies.
+    pub max_iterations: u32,
+}
+
+impl Default for SolverSpec {
+    fn default() -> Self {
+        Self { strategy: Strategy::Compliance, tolerance: 1e-8, max_iterations: 200 }
+    }
+}
+
+/// Ray-casting method.
+#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum CollisionMethod {
+    /// All node-triangle combinations (the paper's reference).
+    Brute,
+    /// A BVH over the surface, refitted each step.
+    #[default]
+    Bvh,
+}
+
+/// Where rays are cast.
+#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum CollisionBackend {
+    /// On the CPU.
+    #[default]
+    Cpu,
+    /// On a GPU through wgpu (falls back to the CPU without an adapter).
+    Gpu,
+}
+
+/// When the contact history is renewed.
+#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum HistoryMode {
+    /// At every pose of the force loop (robust to fast travel).
+    #[default]
+    ForceRate,
+    /// Once per deformation step, as in the seed paper.
+    Paper,
+}
+
+/// Collision settings.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct CollisionSpec {
+    /// Ray-casting method.
+    pub method: CollisionMethod,
+    /// Ray-casting backend.
+    pub backend: CollisionBackend,
+    /// History renewal.
+    pub history: HistoryMode,
+    /// Whether history culling (B1-B3) is applied.
+    pub culling: bool,
+}
+
+impl Default for CollisionSpec {
+    fn default() -> Self {
+        Self {
+            method: CollisionMethod::Bvh,
+            backend: CollisionBackend::Cpu,
+            history: HistoryMode::ForceRate,
+            culling: true,
+        }
+    }
+}
+
+/// Loops and safety.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct LoopSpec {
+    /// Interval between deformation steps, s. In stepped mode steps happen at
+    /// multiples of it on the pose timestamps; free-running, it is the minimum
+    /// period of the deformation loop.
+    pub deformation_interval_s: f64,
+    /// Deterministic stepped mode.
+    pub stepped: bool,
+    /// Nominal haptic rate, Hz.
+    pub haptic_rate_hz: f64,
+    /// Force magnitude above which samples are flagged, N.
+    pub safe_force_n: f64,
+    /// Force magnitude samples are clamped to, N.
+    pub max_force_n: f64,
+    /// Largest instrument travel accepted in one sample, m; larger jumps are
+    /// flagged.
+    pub max_jump_m: f64,
+}
+
+impl Default for LoopSpec {
+    fn default() -> Self {
+        Self {
+            deformation_interval_s: 0.02,
+            stepped: false,
+            haptic_rate_hz: 1000.0,
+            safe_force_n: 1.0,
+            max_force_n: 8.0,
+            max_jump_m: 0.01,
+        }
+    }
+}
+
+/// Spatula shape.
+#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum ShapeKind {
+    /// A flat rectangular plate.
+    #[default]
+    Flat,
+    /// A flat plate narrowing to the tip.
+    Trapezoid,
+    /// A plate bent along its length.
+    Curved,
+}
+
+/// Where the source nodes sit on each face.
+#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum LayoutKind {
+    /// A grid over the whole face.
+    #[default]
+    WholeFace,
+    /// A grid concentrated at the tip.
+    Tip,
+}
+
+/// One spatula.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct InstrumentSpec {
+    /// Name clients claim it by.
+    pub name: String,
+    /// Shape.
+    #[serde(default)]
+    pub shape: ShapeKind,
+    /// Plate thickness, m.
+    pub thickness_m: f64,
+    /// Plate width (at the tip for a trapezoid), m.
+    pub width_m: f64,
+    /// Plate width at the handle end (trapezoid only), m.
+    #[serde(default)]
+    pub base_width_m: Option<f64>,
+    /// Plate length, m.
+    pub length_m: f64,
+    /// Bend radius (curved only), m.
+    #[serde(default)]
+    pub bend_radius_m: Option<f64>,
+    /// Source-node layout.
+    #[serde(default)]
+    pub layout: LayoutKind,
+    /// Source nodes a face.
+    pub nodes_per_face: u32,
+    /// Whether rim nodes are added for contact with the side.
+    #[serde(default)]
+    pub rim: bool,
+    /// Position of the handle point at rest, m.
+    pub home_position_m: [f64; 3],
+    /// Orientation at rest, quaternion (w, x, y, z).
+    #[serde(default = "identity_quaternion")]
+    pub home_orientation: [f64; 4],
+}
+
+fn identity_quaternion() -> [f64; 4] {
+    [1.0, 0.0, 0.0, 0.0]
+}
+
+/// The skull: unilateral sphere constraints.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SkullSpec {
+    /// Nodes may not leave this sphere.
+    #[serde(default)]
+    pub containing: Option<SphereSpec>,
+    /// Nodes may not enter this sphere.
+    #[serde(default)]
+    pub excluding: Option<SphereSpec>,
+}
+
+/// A sphere.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SphereSpec {
+    /// Centre, m.
+    pub centre_m: [f64; 3],
+    /// Radius, m.
+    pub radius_m: f64,
+}
+
+impl Scene {
+    /// Loads an embedded scene by name, or a scene file by path.
+    pub fn load(name_or_path: &str) -> Result<(Scene, Option<PathBuf>), SceneError> {
+        if let Some((_, text)) = EMBEDDED.iter().find(|(n, _)| *n == name_or_path) {
+            return Ok((Self::parse(text, name_or_path)?, None));
+        }
+        let path = Path::new(name_or_path);
+        if !path.is_file() {
+            return Err(SceneError::Unknown {
+                name: name_or_path.to_owned(),
+                known: EMBEDDED.iter().map(|(n, _)| *n).collect::<Vec<_>>().join(", "),
+            });
+        }
+        let text = std::fs::read_to_string(path)
+            .map_err(|source| SceneError::Io { path: path.to_owned(), source })?;
+        let mut scene = Self::parse(&text, &path.display().to_string())?;
+        if let ModelSpec::File { path: mesh } = &mut scene.model {
+            if mesh.is_relative() {
+                *mesh = path.parent().unwrap_or(Path::new(".")).join(&*mesh);
+            }
+        }
+        Ok((scene, Some(path.to_owned())))
+    }
+
+    /// Parses and validates scene text; `origin` names it in errors.
+    pub fn parse(text: &str, origin: &str) -> Result<Scene, SceneError> {
+        let scene: Scene = toml::from_str(text)
+            .map_err(|e| SceneError::Parse { origin: origin.to_owned(), message: e.to_string() })?;
+        scene.validate(origin)?;
+        Ok(scene)
+    }
+
+    /// Checks every value; the error names the first bad field.
+    pub fn validate(&self, origin: &str) -> Result<(), SceneError> {
+        let bad = |field: String, reason: String| SceneError::Invalid {
+            origin: origin.to_owned(),
+            field,
+            reason,
+        };
+        let positive = |field: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(bad(field.to_owned(), format!("must be a finite positive number, got {v}")))
+            }
+        };
+        let finite3 = |field: String, v: &[f64]| {
+            if v.iter().all(|c| c.is_finite()) {
+                Ok(())
+            } else {
+                Err(bad(field, format!("must be finite, got {v:?}")))
+            }
+        };
+        if let ModelSpec::Cube { size_m, cells } = &self.model {
+            positive("model.size_m", *size_m)?;
+            if !(1..=64).contains(cells) {
+                return Err(bad("model.cells".into(), format!("must be in 1..=64, got {cells}")));
+            }
+        }
+        positive("material.youngs_modulus_pa", self.material.youngs_modulus_pa)?;
+        let nu = self.material.poisson_ratio;
+        if !(nu.is_finite() && (0.0..0.5).contains(&nu)) {
+            return Err(bad("material.poisson_ratio".into(), format!("must be in [0, 0.5), got {nu}")));
+        }
+        for (i, r) in self.fixed.iter().enumerate() {
+            match r {
+                Region::Box { box_min_m, box_max_m } => {
+                    finite3(format!("fixed[{i}].box_min_m"), box_min_m)?;
+                    finite3(format!("fixed[{i}].box_max_m"), box_max_m)?;
+                    if (0..3).any(|k| box_min_m[k] > box_max_m[k]) {
+                        return Err(bad(format!("fixed[{i}]"), "box_min_m exceeds box_max_m".into()));
+                    }
+                }
+                Region::Sphere { centre_m, radius_m } => {
+                    finite3(format!("fixed[{i}].centre_m"), centre_m)?;
+                    positive(&format!("fixed[{i}].radius_m"), *radius_m)?;
+                }
+                Region::Landmark { .. } => {}
+            }
+        }
+        positive("solver.tolerance", self.solver.tolerance)?;
+        if self.solver.max_iterations == 0 {
+            return Err(bad("solver.max_iterations".into(), "must be at least 1".into()));
+        }
+        positive("loops.deformation_interval_s", self.loops.deformation_interval_s)?;
+        positive("loops.haptic_rate_hz", self.loops.haptic_rate_hz)?;
+        positive("loops.safe_force_n", self.loops.safe_force_n)?;
+        positive("loops.max_force_n", self.loops.max_force_n)?;
+        positive("loops.max_jump_m", self.loops.max_jump_m)?;
+        if self.instruments.is_empty() {
+            return Err(bad("instrument".into(), "the scene needs at least one instrument".into()));
+        }
+        for (i, ins) in self.instruments.iter().enumerate() {
+            let f = |name: &str| format!("instrument[{i}].{name}");
+            if ins.name.is_empty() || !ins.name.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_') {
+                return Err(bad(f("name"), format!("must be non-empty letters, digits, '-' or '_', got {:?}", ins.name)));
+            }
+            if self.instruments[..i].iter().any(|o| o.name == ins.name) {
+                return Err(bad(f("name"), format!("duplicate instrument name {:?}", ins.name)));
+            }
+            positive(&f("thickness_m"), ins.thickness_m)?;
+            positive(&f("width_m"), ins.width_m)?;
+            positive(&f("length_m"), ins.length_m)?;
+            if !(1..=4096).contains(&ins.nodes_per_face) {
+                return Err(bad(f("nodes_per_face"), format!("must be in 1..=4096, got {}", ins.nodes_per_face)));
+            }
+            match ins.shape {
+                ShapeKind::Trapezoid => positive(&f("base_width_m"), ins.base_width_m.unwrap_or(f64::NAN))?,
+                ShapeKind::Curved => positive(&f("bend_radius_m"), ins.bend_radius_m.unwrap_or(f64::NAN))?,
+                ShapeKind::Flat => {}
+            }
+            finite3(f("home_position_m"), &ins.home_position_m)?;
+            let q = ins.home_orientation;
+            let norm = q.iter().map(|c| c * c).sum::<f64>().sqrt();
+            if !(norm.is_finite() && (norm - 1.0).abs() < 1e-3) {
+                return Err(bad(f("home_orientation"), format!("must be a unit quaternion (w, x, y, z), got {q:?}")));
+            }
+        }
+        if let Some(skull) = &self.skull {
+            for (name, s) in [("containing", &skull.containing), ("excluding", &skull.excluding)] {
+                if let Some(s) = s {
+                    finite3(format!("skull.{name}.centre_m"), &s.centre_m)?;
+                    positive(&format!("skull.{name}.radius_m"), s.radius_m)?;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The instrument named `name`.
+    pub fn instrument(&self, name: &str) -> Option<(usize, &InstrumentSpec)> {
+        self.instruments.iter().enumerate().find(|(_, i)| i.name == name)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn embedded_scenes_parse() {
+        for (name, _) in EMBEDDED {
+            let (scene, path) = Scene::load(name).unwrap();
+            assert!(path.is_none());
+            assert!(!scene.instruments.is_empty(), "{name}");
+        }
+    }
+
+    #[test]
+    fn errors_name_the_field() {
+        let (scene, _) = Scene::load("cube").unwrap();
+        let text = include_str!("../../scenes/cube.toml");
+        let bad = text.replace("poisson_ratio = 0.45", "poisson_ratio = 0.5");
+        assert_ne!(bad, text);
+        let err = Scene::parse(&bad, "x.toml").unwrap_err().to_string();
+        assert!(err.contains("material.poisson_ratio") && err.contains("x.toml"), "{err}");
+        let bad = text.replace("thickness_m = ", "thickness_m = -");
+        let err = Scene::parse(&bad, "x.toml").unwrap_err().to_string();
+        assert!(err.contains("instrument[0].thickness_m"), "{err}");
+        let bad = text.replace("[material]", "[material]\ncolour = 1");
+        let err = Scene::parse(&bad, "x.toml").unwrap_err().to_string();
+        assert!(err.contains("colour") && err.contains("line"), "{err}");
+        assert!(matches!(Scene::load("no-such-scene"), Err(SceneError::Unknown { .. })));
+        assert_eq!(scene.name, "cube");
+    }
+}

@@ -1,1 +1,240 @@
 //! The tonic adapter of `fissure.v1`: moves messages, holds no logic.
+//!
+//! The service answers `UNAVAILABLE` until the scene is loaded and factorized
+//! (health reports `NOT_SERVING` until then). Each haptic stream gets its own
+//! OS thread for its force loop: a 1 kHz loop should not share a scheduler
+//! with watchers' serialisation work.
+
+pub mod convert;
+
+use crate::sim::{ClaimError, Simulation};
+use fissure_proto::v1 as pb;
+use fissure_proto::v1::fissure_server::{Fissure, FissureServer};
+use fissure_proto::{AUTHORIZATION_METADATA_KEY, INSTRUMENT_METADATA_KEY};
+use futures::{Stream, StreamExt};
+use std::net::SocketAddr;
+use std::pin::Pin;
+use std::sync::{Arc, OnceLock};
+use tokio_stream::wrappers::{ReceiverStream, WatchStream};
+use tonic::{Request, Response, Status, Streaming};
+
+/// Largest message accepted from a client, bytes (poses are ~100 bytes).
+pub const MAX_DECODING_MESSAGE_BYTES: usize = 64 * 1024;
+
+/// Largest message sent, bytes (a frame of a 16k-vertex surface is ~200 kB).
+pub const MAX_ENCODING_MESSAGE_BYTES: usize = 16 * 1024 * 1024;
+
+/// How clients must authenticate and where the server listens.
+#[derive(Debug, Clone, Default)]
+pub struct ServeOptions {
+    /// Bearer token required to claim an instrument, if any.
+    pub token: Option<String>,
+    /// TLS identity (PEM certificate chain and key), if TLS is on.
+    pub tls: Option<(Vec<u8>, Vec<u8>)>,
+}
+
+/// The `fissure.v1.Fissure` service over a (possibly still loading) simulation.
+#[derive(Debug, Clone)]
+pub struct FissureService {
+    sim: Arc<OnceLock<Arc<Simulation>>>,
+    token: Option<Arc<str>>,
+}
+
+impl FissureService {
+    /// A service whose simulation is set later with [`FissureService::set_simulation`].
+    pub fn new(token: Option<String>) -> Self {
+        Self { sim: Arc::new(OnceLock::new()), token: token.map(Into::into) }
+    }
+
+    /// Makes the loaded simulation available to clients.
+    pub fn set_simulation(&self, sim: Arc<Simulation>) {
+        let _ = self.sim.set(sim);
+    }
+
+    fn sim(&self) -> Result<&Arc<Simulation>, Status> {
+        self.sim.get().ok_or_else(|| Status::unavailable("the scene is still loading"))
+    }
+
+    fn check_token<T>(&self, req: &Request<T>) -> Result<(), Status> {
+        let Some(token) = &self.token else { return Ok(()) };
+        let given = req
+            .metadata()
+            .get(AUTHORIZATION_METADATA_KEY)
+            .and_then(|v| v.to_str().ok())
+            .and_then(|v| v.strip_prefix("Bearer "));
+        match given {
+            Some(g) if constant_time_eq(g.as_bytes(), token.as_bytes()) => Ok(()),
+            Some(_) => Err(Status::unauthenticated("the bearer token is wrong")),
+            None => Err(Status::unauthenticated(
+                "this server requires `authorization: Bearer <token>` to claim an instrument",
+            )),
+        }
+    }
+}
+
+fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
+
+type BoxStream<T> = Pin<Box<dyn Stream<Item = Result<T, Status>> + Send>>;
+
+#[tonic::async_trait]
+impl Fissure for FissureService {
+    async fn get_scene(&self, _: Request<pb::GetSceneRequest>) -> Result<Response<pb::SceneDescription>, Status> {
+        let sim = self.sim()?;
+        Ok(Response::new(convert::scene_description(sim.scene(), sim.model())))
+    }
+
+    async fn get_surface(&self, _: Request<pb::GetSurfaceRequest>) -> Result<Response<pb::SurfaceMesh>, Status> {
+        Ok(Response::new(convert::surface(self.sim()?.model())))
+    }
+
+    async fn reset(&self, _: Request<pb::ResetRequest>) -> Result<Response<pb::ResetResponse>, Status> {
+        Ok(Response::new(pb::ResetResponse { frame: self.sim()?.reset() }))
+    }
+
+    type HapticStream = BoxStream<pb::ForceSample>;
+
+    async fn haptic(&self, req: Request<Streaming<pb::PoseSample>>) -> Result<Response<Self::HapticStream>, Status> {
+        let sim = self.sim()?.clone();
+        self.check_token(&req)?;
+        let name = req
+            .metadata()
+            .get(INSTRUMENT_METADATA_KEY)
+            .ok_or_else(|| {
+                Status::invalid_argument(format!("the `{INSTRUMENT_METADATA_KEY}` metadata naming the instrument is missing"))
+            })?
+            .to_str()
+            .map_err(|_| Status::invalid_argument(format!("`{INSTRUMENT_METADATA_KEY}` is not ASCII")))?
+            .to_owned();
+        let mut claim = sim.claim(&name).map_err(|e| match e {
+            ClaimError::Unknown { .. } => Status::not_found(e.to_string()),
+            ClaimError::Taken(_) => Status::already_exists(e.to_string()),
+            ClaimError::ShuttingDown => Status::unavailable(e.to_string()),
+        })?;
+        let mut inbound = req.into_inner();
+        let (tx, rx) = tokio::sync::mpsc::channel::<Result<pb::ForceSample, Status>>(64);
+        let runtime = tokio::runtime::Handle::current();
+        std::thread::Builder::new()
+            .name(format!("force-loop-{name}"))
+            .spawn(move || {
+                // The claim lives on this thread and is released when it ends.
+                loop {
+                    let msg = match runtime.block_on(inbound.message()) {
+                        Ok(Some(m)) => m,
+                        Ok(None) => break,
+                        Err(status) => {
+                            tracing::debug!(instrument = %name, %status, "haptic stream ended with an error");
+                            break;
+                        }
+                    };
+                    let reply = match convert::raw_pose(&msg).and_then(|raw| claim.force_sample(&raw)) {
+                        Ok(out) => {
+                            let sample = convert::force_sample(&out);
+                            if let Some(rec) = sim.recorder() {
+                                rec.pose(&name, msg.clone());
+                                rec.force(&name, sample.clone());
+                            }
+                            sample
+                        }
+                        Err(e) => {
+                            tracing::debug!(instrument = %name, error = %e, "pose rejected");
+                            convert::rejection(&msg, tonic::Code::InvalidArgument, e.to_string())
+                        }
+                    };
+                    if tx.blocking_send(Ok(reply)).is_err() {
+                        break;
+                    }
+                }
+                drop(claim);
+            })
+            .map_err(|e| Status::internal(format!("cannot start the force loop: {e}")))?;
+        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
+    }
+
+    type WatchStream = BoxStream<pb::DeformationFrame>;
+
+    async fn watch(&self, req: Request<pb::WatchRequest>) -> Result<Response<Self::WatchStream>, Status> {
+        let sim = self.sim()?;
+        let include = req.get_ref().include_positions;
+        let guard = sim
+            .watch()
+            .ok_or_else(|| Status::resource_exhausted("the server's watcher limit is reached"))?;
+        let rx = guard.rx.clone();
+        let stream = WatchStream::new(rx).map(move |frame| {
+            let _keep = &guard;
+            Ok(convert::frame(&frame, include))
+        });
+        Ok(Response::new(Box::pin(stream)))
+    }
+
+    async fn get_stats(&self, _: Request<pb::GetStatsRequest>) -> Result<Response<pb::Stats>, Status> {
+        Ok(Response::new(convert::stats(&self.sim()?.stats())))
+    }
+}
+
+/// A running server: its address, health reporter and shutdown switch.
+#[derive(Debug)]
+pub struct RunningServer {
+    /// The address it listens on.
+    pub addr: SocketAddr,
+    /// The service (to set the simulation once loaded).
+    pub service: FissureService,
+    health: tonic_health::server::HealthReporter,
+    shutdown: Option<tokio::sync::oneshot::Sender<()>>,
+    task: tokio::task::JoinHandle<Result<(), tonic::transport::Error>>,
+}
+
+impl RunningServer {
+    /// Makes the simulation available and reports SERVING.
+    pub async fn set_simulation(&self, sim: Arc<Simulation>) {
+        self.service.set_simulation(sim);
+        self.health.set_serving::<FissureServer<FissureService>>().await;
+    }
+
+    /// Stops accepting calls, waits for the server task to end.
+    pub async fn shutdown(mut self) -> anyhow::Result<()> {
+        if let Some(tx) = self.shutdown.take() {
+            let _ = tx.send(());
+        }
+        self.task.await??;
+        Ok(())
+    }
+}
+
+/// Binds `addr` and serves `fissure.v1`, health and reflection. Health says
+/// NOT_SERVING until [`RunningServer::set_simulation`].
+pub async fn serve(addr: SocketAddr, options: ServeOptions) -> anyhow::Result<RunningServer> {
+    use anyhow::Context;
+    let listener = tokio::net::TcpListener::bind(addr).await.with_context(|| format!("cannot listen on {addr}"))?;
+    let addr = listener.local_addr()?;
+    let (health, health_service) = tonic_health::server::health_reporter();
+    health.set_not_serving::<FissureServer<FissureService>>().await;
+    let reflection = tonic_reflection::server::Builder::configure()
+        .register_encoded_file_descriptor_set(fissure_proto::FILE_DESCRIPTOR_SET)
+        .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+        .build_v1()
+        .context("building the reflection service")?;
+    let service = FissureService::new(options.token.clone());
+    let grpc = FissureServer::new(service.clone())
+        .max_decoding_message_size(MAX_DECODING_MESSAGE_BYTES)
+        .max_encoding_message_size(MAX_ENCODING_MESSAGE_BYTES);
+    let mut builder = tonic::transport::Server::builder().tcp_nodelay(true);
+    if let Some((cert, key)) = &options.tls {
+        builder = builder
+            .tls_config(tonic::transport::ServerTlsConfig::new().identity(tonic::transport::Identity::from_pem(cert, key)))
+            .context("configuring TLS")?;
+    }
+    let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+    let router = builder.add_service(health_service).add_service(reflection).add_service(grpc);
+    let incoming = tokio_stream::wrappers::TcpListenerStream::new(listener).map(|s| {
+        if let Ok(s) = &s {
+            let _ = s.set_nodelay(true);
+        }
+        s
+    });
+    let task = tokio::spawn(router.serve_with_incoming_shutdown(incoming, async move {
+        let _ = rx.await;
+    }));
+    Ok(RunningServer { addr, service, health, shutdown: Some(tx), task })
+}

@@ -1,0 +1,190 @@
+//! Conversions between engine values and `fissure.v1` messages.
+
+use crate::scene::Scene;
+use crate::sim::engine::Model;
+use crate::sim::pose::RawPose;
+use crate::sim::snapshot::{Frame, InstrumentReaction};
+use crate::sim::stats::{LatencySummary, StatsSummary};
+use crate::sim::ForceOut;
+use fissure_proto::v1 as pb;
+use nalgebra::Vector3;
+
+/// A vector message from an engine vector.
+pub fn vec3(v: &Vector3<f64>) -> pb::Vec3 {
+    pb::Vec3 { x: v.x, y: v.y, z: v.z }
+}
+
+fn arr3(v: [f64; 3]) -> pb::Vec3 {
+    pb::Vec3 { x: v[0], y: v[1], z: v[2] }
+}
+
+fn quat(q: [f64; 4]) -> pb::Quaternion {
+    pb::Quaternion { w: q[0], x: q[1], y: q[2], z: q[3] }
+}
+
+/// The description of a loaded scene.
+pub fn scene_description(scene: &Scene, model: &Model) -> pb::SceneDescription {
+    let (lo, hi) = model.mesh.bounds();
+    pb::SceneDescription {
+        name: scene.name.clone(),
+        description: scene.description.clone(),
+        units: "SI".into(),
+        material: Some(pb::Material {
+            model: match scene.solver.strategy {
+                crate::scene::Strategy::Corotational => "corotational",
+                crate::scene::Strategy::NeoHookean => "neo-hookean",
+                _ => "linear",
+            }
+            .into(),
+            youngs_modulus_pa: scene.material.youngs_modulus_pa,
+            poisson_ratio: scene.material.poisson_ratio,
+        }),
+        instruments: scene
+            .instruments
+            .iter()
+            .enumerate()
+            .map(|(i, ins)| pb::InstrumentDescription {
+                name: ins.name.clone(),
+                shape: format!("{:?}", ins.shape).to_lowercase(),
+                thickness_m: ins.thickness_m,
+                width_m: ins.width_m,
+                length_m: ins.length_m,
+                nodes_per_face: ins.nodes_per_face,
+                rim_nodes: model.rim_node_count(i) as u32,
+                handle_m: Some(pb::Vec3 { x: 0.0, y: 0.0, z: 0.0 }),
+                home_position_m: Some(arr3(ins.home_position_m)),
+                home_orientation: Some(quat(ins.home_orientation)),
+            })
+            .collect(),
+        loops: Some(pb::LoopConfig {
+            deformation_interval_s: scene.loops.deformation_interval_s,
+            stepped: scene.loops.stepped,
+            haptic_rate_hz: scene.loops.haptic_rate_hz,
+        }),
+        model: Some(pb::ModelSize {
+            nodes: model.mesh.nodes.len() as u32,
+            tetrahedra: model.mesh.tets.len() as u32,
+            surface_vertices: model.surface.to_volume.len() as u32,
+            surface_triangles: model.surface.triangles.len() as u32,
+            bounds_min_m: Some(vec3(&lo.coords)),
+            bounds_max_m: Some(vec3(&hi.coords)),
+        }),
+        solver: scene.solver.strategy.name().into(),
+        collision_method: match scene.collision.method {
+            crate::scene::CollisionMethod::Brute => "brute",
+            crate::scene::CollisionMethod::Bvh => "bvh",
+        }
+        .into(),
+        collision_backend: match scene.collision.backend {
+            crate::scene::CollisionBackend::Cpu => "cpu",
+            crate::scene::CollisionBackend::Gpu => "gpu",
+        }
+        .into(),
+        history_mode: match scene.collision.history {
+            crate::scene::HistoryMode::ForceRate => "force-rate",
+            crate::scene::HistoryMode::Paper => "paper",
+        }
+        .into(),
+    }
+}
+
+/// The rest surface.
+pub fn surface(model: &Model) -> pb::SurfaceMesh {
+    pb::SurfaceMesh {
+        rest_positions_m: model.rest_surface.iter().flat_map(|p| [p.x, p.y, p.z]).collect(),
+        triangles: model.surface.triangles.iter().flat_map(|t| *t).collect(),
+    }
+}
+
+/// A pose message to the engine's raw pose; a missing field is an error naming it.
+pub fn raw_pose(p: &pb::PoseSample) -> Result<RawPose, crate::sim::pose::PoseError> {
+    let pos = p.position_m.as_ref().ok_or(crate::sim::pose::PoseError::Missing("position_m"))?;
+    let q = p.orientation.as_ref().ok_or(crate::sim::pose::PoseError::Missing("orientation"))?;
+    Ok(RawPose {
+        t_s: p.t_s,
+        sequence: p.sequence,
+        position_m: [pos.x, pos.y, pos.z],
+        orientation: [q.w, q.x, q.y, q.z],
+    })
+}
+
+/// A force sample message.
+pub fn force_sample(f: &ForceOut) -> pb::ForceSample {
+    pb::ForceSample {
+        sequence: f.sequence,
+        t_s: f.t_s,
+        force_n: Some(vec3(&f.force_n)),
+        torque_nm: Some(vec3(&f.torque_nm)),
+        contact_count: f.contact_count,
+        model_frame: f.model_frame,
+        model_age_s: f.model_age_s,
+        safety_flags: f.safety_flags,
+        server_compute_us: f.compute_us,
+        rejection: None,
+    }
+}
+
+/// The answer to a rejected pose: zero force, the reason.
+pub fn rejection(p: &pb::PoseSample, code: tonic::Code, message: String) -> pb::ForceSample {
+    pb::ForceSample {
+        sequence: p.sequence,
+        t_s: p.t_s,
+        force_n: Some(pb::Vec3::default()),
+        torque_nm: Some(pb::Vec3::default()),
+        rejection: Some(pb::PoseRejection { code: code as i32, message }),
+        ..Default::default()
+    }
+}
+
+fn reaction(r: &InstrumentReaction) -> pb::InstrumentReaction {
+    pb::InstrumentReaction {
+        name: r.name.clone(),
+        force_n: Some(vec3(&r.force_n)),
+        torque_nm: Some(vec3(&r.torque_nm)),
+        pairs: r.pairs,
+        culled: r.culled,
+        contact_vertices: r.contact_vertices,
+        position_m: Some(vec3(&r.position_m)),
+        orientation: Some(quat(r.orientation)),
+    }
+}
+
+/// A frame message, with or without positions.
+pub fn frame(f: &Frame, include_positions: bool) -> pb::DeformationFrame {
+    pb::DeformationFrame {
+        frame: f.frame,
+        sim_time_s: f.sim_time_s,
+        positions_m: if include_positions {
+            f.positions.iter().flat_map(|p| *p).collect()
+        } else {
+            Vec::new()
+        },
+        instruments: f.instruments.iter().map(reaction).collect(),
+        timings: Some(pb::StepTimings {
+            collision_us: f.timings.collision_us,
+            solve_us: f.timings.solve_us,
+            total_us: f.timings.total_us,
+        }),
+        solver_error: f.solver_error.clone().unwrap_or_default(),
+        max_displacement_m: f.max_displacement_m,
+    }
+}
+
+fn latency(l: &LatencySummary) -> pb::LatencySummary {
+    pb::LatencySummary { count: l.count, p50_us: l.p50_us, p99_us: l.p99_us, max_us: l.max_us }
+}
+
+/// A stats message.
+pub fn stats(s: &StatsSummary) -> pb::Stats {
+    pb::Stats {
+        uptime_s: s.uptime_s,
+        frames: s.frames,
+        force_samples: s.force_samples,
+        rejected_poses: s.rejected_poses,
+        watchers: s.watchers,
+        claimed: s.claimed.clone(),
+        force_compute: Some(latency(&s.force_compute)),
+        deformation_step: Some(latency(&s.deformation_step)),
+        failed_steps: s.failed_steps,
+    }
+}

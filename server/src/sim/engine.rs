@@ -1,0 +1,464 @@
+//! The engine a scene asks for, composed from the library stages: the model
+//! (mesh, surface, instruments), the collision stage of each loop, and the
+//! deformation stage (FEM solve, reactions, local force model).
+//!
+//! "Model only what a scene requires": the skull constraint exists only when
+//! the scene names it; each instrument's rays are cast only for that
+//! instrument; the force loop of an instrument queries that instrument alone.
+
+use super::local_model::ForceModel;
+use super::snapshot::{Frame, InstrumentReaction, Snapshot, StepTimings};
+use super::SimError;
+use crate::collide::brute::BruteForce;
+use crate::collide::bvh::Bvh;
+use crate::collide::contact::{self, ContactOutput, DetectOptions, Tool, Workspace};
+use crate::collide::history::{HistoryMode as CollideHistoryMode, Stage};
+use crate::collide::instrument::{Instrument, NodeLayout, Plate, RimNodes};
+use crate::collide::RayBackend;
+use crate::fem::{self, DeformationSolver, Prescribed};
+use crate::mesh::{BoundarySurface, TetMesh};
+use crate::scene::{CollisionBackend, CollisionMethod, HistoryMode, LayoutKind, ModelSpec, Region, Scene, ShapeKind};
+use nalgebra::{DMatrix, Isometry3, Point3, Vector3};
+use std::collections::HashMap;
+use std::sync::Arc;
+use std::time::Instant;
+
+/// Contact history flags of one instrument.
+pub type History = crate::collide::history::History;
+
+/// The immutable model of a scene.
+#[derive(Debug)]
+pub struct Model {
+    /// The tetrahedral mesh at rest, m.
+    pub mesh: TetMesh,
+    /// Its boundary surface.
+    pub surface: BoundarySurface,
+    /// Rest positions of the surface vertices, m.
+    pub rest_surface: Vec<Point3<f64>>,
+    /// Fixed volume nodes.
+    pub fixed: Vec<u32>,
+    /// The instruments, in scene order.
+    pub instruments: Vec<Instrument>,
+    history_mode: CollideHistoryMode,
+}
+
+fn build_instrument(spec: &crate::scene::InstrumentSpec) -> Result<Instrument, SimError> {
+    let plate = match spec.shape {
+        ShapeKind::Flat => Plate::flat(spec.thickness_m, spec.width_m, spec.length_m),
+        ShapeKind::Trapezoid => Plate::trapezoid(
+            spec.thickness_m,
+            spec.base_width_m.unwrap_or(spec.width_m),
+            spec.width_m,
+            spec.length_m,
+        ),
+        ShapeKind::Curved => {
+            Plate::curved(spec.thickness_m, spec.width_m, spec.length_m, spec.bend_radius_m.unwrap_or(f64::INFINITY))
+        }
+    };
+    let per_face = spec.nodes_per_face as usize;
+    let layout = match spec.layout {
+        LayoutKind::WholeFace => NodeLayout::WholeFace { per_face },
+        LayoutKind::Tip => NodeLayout::Tip { per_face, fraction: 0.3 },
+    };
+    let rim = spec.rim.then(|| RimNodes {
+        per_side: ((spec.length_m / spec.width_m * 3.0).round() as usize).clamp(4, 64),
+        tip: 5,
+        tip_reach: spec.thickness_m.max(0.002),
+    });
+    Instrument::new(plate, layout, rim).map_err(|e| SimError::Model(format!("instrument {:?}: {e}", spec.name)))
+}
+
+impl Model {
+    /// Builds the mesh, the surface, the fixed set and the instruments.
+    pub fn build(scene: &Scene) -> Result<Self, SimError> {
+        let mesh = match &scene.model {
+            ModelSpec::Cube { size_m, cells } => crate::mesh::blocks::cube(*size_m, *cells),
+            ModelSpec::VValley => crate::mesh::blocks::v_valley(),
+            ModelSpec::UValley => crate::mesh::blocks::u_valley(),
+            ModelSpec::Phantom { preset } => {
+                return Err(SimError::Model(format!("phantom preset {preset:?} is not available")));
+            }
+            ModelSpec::File { path } => {
+                return Err(SimError::Model(format!("mesh file {} cannot be read", path.display())));
+            }
+        };
+        let surface = mesh.boundary();
+        let mut rest_surface = Vec::new();
+        surface.gather(&mesh.nodes, &mut rest_surface);
+        let fixed: Vec<u32> = (0..mesh.nodes.len() as u32)
+            .filter(|&n| {
+                let p = mesh.nodes[n as usize];
+                scene.fixed.iter().any(|r| r.contains([p.x, p.y, p.z]))
+            })
+            .collect();
+        if let Some(Region::Landmark { landmark }) = scene.fixed.iter().find(|r| matches!(r, Region::Landmark { .. })) {
+            return Err(SimError::Model(format!("the model has no landmark named {landmark:?}")));
+        }
+        if fixed.is_empty() {
+            return Err(SimError::Model("no node lies in the fixed region(s); the model would float".into()));
+        }
+        let instruments = scene.instruments.iter().map(build_instrument).collect::<Result<_, _>>()?;
+        let history_mode = match scene.collision.history {
+            HistoryMode::ForceRate => CollideHistoryMode::ForceRate,
+            HistoryMode::Paper => CollideHistoryMode::PaperFaithful,
+        };
+        Ok(Self { mesh, surface, rest_surface, fixed, instruments, history_mode })
+    }
+
+    /// All flags off for instrument `i`.
+    pub fn new_history(&self, i: usize) -> History {
+        History::new(&self.instruments[i], self.history_mode)
+    }
+
+    /// Rim source nodes of instrument `i`.
+    pub fn rim_node_count(&self, i: usize) -> usize {
+        self.instruments[i].len() - 2 * self.instruments[i].per_face
+    }
+
+    /// Frame 0: the rest state, no contact.
+    pub fn rest_snapshot(&self, scene: &Scene) -> Snapshot {
+        let positions: Vec<[f32; 3]> = self.rest_surface.iter().map(|p| [p.x as f32, p.y as f32, p.z as f32]).collect();
+        let instruments = scene
+            .instruments
+            .iter()
+            .map(|s| InstrumentReaction {
+                name: s.name.clone(),
+                force_n: Vector3::zeros(),
+                torque_nm: Vector3::zeros(),
+                pairs: 0,
+                culled: 0,
+                contact_vertices: 0,
+                position_m: Vector3::from(s.home_position_m),
+                orientation: s.home_orientation,
+            })
+            .collect();
+        Snapshot {
+            frame: 0,
+            sim_time_s: 0.0,
+            published: Instant::now(),
+            surface: Arc::new(self.rest_surface.clone()),
+            force_model: Arc::new(ForceModel::default()),
+            paper_history: (0..self.instruments.len()).map(|i| self.new_history(i)).collect(),
+            solver_error: None,
+            frame_summary: Arc::new(Frame {
+                frame: 0,
+                sim_time_s: 0.0,
+                positions: Arc::new(positions),
+                instruments,
+                timings: StepTimings::default(),
+                solver_error: None,
+                max_displacement_m: 0.0,
+            }),
+        }
+    }
+}
+
+/// Builds the ray backend a scene asks for over the given surface positions.
+pub fn ray_backend(scene: &Scene, model: &Model, positions: &[Point3<f64>]) -> Box<dyn RayBackend> {
+    let tris = &model.surface.triangles;
+    let cpu = |method: CollisionMethod| -> Box<dyn RayBackend> {
+        match method {
+            CollisionMethod::Brute => Box::new(BruteForce::new(tris, positions).expect("surface checked at load")),
+            CollisionMethod::Bvh => Box::new(Bvh::new(tris, positions).expect("surface checked at load")),
+        }
+    };
+    match scene.collision.backend {
+        CollisionBackend::Cpu => cpu(scene.collision.method),
+        CollisionBackend::Gpu => {
+            tracing::warn!("the GPU collision backend is not available in this build; using the CPU backend");
+            cpu(scene.collision.method)
+        }
+    }
+}
+
+/// The collision stage of one loop: its own backend (fitted to the snapshot it
+/// last saw), workspace and output buffers.
+pub struct ContactQuery {
+    backend: Box<dyn RayBackend>,
+    fitted: Option<Arc<Vec<Point3<f64>>>>,
+    ws: Workspace,
+    out: ContactOutput,
+    opts: DetectOptions,
+    by_node: Vec<(u32, Vector3<f64>)>,
+}
+
+impl std::fmt::Debug for ContactQuery {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ContactQuery").field("method", &self.backend.method()).finish_non_exhaustive()
+    }
+}
+
+/// The result of one query, borrowed from the query's buffers.
+#[derive(Debug)]
+pub struct ContactView<'a> {
+    /// Pairs, cancelled pairs and enforced displacements.
+    pub output: &'a ContactOutput,
+    by_node: &'a [(u32, Vector3<f64>)],
+}
+
+impl ContactView<'_> {
+    /// Enforced displacement of a volume node, if in contact.
+    pub fn displacement_of(&self, node: u32) -> Option<Vector3<f64>> {
+        self.by_node.binary_search_by_key(&node, |e| e.0).ok().map(|i| self.by_node[i].1)
+    }
+
+    /// Surface vertices in contact.
+    pub fn contact_count(&self) -> u32 {
+        self.by_node.len() as u32
+    }
+}
+
+impl ContactQuery {
+    /// A collision stage for `scene` over the rest surface.
+    pub fn new(scene: &Scene, model: &Model) -> Self {
+        Self {
+            backend: ray_backend(scene, model, &model.rest_surface),
+            fitted: None,
+            ws: Workspace::new(),
+            out: ContactOutput::default(),
+            opts: DetectOptions { culling: scene.collision.culling },
+            by_node: Vec::new(),
+        }
+    }
+
+    fn fit(&mut self, surface: &Arc<Vec<Point3<f64>>>) {
+        if !self.fitted.as_ref().is_some_and(|f| Arc::ptr_eq(f, surface)) {
+            self.backend.update_positions(surface);
+            self.fitted = Some(surface.clone());
+        }
+    }
+
+    fn index(&mut self) {
+        self.by_node.clear();
+        self.by_node.extend(self.out.enforced.iter().map(|e| (e.volume_node, e.displacement)));
+        self.by_node.sort_unstable_by_key(|e| e.0);
+    }
+
+    /// One instrument against the snapshot's surface (the force loop).
+    pub fn query(
+        &mut self,
+        model: &Model,
+        snap: &Snapshot,
+        instrument: usize,
+        pose: &Isometry3<f64>,
+        history: &mut History,
+    ) -> ContactView<'_> {
+        self.fit(&snap.surface);
+        let q = contact::ContactQuery {
+            positions: &snap.surface,
+            rest: &model.rest_surface,
+            triangles: &model.surface.triangles,
+            to_volume: &model.surface.to_volume,
+        };
+        if let Err(e) = contact::detect(
+            self.backend.as_mut(),
+            &q,
+            &model.instruments[instrument],
+            pose,
+            history,
+            Stage::Force,
+            &self.opts,
+            &mut self.ws,
+            &mut self.out,
+        ) {
+            tracing::warn!(error = %e, "collision query failed");
+            self.out = ContactOutput::default();
+        }
+        self.index();
+        ContactView { output: &self.out, by_node: &self.by_node }
+    }
+
+    /// All instruments in one cast (the deformation loop).
+    pub fn query_all(
+        &mut self,
+        model: &Model,
+        snap: &Snapshot,
+        poses: &[Isometry3<f64>],
+        histories: &mut [History],
+    ) -> &ContactOutput {
+        self.fit(&snap.surface);
+        let q = contact::ContactQuery {
+            positions: &snap.surface,
+            rest: &model.rest_surface,
+            triangles: &model.surface.triangles,
+            to_volume: &model.surface.to_volume,
+        };
+        let mut tools: Vec<Tool<'_>> = model
+            .instruments
+            .iter()
+            .zip(poses)
+            .zip(histories.iter_mut())
+            .map(|((instrument, pose), history)| Tool { instrument, pose: *pose, history })
+            .collect();
+        if let Err(e) =
+            contact::detect_many(self.backend.as_mut(), &q, &mut tools, Stage::Deformation, &self.opts, &mut self.ws, &mut self.out)
+        {
+            tracing::warn!(error = %e, "collision query failed");
+            self.out = ContactOutput::default();
+        }
+        &self.out
+    }
+}
+
+/// The deformation stage: the FEM solver and the per-step bookkeeping.
+pub struct Deformer {
+    solver: Box<dyn DeformationSolver>,
+    prescribed: Vec<Prescribed>,
+}
+
+impl std::fmt::Debug for Deformer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Deformer").field("solver", &self.solver.name()).finish_non_exhaustive()
+    }
+}
+
+/// What one successful step produced.
+#[derive(Debug)]
+pub struct StepResult {
+    /// Displacement of every node, m.
+    pub displacements: Vec<Vector3<f64>>,
+    /// Reaction per prescribed node, N (order of the contact output's enforced list).
+    pub reactions: Vec<Vector3<f64>>,
+    /// The local force model.
+    pub force_model: ForceModel,
+}
+
+impl Deformer {
+    /// Builds (and factorizes) the solver the scene asks for.
+    pub fn new(scene: &Scene, model: &Model) -> Result<Self, SimError> {
+        let strategy = scene.solver.strategy;
+        let material = fem::Material {
+            youngs_modulus_pa: scene.material.youngs_modulus_pa,
+            poisson_ratio: scene.material.poisson_ratio,
+        };
+        let mut options = fem::SolverOptions::default();
+        options.iterative.tolerance = scene.solver.tolerance;
+        options.iterative.max_iterations = scene.solver.max_iterations;
+        let solver = fem::build_solver(strategy, &model.mesh, material, &model.fixed, &options)
+            .map_err(|e| SimError::Solver(e.to_string()))?;
+        Ok(Self { solver, prescribed: Vec::new() })
+    }
+
+    /// Back to rest (an unconstrained solve gives zero displacement and resets
+    /// warm starts).
+    pub fn reset(&mut self) {
+        let _ = self.solver.solve(&[]);
+    }
+
+    /// Solves with the contact output's enforced displacements.
+    pub fn step(&mut self, contacts: &ContactOutput) -> Result<StepResult, fem::SolveError> {
+        self.prescribed.clear();
+        self.prescribed.extend(
+            contacts.enforced.iter().map(|e| Prescribed { node: e.volume_node, displacement: e.displacement }),
+        );
+        let solution = self.solver.solve(&self.prescribed)?;
+        let displacements = solution.displacements.clone();
+        let reactions = solution.reactions.clone();
+        let force_model = match self.solver.local_model() {
+            Some(local) => force_model_from(local, contacts, &reactions),
+            None => ForceModel::default(),
+        };
+        Ok(StepResult { displacements, reactions, force_model })
+    }
+}
+
+/// The condensed stiffness `S = C^-1` of the local model, with each node's
+/// owner (the instrument that enforced it).
+fn force_model_from(local: &fem::LocalModel, contacts: &ContactOutput, _reactions: &[Vector3<f64>]) -> ForceModel {
+    let owner_of: HashMap<u32, u16> = contacts.enforced.iter().map(|e| (e.volume_node, e.instrument)).collect();
+    let m = local.nodes.len();
+    let stiffness = if m == 0 {
+        DMatrix::zeros(0, 0)
+    } else {
+        match local.compliance.clone().cholesky() {
+            Some(ch) => ch.inverse(),
+            None => {
+                tracing::warn!(nodes = m, "the compliance block is not positive definite; forces held at the step's values");
+                DMatrix::zeros(3 * m, 3 * m)
+            }
+        }
+    };
+    ForceModel {
+        nodes: local.nodes.clone(),
+        owner: local.nodes.iter().map(|n| owner_of.get(n).copied().unwrap_or(u16::MAX)).collect(),
+        u0: local.displacements.clone(),
+        r0: local.reactions.clone(),
+        rest: Vec::new(),
+        stiffness,
+        index: local.nodes.iter().enumerate().map(|(i, &n)| (n, i)).collect(),
+    }
+}
+
+impl Model {
+    /// Builds the snapshot of a successful step.
+    pub(crate) fn snapshot_from(
+        &self,
+        scene: &Scene,
+        frame: u64,
+        sim_time_s: f64,
+        step: StepResult,
+        contacts: &ContactOutput,
+        poses: &[Isometry3<f64>],
+        paper_history: Vec<History>,
+        timings: StepTimings,
+    ) -> Snapshot {
+        let mut surface = Vec::with_capacity(self.rest_surface.len());
+        let mut max_d: f64 = 0.0;
+        for (s, &v) in self.surface.to_volume.iter().enumerate() {
+            let u = step.displacements[v as usize];
+            max_d = max_d.max(u.norm());
+            surface.push(self.rest_surface[s] + u);
+        }
+        let mut force_model = step.force_model;
+        force_model.rest = force_model.nodes.iter().map(|&n| self.mesh.nodes[n as usize]).collect();
+        let instruments = scene
+            .instruments
+            .iter()
+            .enumerate()
+            .map(|(k, spec)| {
+                let handle = poses[k].translation.vector;
+                let mut force = Vector3::zeros();
+                let mut torque = Vector3::zeros();
+                let mut contact_vertices = 0;
+                for (e, r) in contacts.enforced.iter().zip(&step.reactions) {
+                    if e.instrument as usize == k {
+                        let p = self.mesh.nodes[e.volume_node as usize].coords + e.displacement;
+                        force -= r;
+                        torque += (p - handle).cross(&(-r));
+                        contact_vertices += 1;
+                    }
+                }
+                let q = poses[k].rotation.quaternion();
+                InstrumentReaction {
+                    name: spec.name.clone(),
+                    force_n: force,
+                    torque_nm: torque,
+                    pairs: contacts.pairs.iter().filter(|p| p.instrument as usize == k).count() as u32,
+                    culled: contacts.cancelled.iter().filter(|p| p.instrument as usize == k).count() as u32,
+                    contact_vertices,
+                    position_m: handle,
+                    orientation: [q.w, q.i, q.j, q.k],
+                }
+            })
+            .collect();
+        let positions = surface.iter().map(|p| [p.x as f32, p.y as f32, p.z as f32]).collect();
+        Snapshot {
+            frame,
+            sim_time_s,
+            published: Instant::now(),
+            surface: Arc::new(surface),
+            force_model: Arc::new(force_model),
+            paper_history,
+            solver_error: None,
+            frame_summary: Arc::new(Frame {
+                frame,
+                sim_time_s,
+                positions: Arc::new(positions),
+                instruments,
+                timings,
+                solver_error: None,
+                max_displacement_m: max_d,
+            }),
+        }
+    }
+}

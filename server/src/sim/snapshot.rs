@@ -1,0 +1,82 @@
+//! What the deformation loop publishes: an immutable snapshot swapped atomically
+//! (latest wins), read by the force loops without waiting, and a frame summary
+//! for watchers.
+
+use nalgebra::{Point3, Vector3};
+use std::sync::Arc;
+use std::time::Instant;
+
+use super::local_model::ForceModel;
+
+/// Reaction of the tissue on one instrument in a deformation step.
+#[derive(Debug, Clone, PartialEq)]
+pub struct InstrumentReaction {
+    /// Instrument name.
+    pub name: String,
+    /// Force of the tissue on the instrument, N.
+    pub force_n: Vector3<f64>,
+    /// Torque about the handle point, N m.
+    pub torque_nm: Vector3<f64>,
+    /// Collision pairs found.
+    pub pairs: u32,
+    /// Pairs cancelled by the history culling.
+    pub culled: u32,
+    /// Surface vertices given an enforced displacement.
+    pub contact_vertices: u32,
+    /// Handle position used, m.
+    pub position_m: Vector3<f64>,
+    /// Orientation used (w, x, y, z).
+    pub orientation: [f64; 4],
+}
+
+/// Stage timings of one step, microseconds.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct StepTimings {
+    /// Collision of all instruments.
+    pub collision_us: f64,
+    /// FEM solve and reactions.
+    pub solve_us: f64,
+    /// Whole step.
+    pub total_us: f64,
+}
+
+/// One deformation frame, as watchers and recordings see it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Frame {
+    /// Frame number (0 is the rest state).
+    pub frame: u64,
+    /// Simulation time, s.
+    pub sim_time_s: f64,
+    /// Surface vertex positions, m, single precision.
+    pub positions: Arc<Vec<[f32; 3]>>,
+    /// Per-instrument reactions.
+    pub instruments: Vec<InstrumentReaction>,
+    /// Stage timings.
+    pub timings: StepTimings,
+    /// Set when the step failed (positions are the last good state's).
+    pub solver_error: Option<String>,
+    /// Largest surface displacement from rest, m.
+    pub max_displacement_m: f64,
+}
+
+/// The state force loops read: the surface and the local force model of the
+/// last deformation step.
+#[derive(Debug)]
+pub struct Snapshot {
+    /// Frame number.
+    pub frame: u64,
+    /// Simulation time, s.
+    pub sim_time_s: f64,
+    /// When it was published.
+    pub published: Instant,
+    /// Current surface vertex positions, m.
+    pub surface: Arc<Vec<Point3<f64>>>,
+    /// The local model of the contact DOFs, for the force loops.
+    pub force_model: Arc<ForceModel>,
+    /// Paper-mode history flags per instrument (renewed once a step).
+    pub paper_history: Vec<super::engine::History>,
+    /// Set while the last step failed.
+    pub solver_error: Option<String>,
+    /// The frame summary sent to watchers.
+    pub frame_summary: Arc<Frame>,
+}
