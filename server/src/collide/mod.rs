@@ -4,8 +4,33 @@
 //! pose -> source-node rays (instrument frame to scene frame) -> per-node nearest
 //! hit behind and in front ([`RayBackend`]) -> collision pairs (A1, A2) ->
 //! history culling (B1-B3) -> enforced displacements.
+//!
+//! * [`instrument`]: spatula plates (flat, trapezoid, curved), source nodes,
+//!   the instrument frame and the pose.
+//! * [`ray`]: line-triangle tests with signed `t` (watertight by default).
+//! * [`brute`]: the paper's all-pairs reference backend.
+//! * [`bvh`]: the refitted BVH backend.
+//! * [`history`]: history flags and the renewal modes (force rate or paper).
+//! * [`contact`]: pairs, culling and enforced displacements ([`contact::detect`]).
+//! * [`gpu`]: wgpu backends.
 
+pub mod brute;
+pub mod bvh;
+pub mod contact;
 pub mod gpu;
+pub mod history;
+pub mod instrument;
+pub mod ray;
+
+pub use brute::BruteForce;
+pub use bvh::Bvh;
+pub use contact::{
+    ContactError, ContactOutput, ContactQuery, DetectOptions, Enforced, Pair, Tool, Workspace,
+    detect, detect_many,
+};
+pub use history::{History, HistoryMode, Stage};
+pub use instrument::{Instrument, InstrumentError, NodeKind, NodeLayout, Plate, RimNodes, SourceNode};
+pub use ray::RayTest;
 
 use nalgebra::{Point3, Vector3};
 
@@ -51,4 +76,36 @@ pub trait RayBackend: Send {
     /// Casts one ray per source node: `origins[i] + t * dirs[i]`, `dirs` unit
     /// length. Writes `out[i]` for every `i` (`out` is resized to the ray count).
     fn cast(&mut self, origins: &[Point3<f64>], dirs: &[Vector3<f64>], out: &mut Vec<NodeHits>);
+}
+
+/// Errors in a surface handed to a backend.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SurfaceError {
+    /// A triangle refers to a vertex that does not exist.
+    #[error("triangle {triangle} refers to vertex {vertex}, but the surface has {vertices} vertices")]
+    VertexOutOfRange { triangle: usize, vertex: u32, vertices: usize },
+    /// A vertex position is NaN or infinite.
+    #[error("surface vertex {vertex} has a non-finite coordinate")]
+    NonFinite { vertex: usize },
+}
+
+/// Checks indices and finiteness; returns one more than the largest vertex
+/// index used (the number of positions a backend needs).
+pub(crate) fn check_surface(
+    triangles: &[[u32; 3]],
+    positions: &[Point3<f64>],
+) -> Result<usize, SurfaceError> {
+    if let Some(vertex) = positions.iter().position(|p| !p.coords.iter().all(|c| c.is_finite())) {
+        return Err(SurfaceError::NonFinite { vertex });
+    }
+    let mut needed = 0usize;
+    for (triangle, t) in triangles.iter().enumerate() {
+        for &vertex in t {
+            if vertex as usize >= positions.len() {
+                return Err(SurfaceError::VertexOutOfRange { triangle, vertex, vertices: positions.len() });
+            }
+            needed = needed.max(vertex as usize + 1);
+        }
+    }
+    Ok(needed)
 }

@@ -4,7 +4,11 @@
 //! Positions are in metres. A tetrahedron `[a, b, c, d]` is positively oriented
 //! when `(b - a) x (c - a) . (d - a) > 0` (six times its signed volume).
 
+pub mod adjacency;
 pub mod blocks;
+pub mod io;
+pub mod quality;
+pub mod validate;
 
 use nalgebra::{Point3, Vector3};
 use std::collections::HashMap;

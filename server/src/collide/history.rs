@@ -1,0 +1,101 @@
+//! History flags of the source nodes (DESIGN.md section 2, B1-B3), and when
+//! they are renewed.
+//!
+//! A node's flag is on when the node gave an enforced displacement (a pair that
+//! survived culling) at the last renewal. Culling uses the flags; a call of
+//! [`detect`](super::contact::detect) renews them from its surviving pairs when
+//! the [`HistoryMode`] says so for the call's [`Stage`].
+//!
+//! # How the simulation calls it
+//! * [`HistoryMode::ForceRate`] (default): the force loop calls `detect` with
+//!   [`Stage::Force`] for every pose sample (1 kHz) against the last published
+//!   surface, and every call renews the flags. The contact state thus follows the
+//!   spatula in steps of (speed / 1 kHz), far below the plate's thickness, however
+//!   slow the deformation loop is. The deformation loop, at its own rate, calls
+//!   `detect` with [`Stage::Deformation`] using a *copy* of the force loop's
+//!   latest history ([`History::copy_from`], no allocation); it may renew its
+//!   copy but never writes back. When both loops run in one thread (the stepped
+//!   mode) they can simply share one `History`.
+//! * [`HistoryMode::PaperFaithful`]: as in the paper, only the deformation loop
+//!   renews the flags (once per deformation step); force-loop calls use the
+//!   flags of the last deformation step read-only (they work on a copy, or pass
+//!   the shared history: a `Stage::Force` call does not modify it). Travel per
+//!   deformation step larger than the thickness then defeats the culling, which
+//!   this mode exists to show.
+
+use super::instrument::Instrument;
+
+/// When the history flags are renewed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum HistoryMode {
+    /// Renewed at every call (force-loop rate).
+    #[default]
+    ForceRate,
+    /// Renewed only by deformation-loop calls (the paper).
+    PaperFaithful,
+}
+
+/// Which loop makes a `detect` call.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stage {
+    /// The haptic force loop (one instrument, about 1 kHz).
+    Force,
+    /// The deformation loop (all instruments, one call per deformation step).
+    Deformation,
+}
+
+/// Per-node history flags of one instrument.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct History {
+    /// The renewal mode.
+    pub mode: HistoryMode,
+    flags: Vec<bool>,
+}
+
+impl History {
+    /// All flags off, one per source node of `instrument`.
+    pub fn new(instrument: &Instrument, mode: HistoryMode) -> Self {
+        Self { mode, flags: vec![false; instrument.len()] }
+    }
+
+    /// Whether a call at `stage` renews the flags.
+    pub fn renews(&self, stage: Stage) -> bool {
+        match self.mode {
+            HistoryMode::ForceRate => true,
+            HistoryMode::PaperFaithful => stage == Stage::Deformation,
+        }
+    }
+
+    /// The flags, one per source node.
+    pub fn flags(&self) -> &[bool] {
+        &self.flags
+    }
+
+    /// Number of flags that are on.
+    pub fn active(&self) -> usize {
+        self.flags.iter().filter(|&&f| f).count()
+    }
+
+    /// Turns every flag off (e.g. when the spatula is withdrawn or the scene resets).
+    pub fn clear(&mut self) {
+        self.flags.fill(false);
+    }
+
+    /// Copies `other` into `self` without allocating once sizes match.
+    pub fn copy_from(&mut self, other: &History) {
+        self.mode = other.mode;
+        self.flags.clear();
+        self.flags.extend_from_slice(&other.flags);
+    }
+
+    /// Resizes to `n` nodes (new flags off).
+    pub(crate) fn ensure_len(&mut self, n: usize) {
+        if self.flags.len() != n {
+            self.flags.resize(n, false);
+        }
+    }
+
+    pub(crate) fn flags_mut(&mut self) -> &mut [bool] {
+        &mut self.flags
+    }
+}
