@@ -22,6 +22,24 @@ enum Command {
     Demo(fissure_cli::demo::DemoArgs),
     /// Stream a trajectory to a server as one haptic client and write the forces.
     Replay(ReplayArgs),
+    /// Summarise a session recording: duration, peak and mean force per
+    /// instrument, time above a safe-force threshold, path length, time in contact.
+    Report {
+        /// The recording (`.fsrec`, written by `fissure-server --record` or the demo).
+        file: PathBuf,
+        /// Safe-force threshold, N.
+        #[arg(long, default_value_t = 1.0)]
+        threshold_n: f64,
+        /// Print JSON instead of a table.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Ask a server's grpc.health.v1 whether it is serving; exits non-zero if not.
+    Health {
+        /// Server URL.
+        #[arg(long, default_value = "http://127.0.0.1:50051")]
+        server: String,
+    },
 }
 
 #[derive(Debug, clap::Args)]
@@ -29,15 +47,20 @@ struct ReplayArgs {
     /// Server URL.
     #[arg(long, default_value = "http://127.0.0.1:50051")]
     server: String,
-    /// Instrument to claim (as named by the scene).
-    #[arg(long)]
-    instrument: String,
+    /// Instrument to claim (as named by the scene). Required with --trajectory.
+    #[arg(long, required_unless_present = "recording", requires = "trajectory")]
+    instrument: Option<String>,
     /// Trajectory: a CSV file (`t_s,x_m,y_m,z_m,qw,qx,qy,qz`; s, m, unit
     /// quaternion), a JSON file (array of objects with those keys), or the name
     /// of a bundled trajectory.
+    #[arg(long, conflicts_with = "recording")]
+    trajectory: Option<String>,
+    /// Replay every instrument's accepted poses from a session recording, all
+    /// instruments at once (instead of --instrument/--trajectory).
     #[arg(long)]
-    trajectory: String,
-    /// Output CSV of force samples (N, N m, us).
+    recording: Option<PathBuf>,
+    /// Output CSV of force samples (N, N m, us). With --recording, one file per
+    /// instrument named `<stem>-<instrument>.csv`.
     #[arg(long, default_value = "forces.csv")]
     out: PathBuf,
     /// Pose pacing.
@@ -63,13 +86,63 @@ fn main() -> anyhow::Result<()> {
             rt.block_on(fissure_cli::demo::run(&args))?;
         }
         Command::Replay(args) => {
-            let trajectory = Trajectory::load(&args.trajectory)?;
-            let rows = rt.block_on(async {
-                let mut client = connect(&args.server).await?;
-                replay(&mut client, &args.instrument, args.token.as_deref(), &trajectory, args.pacing, |_| {}).await
+            let plans: Vec<(String, Trajectory, PathBuf)> = match (&args.recording, &args.trajectory, &args.instrument) {
+                (Some(rec), _, _) => {
+                    let stem = args.out.file_stem().and_then(|s| s.to_str()).unwrap_or("forces").to_owned();
+                    fissure_cli::report::trajectories(rec)?
+                        .into_iter()
+                        .map(|(name, t)| {
+                            let out = args.out.with_file_name(format!("{stem}-{name}.csv"));
+                            (name, t, out)
+                        })
+                        .collect()
+                }
+                (None, Some(t), Some(i)) => vec![(i.clone(), Trajectory::load(t)?, args.out.clone())],
+                _ => anyhow::bail!("give --instrument and --trajectory, or --recording"),
+            };
+            rt.block_on(async {
+                let mut tasks = Vec::new();
+                for (name, trajectory, out) in plans {
+                    let (server, token, pacing) = (args.server.clone(), args.token.clone(), args.pacing);
+                    tasks.push(tokio::spawn(async move {
+                        let mut client = connect(&server).await?;
+                        let rows = replay(&mut client, &name, token.as_deref(), &trajectory, pacing, |_| {}).await?;
+                        std::fs::write(&out, forces_csv(&rows)).with_context(|| format!("writing {}", out.display()))?;
+                        eprintln!("{name}: {} force samples written to {}", rows.len(), out.display());
+                        anyhow::Ok(())
+                    }));
+                }
+                for t in tasks {
+                    t.await??;
+                }
+                anyhow::Ok(())
             })?;
-            std::fs::write(&args.out, forces_csv(&rows)).with_context(|| format!("writing {}", args.out.display()))?;
-            eprintln!("{} force samples written to {}", rows.len(), args.out.display());
+        }
+        Command::Report { file, threshold_n, json } => {
+            let r = fissure_cli::report::report(&file, threshold_n)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&r)?);
+            } else {
+                print!("{}", fissure_cli::report::table(&r));
+            }
+        }
+        Command::Health { server } => {
+            use tonic_health::pb::health_check_response::ServingStatus;
+            let status = rt.block_on(async {
+                let channel = tonic::transport::Channel::from_shared(server.clone())
+                    .with_context(|| format!("invalid server URL {server:?}"))?
+                    .connect()
+                    .await
+                    .with_context(|| format!("cannot connect to {server}"))?;
+                let mut health = tonic_health::pb::health_client::HealthClient::new(channel);
+                let req = tonic_health::pb::HealthCheckRequest { service: "fissure.v1.Fissure".into() };
+                anyhow::Ok(health.check(req).await?.into_inner().status)
+            })?;
+            let status = ServingStatus::try_from(status).unwrap_or(ServingStatus::Unknown);
+            println!("{}", status.as_str_name());
+            if status != ServingStatus::Serving {
+                std::process::exit(1);
+            }
         }
     }
     Ok(())

@@ -1,6 +1,6 @@
 //! End to end on the `cube` scene: a pose in, a force out, through every layer.
 
-use fissure_server::fem::{self, DeformationSolver, Prescribed};
+use fissure_server::fem::{self, Prescribed};
 use fissure_server::service::ServeOptions;
 use fissure_server::sim::SimOptions;
 use fissure_tests::{Haptic, TestServer, pose};

@@ -77,11 +77,22 @@ pub struct ContactQuery<'a> {
 pub struct DetectOptions {
     /// History culling (B1-B3); off reproduces the paper's failure.
     pub culling: bool,
+    /// Contact skin, m: a hit up to this far *in front* of a face still counts
+    /// as behind it. A vertex projected onto the face plane by the last step lies
+    /// on the plane only up to rounding (about 1e-17 m at brain scale); without
+    /// a skin its hit would fall in front half of the time and the contact would
+    /// flicker from one step to the next. Rays are cast from `S + skin N_R`;
+    /// projections still go onto the true face plane through `S`.
+    pub skin_m: f64,
 }
+
+/// Default contact skin, m (0.1 um: far above rounding, far below any
+/// modelled length).
+pub const DEFAULT_SKIN_M: f64 = 1e-7;
 
 impl Default for DetectOptions {
     fn default() -> Self {
-        Self { culling: true }
+        Self { culling: true, skin_m: DEFAULT_SKIN_M }
     }
 }
 
@@ -248,7 +259,20 @@ pub fn detect_many(
         tool.instrument.place(&tool.pose, &mut ws.origins, &mut ws.dirs);
     }
     ws.offsets.push(ws.origins.len());
+    let skin = if opts.skin_m.is_finite() { opts.skin_m.max(0.0) } else { 0.0 };
+    if skin > 0.0 {
+        for (o, d) in ws.origins.iter_mut().zip(&ws.dirs) {
+            *o += d * skin;
+        }
+    }
     backend.cast(&ws.origins, &ws.dirs, &mut ws.hits);
+    if skin > 0.0 {
+        // Back to the true face points; hit parameters are from the shifted
+        // origins (t_true = t + skin), which is what classifies behind/front.
+        for (o, d) in ws.origins.iter_mut().zip(&ws.dirs) {
+            *o -= d * skin;
+        }
+    }
 
     // 2. Pairs (A1, A2).
     ws.candidates.clear();

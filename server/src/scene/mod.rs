@@ -151,48 +151,30 @@ impl Region {
     }
 }
 
-/// Deformation solver strategy.
-#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq, Default)]
-#[serde(rename_all = "kebab-case")]
-pub enum Strategy {
-    /// Eliminate the constrained DOFs and factor each step (exact reference).
-    Direct,
-    /// Factor once, per-step dense compliance block of the contact DOFs.
-    #[default]
-    Compliance,
-    /// Corotational linear elasticity, iterative.
-    Corotational,
-    /// Neo-Hookean hyperelasticity, Newton with line search.
-    NeoHookean,
-}
+pub use crate::fem::Strategy;
 
-impl Strategy {
-    /// Name as written in scene files.
-    pub fn name(self) -> &'static str {
-        match self {
-            Strategy::Direct => "direct",
-            Strategy::Compliance => "compliance",
-            Strategy::Corotational => "corotational",
-            Strategy::NeoHookean => "neo-hookean",
-        }
-    }
+fn de_strategy<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Strategy, D::Error> {
+    let s = String::deserialize(d)?;
+    s.parse().map_err(serde::de::Error::custom)
 }
 
 /// Solver settings.
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
 pub struct SolverSpec {
-    /// Strategy.
+    /// Strategy: `direct`, `compliance`, `corotational` or `neo-hookean`.
+    #[serde(deserialize_with = "de_strategy")]
     pub strategy: Strategy,
-    /// Relative residual tolerance of iterative strategies.
+    /// Relative residual tolerance of the iterative strategies
+    /// (`corotational`, `neo-hookean`).
     pub tolerance: f64,
-    /// Iteration limit of iterative strategies.
+    /// Most outer (Newton) iterations per step of the iterative strategies.
     pub max_iterations: u32,
 }
 
 impl Default for SolverSpec {
     fn default() -> Self {
-        Self { strategy: Strategy::Compliance, tolerance: 1e-8, max_iterations: 200 }
+        Self { strategy: Strategy::Compliance, tolerance: 1e-6, max_iterations: 30 }
     }
 }
 

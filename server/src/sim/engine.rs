@@ -216,7 +216,7 @@ impl ContactQuery {
             fitted: None,
             ws: Workspace::new(),
             out: ContactOutput::default(),
-            opts: DetectOptions { culling: scene.collision.culling },
+            opts: DetectOptions { culling: scene.collision.culling, ..DetectOptions::default() },
             by_node: Vec::new(),
         }
     }
@@ -333,7 +333,7 @@ impl Deformer {
         };
         let mut options = fem::SolverOptions::default();
         options.iterative.tolerance = scene.solver.tolerance;
-        options.iterative.max_iterations = scene.solver.max_iterations;
+        options.iterative.max_outer = scene.solver.max_iterations;
         let solver = fem::build_solver(strategy, &model.mesh, material, &model.fixed, &options)
             .map_err(|e| SimError::Solver(e.to_string()))?;
         Ok(Self { solver, prescribed: Vec::new() })
