@@ -133,8 +133,12 @@ fn bvh_equals_brute_force_with_moller_trumbore() {
     deform(&mut pos, 1e-3, 0.7);
     let mut brute = BruteForce::with_test(&tris, &pos, RayTest::MollerTrumbore).unwrap();
     let mut bvh = Bvh::with_test(&tris, &pos, RayTest::MollerTrumbore).unwrap();
-    let inst =
-        Instrument::new(Plate::flat(1e-3, 0.01, 0.02), NodeLayout::WholeFace { per_face: 150 }, None).unwrap();
+    let inst = Instrument::new(
+        Plate::flat(1e-3, 0.01, 0.02),
+        NodeLayout::WholeFace { per_face: 150 },
+        None,
+    )
+    .unwrap();
     let pose = Isometry3::translation(0.015, 0.01, 0.005);
     let (mut o, mut d) = (Vec::new(), Vec::new());
     inst.place(&pose, &mut o, &mut d);
@@ -151,8 +155,12 @@ fn refit_and_rebuild_agree_after_large_deformation() {
     bvh.update_positions(&pos);
     rebuilt.rebuild(&pos);
     let mut brute = BruteForce::new(&tris, &pos).unwrap();
-    let inst =
-        Instrument::new(Plate::flat(1e-3, 0.01, 0.02), NodeLayout::WholeFace { per_face: 150 }, None).unwrap();
+    let inst = Instrument::new(
+        Plate::flat(1e-3, 0.01, 0.02),
+        NodeLayout::WholeFace { per_face: 150 },
+        None,
+    )
+    .unwrap();
     let pose = Isometry3::translation(0.012, 0.01, 0.002);
     let (mut o, mut d) = (Vec::new(), Vec::new());
     inst.place(&pose, &mut o, &mut d);
@@ -165,7 +173,11 @@ fn refit_and_rebuild_agree_after_large_deformation() {
 /// length leave a backend answering no hits instead of panicking.
 #[test]
 fn bad_surfaces_are_reported() {
-    let pos = vec![Point3::origin(), Point3::new(1.0, 0.0, 0.0), Point3::new(0.0, 1.0, 0.0)];
+    let pos = vec![
+        Point3::origin(),
+        Point3::new(1.0, 0.0, 0.0),
+        Point3::new(0.0, 1.0, 0.0),
+    ];
     assert!(Bvh::new(&[[0, 1, 3]], &pos).is_err());
     let mut nan = pos.clone();
     nan[1].x = f64::NAN;

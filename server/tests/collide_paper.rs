@@ -29,11 +29,20 @@ impl Surface {
         let s = mesh.boundary();
         let mut pos = Vec::new();
         s.gather(&mesh.nodes, &mut pos);
-        Self { pos, tris: s.triangles, to_volume: s.to_volume }
+        Self {
+            pos,
+            tris: s.triangles,
+            to_volume: s.to_volume,
+        }
     }
 
     fn query(&self) -> ContactQuery<'_> {
-        ContactQuery { positions: &self.pos, rest: &self.pos, triangles: &self.tris, to_volume: &self.to_volume }
+        ContactQuery {
+            positions: &self.pos,
+            rest: &self.pos,
+            triangles: &self.tris,
+            to_volume: &self.to_volume,
+        }
     }
 
     fn verts(&self, p: &Pair) -> [Point3<f64>; 3] {
@@ -67,7 +76,10 @@ fn v_valley_both_faces_push_both_walls() {
     let mut bvh = surf.backend();
     let inst = Instrument::new(
         Plate::flat(2.0 * MM, 10.0 * MM, 40.0 * MM),
-        NodeLayout::Tip { per_face: 60, fraction: 0.15 },
+        NodeLayout::Tip {
+            per_face: 60,
+            fraction: 0.15,
+        },
         None,
     )
     .unwrap();
@@ -81,22 +93,52 @@ fn v_valley_both_faces_push_both_walls() {
     for k in 0..=steps {
         let tip = 16.0 * MM - (16.0 - 10.2) * MM * k as f64 / steps as f64;
         let pose = down(Point3::new(0.03, 0.015, tip + 0.04));
-        detect(&mut bvh, &surf.query(), &inst, &pose, &mut hist, Stage::Force, &DetectOptions::default(), &mut ws, &mut out)
-            .unwrap();
+        detect(
+            &mut bvh,
+            &surf.query(),
+            &inst,
+            &pose,
+            &mut hist,
+            Stage::Force,
+            &DetectOptions::default(),
+            &mut ws,
+            &mut out,
+        )
+        .unwrap();
         for p in &out.pairs {
             let v = surf.verts(p);
-            assert!(v.iter().all(on_groove), "step {k}: pair off the groove {p:?} {v:?}");
+            assert!(
+                v.iter().all(on_groove),
+                "step {k}: pair off the groove {p:?} {v:?}"
+            );
             match kind(&inst, p) {
-                NodeKind::FaceA => assert!(v.iter().all(|q| q.x >= 0.03 - 1e-12), "A pair on the left wall"),
-                NodeKind::FaceB => assert!(v.iter().all(|q| q.x <= 0.03 + 1e-12), "B pair on the right wall"),
+                NodeKind::FaceA => assert!(
+                    v.iter().all(|q| q.x >= 0.03 - 1e-12),
+                    "A pair on the left wall"
+                ),
+                NodeKind::FaceB => assert!(
+                    v.iter().all(|q| q.x <= 0.03 + 1e-12),
+                    "B pair on the right wall"
+                ),
                 k => panic!("no rim nodes here: {k:?}"),
             }
         }
     }
-    let a = out.pairs.iter().filter(|p| kind(&inst, p) == NodeKind::FaceA).count();
-    let b = out.pairs.iter().filter(|p| kind(&inst, p) == NodeKind::FaceB).count();
+    let a = out
+        .pairs
+        .iter()
+        .filter(|p| kind(&inst, p) == NodeKind::FaceA)
+        .count();
+    let b = out
+        .pairs
+        .iter()
+        .filter(|p| kind(&inst, p) == NodeKind::FaceB)
+        .count();
     assert!(a >= 10 && b >= 10, "both faces in contact: A {a}, B {b}");
-    assert!(out.cancelled.is_empty(), "nothing to cull in a gentle insertion");
+    assert!(
+        out.cancelled.is_empty(),
+        "nothing to cull in a gentle insertion"
+    );
     // Every vertex of a paired triangle goes onto its face's plane
     // (x = 30 +- 1 mm); penetrating vertices move outward, the deepest 1 mm.
     for e in &out.enforced {
@@ -126,8 +168,12 @@ fn u_valley_swing_gives_each_face_its_own_wall() {
     let mesh = blocks::u_valley();
     let surf = Surface::new(&mesh);
     let mut bvh = surf.backend();
-    let inst = Instrument::new(Plate::flat(2.0 * MM, 10.0 * MM, 40.0 * MM), NodeLayout::WholeFace { per_face: 150 }, None)
-        .unwrap();
+    let inst = Instrument::new(
+        Plate::flat(2.0 * MM, 10.0 * MM, 40.0 * MM),
+        NodeLayout::WholeFace { per_face: 150 },
+        None,
+    )
+    .unwrap();
     let mut hist = History::new(&inst, HistoryMode::ForceRate);
     let (mut ws, mut out) = (Workspace::new(), ContactOutput::default());
     let pivot = Point3::new(0.03, 0.015, 0.02);
@@ -140,18 +186,34 @@ fn u_valley_swing_gives_each_face_its_own_wall() {
             * UnitQuaternion::from_axis_angle(&Vector3::x_axis(), PI);
         let handle = pivot + rot * Vector3::new(0.0, 0.0, -0.032);
         let pose = Isometry3::from_parts(Translation3::from(handle.coords), rot);
-        detect(&mut bvh, &surf.query(), &inst, &pose, &mut hist, Stage::Force, &DetectOptions::default(), &mut ws, &mut out)
-            .unwrap();
+        detect(
+            &mut bvh,
+            &surf.query(),
+            &inst,
+            &pose,
+            &mut hist,
+            Stage::Force,
+            &DetectOptions::default(),
+            &mut ws,
+            &mut out,
+        )
+        .unwrap();
         let (mut a, mut b) = (0, 0);
         for p in &out.pairs {
             let v = surf.verts(p);
             match kind(&inst, p) {
                 NodeKind::FaceA => {
-                    assert!(k < 0 && v.iter().all(|q| q.x > 0.03 && q.z > pivot.z), "k {k}: A pair {p:?} {v:?}");
+                    assert!(
+                        k < 0 && v.iter().all(|q| q.x > 0.03 && q.z > pivot.z),
+                        "k {k}: A pair {p:?} {v:?}"
+                    );
                     a += 1;
                 }
                 NodeKind::FaceB => {
-                    assert!(k > 0 && v.iter().all(|q| q.x < 0.03 && q.z > pivot.z), "k {k}: B pair {p:?} {v:?}");
+                    assert!(
+                        k > 0 && v.iter().all(|q| q.x < 0.03 && q.z > pivot.z),
+                        "k {k}: B pair {p:?} {v:?}"
+                    );
                     b += 1;
                 }
                 k => panic!("no rim nodes here: {k:?}"),
@@ -162,14 +224,21 @@ fn u_valley_swing_gives_each_face_its_own_wall() {
         culled += out.cancelled.len();
     }
     assert!(most_a >= 30 && most_b >= 30, "A {most_a} B {most_b}");
-    assert!(culled > 0, "the deepest poses (static surface) need culling");
+    assert!(
+        culled > 0,
+        "the deepest poses (static surface) need culling"
+    );
 }
 
 /// A wall (the face x = 0 of a 30 mm cube) and a vertical plate parallel to it.
 fn wall_setup() -> (Surface, Instrument) {
     let mesh = blocks::cube(0.03, 8);
-    let inst = Instrument::new(Plate::flat(1.0 * MM, 10.0 * MM, 20.0 * MM), NodeLayout::WholeFace { per_face: 150 }, None)
-        .unwrap();
+    let inst = Instrument::new(
+        Plate::flat(1.0 * MM, 10.0 * MM, 20.0 * MM),
+        NodeLayout::WholeFace { per_face: 150 },
+        None,
+    )
+    .unwrap();
     (Surface::new(&mesh), inst)
 }
 
@@ -181,7 +250,10 @@ fn wall_pose(x: f64) -> Isometry3<f64> {
 fn far_face_pairs(surf: &Surface, inst: &Instrument, out: &ContactOutput) -> usize {
     out.pairs
         .iter()
-        .filter(|p| kind(inst, p) == NodeKind::FaceB && surf.verts(p).iter().all(|q| (q.x - 0.03).abs() < 1e-12))
+        .filter(|p| {
+            kind(inst, p) == NodeKind::FaceB
+                && surf.verts(p).iter().all(|q| (q.x - 0.03).abs() < 1e-12)
+        })
         .count()
 }
 
@@ -199,11 +271,26 @@ fn deep_penetration_far_face_pairs_only_without_culling() {
         let (mut ws, mut out) = (Workspace::new(), ContactOutput::default());
         let opts = DetectOptions { culling };
         for x in [-0.2 * MM, 3.0 * MM] {
-            detect(&mut bvh, &surf.query(), &inst, &wall_pose(x), &mut hist, Stage::Deformation, &opts, &mut ws, &mut out)
-                .unwrap();
+            detect(
+                &mut bvh,
+                &surf.query(),
+                &inst,
+                &wall_pose(x),
+                &mut hist,
+                Stage::Deformation,
+                &opts,
+                &mut ws,
+                &mut out,
+            )
+            .unwrap();
         }
-        let wall =
-            out.pairs.iter().filter(|p| kind(&inst, p) == NodeKind::FaceA && surf.verts(p).iter().all(|q| q.x == 0.0)).count();
+        let wall = out
+            .pairs
+            .iter()
+            .filter(|p| {
+                kind(&inst, p) == NodeKind::FaceA && surf.verts(p).iter().all(|q| q.x == 0.0)
+            })
+            .count();
         let far = far_face_pairs(&surf, &inst, &out);
         assert_eq!(wall, 150, "face A pushes the wall (culling {culling})");
         if culling {
@@ -243,22 +330,52 @@ fn fast_travel_defeats_paper_history_not_force_rate_history() {
                 if step == 0 {
                     continue;
                 }
-                detect(&mut bvh, &surf.query(), &inst, &wall_pose(x), &mut hist, Stage::Force, &opts, &mut ws, &mut out)
-                    .unwrap();
+                detect(
+                    &mut bvh,
+                    &surf.query(),
+                    &inst,
+                    &wall_pose(x),
+                    &mut hist,
+                    Stage::Force,
+                    &opts,
+                    &mut ws,
+                    &mut out,
+                )
+                .unwrap();
             }
             let x = x0 + 5.0 * h * step as f64;
-            detect(&mut bvh, &surf.query(), &inst, &wall_pose(x), &mut hist, Stage::Deformation, &opts, &mut ws, &mut out)
-                .unwrap();
+            detect(
+                &mut bvh,
+                &surf.query(),
+                &inst,
+                &wall_pose(x),
+                &mut hist,
+                Stage::Deformation,
+                &opts,
+                &mut ws,
+                &mut out,
+            )
+            .unwrap();
             worst = worst.max(far_face_pairs(&surf, &inst, &out));
             if step == 0 {
                 assert!(out.pairs.is_empty(), "no contact before the wall");
             } else {
-                assert_eq!(out.pairs.iter().filter(|p| kind(&inst, p) == NodeKind::FaceA).count(), 150);
+                assert_eq!(
+                    out.pairs
+                        .iter()
+                        .filter(|p| kind(&inst, p) == NodeKind::FaceA)
+                        .count(),
+                    150
+                );
             }
         }
         far.push(worst);
     }
-    assert_eq!(far, vec![150, 0], "far-face pairs at deformation steps: [paper, force-rate]");
+    assert_eq!(
+        far,
+        vec![150, 0],
+        "far-face pairs at deformation steps: [paper, force-rate]"
+    );
 }
 
 /// Paper-faithful force-loop calls read the flags but do not renew them.
@@ -270,10 +387,32 @@ fn paper_mode_force_calls_do_not_renew() {
     let (mut ws, mut out) = (Workspace::new(), ContactOutput::default());
     let opts = DetectOptions::default();
     let q = surf.query();
-    detect(&mut bvh, &q, &inst, &wall_pose(-0.3 * MM), &mut hist, Stage::Force, &opts, &mut ws, &mut out).unwrap();
+    detect(
+        &mut bvh,
+        &q,
+        &inst,
+        &wall_pose(-0.3 * MM),
+        &mut hist,
+        Stage::Force,
+        &opts,
+        &mut ws,
+        &mut out,
+    )
+    .unwrap();
     assert_eq!(out.pairs.len(), 150);
     assert_eq!(hist.active(), 0);
-    detect(&mut bvh, &q, &inst, &wall_pose(-0.3 * MM), &mut hist, Stage::Deformation, &opts, &mut ws, &mut out).unwrap();
+    detect(
+        &mut bvh,
+        &q,
+        &inst,
+        &wall_pose(-0.3 * MM),
+        &mut hist,
+        Stage::Deformation,
+        &opts,
+        &mut ws,
+        &mut out,
+    )
+    .unwrap();
     assert_eq!(hist.active(), 150);
     let mut copy = History::new(&inst, HistoryMode::ForceRate);
     copy.copy_from(&hist);
@@ -285,7 +424,13 @@ fn paper_mode_force_calls_do_not_renew() {
 fn slot_block() -> TetMesh {
     let n = [15, 6, 6];
     let base = blocks::cuboid([1.0, 1.0, 1.0], n);
-    let map_x = |i: usize| if i <= 7 { i as f64 * 29.0 / 7.0 } else { 31.0 + (i - 8) as f64 * 29.0 / 7.0 };
+    let map_x = |i: usize| {
+        if i <= 7 {
+            i as f64 * 29.0 / 7.0
+        } else {
+            31.0 + (i - 8) as f64 * 29.0 / 7.0
+        }
+    };
     let nodes: Vec<Point3<f64>> = base
         .nodes
         .iter()
@@ -299,7 +444,10 @@ fn slot_block() -> TetMesh {
         .iter()
         .copied()
         .filter(|t| {
-            let c = t.iter().fold(Vector3::zeros(), |s, &v| s + nodes[v as usize].coords) / 4.0;
+            let c = t
+                .iter()
+                .fold(Vector3::zeros(), |s, &v| s + nodes[v as usize].coords)
+                / 4.0;
             !(c.x > 29.0 * MM && c.x < 31.0 * MM && c.z > 10.0 * MM)
         })
         .collect();
@@ -313,9 +461,16 @@ fn slot_block() -> TetMesh {
 fn fissure_slot_two_spatulas_open_the_slot() {
     let surf = Surface::new(&slot_block());
     let mut bvh = surf.backend();
-    let inst = Instrument::new(Plate::flat(0.8 * MM, 10.0 * MM, 30.0 * MM), NodeLayout::WholeFace { per_face: 150 }, None)
-        .unwrap();
-    let mut h = [History::new(&inst, HistoryMode::ForceRate), History::new(&inst, HistoryMode::ForceRate)];
+    let inst = Instrument::new(
+        Plate::flat(0.8 * MM, 10.0 * MM, 30.0 * MM),
+        NodeLayout::WholeFace { per_face: 150 },
+        None,
+    )
+    .unwrap();
+    let mut h = [
+        History::new(&inst, HistoryMode::ForceRate),
+        History::new(&inst, HistoryMode::ForceRate),
+    ];
     let (mut ws, mut out) = (Workspace::new(), ContactOutput::default());
     let steps = 30;
     let spread = 1.5 * MM;
@@ -323,16 +478,36 @@ fn fissure_slot_two_spatulas_open_the_slot() {
         let d = spread * k as f64 / steps as f64;
         let [h0, h1] = &mut h;
         let mut tools = [
-            Tool { instrument: &inst, pose: down(Point3::new(0.0296 - d, 0.015, 0.044)), history: h0 },
-            Tool { instrument: &inst, pose: down(Point3::new(0.0304 + d, 0.015, 0.044)), history: h1 },
+            Tool {
+                instrument: &inst,
+                pose: down(Point3::new(0.0296 - d, 0.015, 0.044)),
+                history: h0,
+            },
+            Tool {
+                instrument: &inst,
+                pose: down(Point3::new(0.0304 + d, 0.015, 0.044)),
+                history: h1,
+            },
         ];
-        detect_many(&mut bvh, &surf.query(), &mut tools, Stage::Deformation, &DetectOptions::default(), &mut ws, &mut out)
-            .unwrap();
+        detect_many(
+            &mut bvh,
+            &surf.query(),
+            &mut tools,
+            Stage::Deformation,
+            &DetectOptions::default(),
+            &mut ws,
+            &mut out,
+        )
+        .unwrap();
         for p in &out.pairs {
             let v = surf.verts(p);
             match (p.instrument, kind(&inst, p)) {
-                (0, NodeKind::FaceB) => assert!(v.iter().all(|q| (q.x - 0.029).abs() < 1e-12), "{v:?}"),
-                (1, NodeKind::FaceA) => assert!(v.iter().all(|q| (q.x - 0.031).abs() < 1e-12), "{v:?}"),
+                (0, NodeKind::FaceB) => {
+                    assert!(v.iter().all(|q| (q.x - 0.029).abs() < 1e-12), "{v:?}")
+                }
+                (1, NodeKind::FaceA) => {
+                    assert!(v.iter().all(|q| (q.x - 0.031).abs() < 1e-12), "{v:?}")
+                }
                 other => panic!("unexpected pair {other:?} {p:?}"),
             }
         }
