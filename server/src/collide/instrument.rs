@@ -299,7 +299,7 @@ impl Instrument {
             });
         }
         if let Some(rim) = rim {
-            if !(rim.tip_reach > 0.0) {
+            if rim.tip_reach.is_nan() || rim.tip_reach <= 0.0 {
                 return Err(InstrumentError::NonPositive {
                     what: "tip reach",
                     value: rim.tip_reach,

@@ -79,7 +79,7 @@ fn degenerate_or_parallel(
         .max(e2.norm_squared())
         .max(e3.norm_squared());
     // |n| <= tol * longest^2  <=>  n2 <= tol^2 * longest^4
-    if n2 <= DEGENERACY_TOL * DEGENERACY_TOL * longest2 * longest2 || !(n2 > 0.0) {
+    if n2 <= DEGENERACY_TOL * DEGENERACY_TOL * longest2 * longest2 || n2.is_nan() || n2 <= 0.0 {
         return true;
     }
     let nd = n.dot(dir);
