@@ -13,7 +13,11 @@ use rayon::prelude::*;
 /// behind, `t > 0` in front.
 #[inline]
 pub fn keep_nearest(hits: &mut NodeHits, hit: Hit) {
-    let slot = if hit.t <= 0.0 { &mut hits.behind } else { &mut hits.front };
+    let slot = if hit.t <= 0.0 {
+        &mut hits.behind
+    } else {
+        &mut hits.front
+    };
     let better = match slot {
         None => true,
         Some(old) => {
@@ -51,7 +55,12 @@ impl BruteForce {
         test: RayTest,
     ) -> Result<Self, SurfaceError> {
         let needed = check_surface(triangles, positions)?;
-        Ok(Self { triangles: triangles.to_vec(), positions: positions.to_vec(), test, needed })
+        Ok(Self {
+            triangles: triangles.to_vec(),
+            positions: positions.to_vec(),
+            test,
+            needed,
+        })
     }
 
     fn cast_one(&self, origin: Point3<f64>, dir: Vector3<f64>) -> NodeHits {
@@ -60,7 +69,15 @@ impl BruteForce {
         for (i, tri) in self.triangles.iter().enumerate() {
             let [a, b, c] = tri.map(|v| &self.positions[v as usize]);
             if let Some(h) = ray.intersect(a, b, c) {
-                keep_nearest(&mut hits, Hit { triangle: i as u32, t: h.t, u: h.u, v: h.v });
+                keep_nearest(
+                    &mut hits,
+                    Hit {
+                        triangle: i as u32,
+                        t: h.t,
+                        u: h.u,
+                        v: h.v,
+                    },
+                );
             }
         }
         hits

@@ -111,8 +111,12 @@ impl Bvh {
 
     fn build(&mut self, positions: &[Point3<f64>]) {
         // Restore the original order so that a rebuild is independent of history.
-        let mut order: Vec<(u32, [u32; 3])> =
-            self.ids.iter().copied().zip(self.triangles.iter().copied()).collect();
+        let mut order: Vec<(u32, [u32; 3])> = self
+            .ids
+            .iter()
+            .copied()
+            .zip(self.triangles.iter().copied())
+            .collect();
         order.sort_unstable_by_key(|e| e.0);
         let mut items: Vec<(Point3<f64>, u32, [u32; 3])> = order
             .into_iter()
@@ -133,7 +137,12 @@ impl Bvh {
     /// Emits the subtree of `items` (which start at leaf-order index `first`).
     fn split(nodes: &mut Vec<Node>, items: &mut [(Point3<f64>, u32, [u32; 3])], first: usize) {
         let me = nodes.len();
-        nodes.push(Node { lo: [0.0; 3], hi: [0.0; 3], index: first as u32, count: items.len() as u32 });
+        nodes.push(Node {
+            lo: [0.0; 3],
+            hi: [0.0; 3],
+            index: first as u32,
+            count: items.len() as u32,
+        });
         if items.len() <= LEAF_SIZE {
             return;
         }
@@ -152,7 +161,9 @@ impl Bvh {
             2
         };
         let mid = items.len() / 2;
-        items.select_nth_unstable_by(mid, |a, b| a.0[axis].total_cmp(&b.0[axis]).then(a.1.cmp(&b.1)));
+        items.select_nth_unstable_by(mid, |a, b| {
+            a.0[axis].total_cmp(&b.0[axis]).then(a.1.cmp(&b.1))
+        });
         let (left, right) = items.split_at_mut(mid);
         Self::split(nodes, left, first);
         let r = nodes.len() as u32;
@@ -163,7 +174,8 @@ impl Bvh {
 
     /// Gathers positions and recomputes all boxes (no allocation).
     fn refit(&mut self, positions: &[Point3<f64>]) {
-        self.verts.resize(self.triangles.len(), [Point3::origin(); 3]);
+        self.verts
+            .resize(self.triangles.len(), [Point3::origin(); 3]);
         for (v, t) in self.verts.iter_mut().zip(&self.triangles) {
             *v = t.map(|i| positions[i as usize]);
         }
@@ -200,7 +212,13 @@ impl Bvh {
 
     /// Slab interval `[t0, t1]` of the whole line in node `k`'s box, or `None`.
     #[inline(always)]
-    fn interval(&self, k: usize, o: &Point3<f64>, inv: &[f64; 3], zero: &[bool; 3]) -> Option<(f64, f64)> {
+    fn interval(
+        &self,
+        k: usize,
+        o: &Point3<f64>,
+        inv: &[f64; 3],
+        zero: &[bool; 3],
+    ) -> Option<(f64, f64)> {
         let n = &self.nodes[k];
         let mut t0 = f64::NEG_INFINITY;
         let mut t1 = f64::INFINITY;
@@ -263,7 +281,15 @@ impl Bvh {
                 for j in first..first + n.count as usize {
                     let [a, b, c] = &self.verts[j];
                     if let Some(h) = ray.intersect(a, b, c) {
-                        keep_nearest(&mut hits, Hit { triangle: self.ids[j], t: h.t, u: h.u, v: h.v });
+                        keep_nearest(
+                            &mut hits,
+                            Hit {
+                                triangle: self.ids[j],
+                                t: h.t,
+                                u: h.u,
+                                v: h.v,
+                            },
+                        );
                     }
                 }
                 continue;

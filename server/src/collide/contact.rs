@@ -36,10 +36,10 @@
 //! Steady state allocates nothing: every buffer lives in the [`Workspace`] or in
 //! the [`ContactOutput`] and is cleared, not freed.
 
+use super::NodeHits;
 use super::RayBackend;
 use super::history::{History, Stage};
 use super::instrument::Instrument;
-use super::NodeHits;
 use nalgebra::{Isometry3, Point3, Vector3};
 
 /// Errors of a contact query; each names what is inconsistent.
@@ -47,9 +47,15 @@ use nalgebra::{Isometry3, Point3, Vector3};
 pub enum ContactError {
     /// Two per-vertex arrays of the query have different lengths.
     #[error("{what} has {got} entries, expected {expected} (one per surface vertex)")]
-    LengthMismatch { what: &'static str, expected: usize, got: usize },
+    LengthMismatch {
+        what: &'static str,
+        expected: usize,
+        got: usize,
+    },
     /// A triangle index from the backend, or a vertex index of a triangle, is out of range.
-    #[error("triangle {triangle} is out of range or refers to a vertex out of range ({vertices} vertices)")]
+    #[error(
+        "triangle {triangle} is out of range or refers to a vertex out of range ({vertices} vertices)"
+    )]
     BadTriangle { triangle: u32, vertices: usize },
     /// A pose has a non-finite component.
     #[error("the pose of instrument {instrument} is not finite")]
@@ -216,7 +222,11 @@ pub fn detect(
     ws: &mut Workspace,
     out: &mut ContactOutput,
 ) -> Result<(), ContactError> {
-    let mut tools = [Tool { instrument, pose: *pose, history }];
+    let mut tools = [Tool {
+        instrument,
+        pose: *pose,
+        history,
+    }];
     detect_many(backend, query, &mut tools, stage, opts, ws, out)
 }
 
@@ -234,9 +244,16 @@ pub fn detect_many(
 ) -> Result<(), ContactError> {
     out.clear();
     let nv = query.positions.len();
-    for (what, got) in [("rest", query.rest.len()), ("to_volume", query.to_volume.len())] {
+    for (what, got) in [
+        ("rest", query.rest.len()),
+        ("to_volume", query.to_volume.len()),
+    ] {
         if got != nv {
-            return Err(ContactError::LengthMismatch { what, expected: nv, got });
+            return Err(ContactError::LengthMismatch {
+                what,
+                expected: nv,
+                got,
+            });
         }
     }
     if tools.len() > u16::MAX as usize {
@@ -256,7 +273,8 @@ pub fn detect_many(
     ws.offsets.clear();
     for tool in tools.iter() {
         ws.offsets.push(ws.origins.len());
-        tool.instrument.place(&tool.pose, &mut ws.origins, &mut ws.dirs);
+        tool.instrument
+            .place(&tool.pose, &mut ws.origins, &mut ws.dirs);
     }
     ws.offsets.push(ws.origins.len());
     let skin = if opts.skin_m.is_finite() { opts.skin_m.max(0.0) } else { 0.0 };
@@ -276,23 +294,36 @@ pub fn detect_many(
 
     // 2. Pairs (A1, A2).
     ws.candidates.clear();
-    let bad = |triangle: u32| ContactError::BadTriangle { triangle, vertices: nv };
+    let bad = |triangle: u32| ContactError::BadTriangle {
+        triangle,
+        vertices: nv,
+    };
     for (k, tool) in tools.iter().enumerate() {
         let first = ws.offsets[k];
         for (i, node) in tool.instrument.nodes.iter().enumerate() {
             let g = first + i;
-            let Some(hit) = ws.hits.get(g).and_then(|h| h.behind) else { continue };
+            let Some(hit) = ws.hits.get(g).and_then(|h| h.behind) else {
+                continue;
+            };
             if -hit.t > node.reach {
                 continue;
             }
-            let tri = query.triangles.get(hit.triangle as usize).ok_or_else(|| bad(hit.triangle))?;
+            let tri = query
+                .triangles
+                .get(hit.triangle as usize)
+                .ok_or_else(|| bad(hit.triangle))?;
             if tri.iter().any(|&v| v as usize >= nv) {
                 return Err(bad(hit.triangle));
             }
             let [a, b, c] = tri.map(|v| query.positions[v as usize]);
             let n_tri = (b - a).cross(&(c - a));
             if ws.dirs[g].dot(&n_tri) < 0.0 {
-                ws.candidates.push(Pair { instrument: k as u16, node: i as u32, triangle: hit.triangle, t: hit.t });
+                ws.candidates.push(Pair {
+                    instrument: k as u16,
+                    node: i as u32,
+                    triangle: hit.triangle,
+                    t: hit.t,
+                });
             }
         }
     }

@@ -55,7 +55,10 @@ pub struct History {
 impl History {
     /// All flags off, one per source node of `instrument`.
     pub fn new(instrument: &Instrument, mode: HistoryMode) -> Self {
-        Self { mode, flags: vec![false; instrument.len()] }
+        Self {
+            mode,
+            flags: vec![false; instrument.len()],
+        }
     }
 
     /// Whether a call at `stage` renews the flags.

@@ -50,8 +50,14 @@ pub enum InstrumentError {
     #[error("{what} must be positive and finite, got {value} m")]
     NonPositive { what: &'static str, value: f64 },
     /// The plate bends more than half a turn, or its radius is inside the plate.
-    #[error("bend radius {radius} m is invalid for length {length} m and thickness {thickness} m (need |R| > h/2 and L/|R| <= pi)")]
-    BadRadius { radius: f64, length: f64, thickness: f64 },
+    #[error(
+        "bend radius {radius} m is invalid for length {length} m and thickness {thickness} m (need |R| > h/2 and L/|R| <= pi)"
+    )]
+    BadRadius {
+        radius: f64,
+        length: f64,
+        thickness: f64,
+    },
     /// A node count that must be positive is zero.
     #[error("{what} must be at least 1")]
     ZeroCount { what: &'static str },
@@ -78,18 +84,36 @@ pub struct Plate {
 impl Plate {
     /// A flat rectangular plate: thickness `h`, width `w`, length `l`.
     pub fn flat(h: f64, w: f64, l: f64) -> Self {
-        Self { thickness: h, base_width: w, tip_width: w, length: l, bend_radius: None }
+        Self {
+            thickness: h,
+            base_width: w,
+            tip_width: w,
+            length: l,
+            bend_radius: None,
+        }
     }
 
     /// A flat trapezoid plate whose width goes from `w_base` to `w_tip`.
     pub fn trapezoid(h: f64, w_base: f64, w_tip: f64, l: f64) -> Self {
-        Self { thickness: h, base_width: w_base, tip_width: w_tip, length: l, bend_radius: None }
+        Self {
+            thickness: h,
+            base_width: w_base,
+            tip_width: w_tip,
+            length: l,
+            bend_radius: None,
+        }
     }
 
     /// A rectangular plate bent along its length with signed radius `r`
     /// (`r > 0`: face A convex).
     pub fn curved(h: f64, w: f64, l: f64, r: f64) -> Self {
-        Self { thickness: h, base_width: w, tip_width: w, length: l, bend_radius: Some(r) }
+        Self {
+            thickness: h,
+            base_width: w,
+            tip_width: w,
+            length: l,
+            bend_radius: Some(r),
+        }
     }
 
     fn validate(&self) -> Result<(), InstrumentError> {
@@ -237,7 +261,9 @@ impl Instrument {
             }
         };
         if per_face == 0 {
-            return Err(InstrumentError::ZeroCount { what: "nodes per face" });
+            return Err(InstrumentError::ZeroCount {
+                what: "nodes per face",
+            });
         }
         let span = plate.length - s0;
         let mean_width = plate.width_at(0.5 * (s0 + plate.length));
@@ -273,8 +299,11 @@ impl Instrument {
             });
         }
         if let Some(rim) = rim {
-            if !(rim.tip_reach > 0.0) {
-                return Err(InstrumentError::NonPositive { what: "tip reach", value: rim.tip_reach });
+            if rim.tip_reach.is_nan() || rim.tip_reach <= 0.0 {
+                return Err(InstrumentError::NonPositive {
+                    what: "tip reach",
+                    value: rim.tip_reach,
+                });
             }
             let first = nodes.len() as u32;
             let ps = rim.per_side as u32;
@@ -283,7 +312,11 @@ impl Instrument {
                     let s = plate.length * (k as f64 + 0.5) / rim.per_side as f64;
                     let w = plate.width_at(s);
                     let (m, _, _) = plate.frame_at(s, sign * 0.5 * w);
-                    let partner = if sign > 0.0 { first + ps + k as u32 } else { first + k as u32 };
+                    let partner = if sign > 0.0 {
+                        first + ps + k as u32
+                    } else {
+                        first + k as u32
+                    };
                     nodes.push(SourceNode {
                         position: m,
                         normal: Vector3::y() * sign,
@@ -306,7 +339,11 @@ impl Instrument {
                 });
             }
         }
-        Ok(Self { plate, nodes, per_face })
+        Ok(Self {
+            plate,
+            nodes,
+            per_face,
+        })
     }
 
     /// Number of source nodes.
@@ -346,16 +383,22 @@ mod tests {
             // Opposite normals, and the segment between them is along the normal.
             assert!((n.normal + m.normal).norm() < 1e-14, "node {i}");
             let d = m.position - n.position;
-            assert!(d.cross(&n.normal).norm() < 1e-14 * (1.0 + d.norm()), "node {i} off line");
+            assert!(
+                d.cross(&n.normal).norm() < 1e-14 * (1.0 + d.norm()),
+                "node {i} off line"
+            );
             assert!(d.dot(&n.normal) < 0.0, "partner lies behind node {i}");
         }
     }
 
     #[test]
     fn flat_whole_face_grid_and_pairing() {
-        let inst =
-            Instrument::new(Plate::flat(1e-3, 0.01, 0.03), NodeLayout::WholeFace { per_face: 150 }, None)
-                .unwrap();
+        let inst = Instrument::new(
+            Plate::flat(1e-3, 0.01, 0.03),
+            NodeLayout::WholeFace { per_face: 150 },
+            None,
+        )
+        .unwrap();
         assert_eq!(inst.len(), 300);
         check_pairing(&inst);
         for n in &inst.nodes[..150] {
@@ -372,18 +415,29 @@ mod tests {
     fn tip_layout_is_at_the_tip() {
         let inst = Instrument::new(
             Plate::flat(1e-3, 0.01, 0.03),
-            NodeLayout::Tip { per_face: 30, fraction: 0.2 },
+            NodeLayout::Tip {
+                per_face: 30,
+                fraction: 0.2,
+            },
             None,
         )
         .unwrap();
         assert_eq!(inst.len(), 60);
         check_pairing(&inst);
-        assert!(inst.nodes.iter().all(|n| n.position.z > 0.024 && n.position.z < 0.03));
+        assert!(
+            inst.nodes
+                .iter()
+                .all(|n| n.position.z > 0.024 && n.position.z < 0.03)
+        );
     }
 
     #[test]
     fn trapezoid_and_curved_keep_the_pairing_rule() {
-        let rim = Some(RimNodes { per_side: 10, tip: 5, tip_reach: 2e-3 });
+        let rim = Some(RimNodes {
+            per_side: 10,
+            tip: 5,
+            tip_reach: 2e-3,
+        });
         let trap = Instrument::new(
             Plate::trapezoid(1e-3, 0.012, 0.006, 0.04),
             NodeLayout::WholeFace { per_face: 150 },
@@ -397,9 +451,12 @@ mod tests {
             assert!(n.position.y.abs() <= 0.5 * w + 1e-15);
         }
         for r in [0.05, -0.05] {
-            let curved =
-                Instrument::new(Plate::curved(1e-3, 0.01, 0.04, r), NodeLayout::WholeFace { per_face: 150 }, rim)
-                    .unwrap();
+            let curved = Instrument::new(
+                Plate::curved(1e-3, 0.01, 0.04, r),
+                NodeLayout::WholeFace { per_face: 150 },
+                rim,
+            )
+            .unwrap();
             check_pairing(&curved);
             // Face nodes lie at distance |R -+ h/2| from the centre of curvature.
             let centre = Point3::new(-r, 0.0, 0.0);
@@ -420,14 +477,22 @@ mod tests {
         let inst = Instrument::new(
             Plate::flat(1e-3, 0.01, 0.03),
             NodeLayout::WholeFace { per_face: 30 },
-            Some(RimNodes { per_side: 6, tip: 3, tip_reach: 1e-3 }),
+            Some(RimNodes {
+                per_side: 6,
+                tip: 3,
+                tip_reach: 1e-3,
+            }),
         )
         .unwrap();
         assert_eq!(inst.len(), 60 + 12 + 3);
         for n in &inst.nodes[60..] {
             match n.kind {
-                NodeKind::RimPlusY => assert!(n.normal.y == 1.0 && (n.position.y - 0.005).abs() < 1e-15),
-                NodeKind::RimMinusY => assert!(n.normal.y == -1.0 && (n.position.y + 0.005).abs() < 1e-15),
+                NodeKind::RimPlusY => {
+                    assert!(n.normal.y == 1.0 && (n.position.y - 0.005).abs() < 1e-15)
+                }
+                NodeKind::RimMinusY => {
+                    assert!(n.normal.y == -1.0 && (n.position.y + 0.005).abs() < 1e-15)
+                }
                 NodeKind::RimTip => assert!(n.normal.z == 1.0 && n.position.z == 0.03),
                 k => panic!("unexpected {k:?}"),
             }
@@ -439,26 +504,44 @@ mod tests {
         let l = NodeLayout::WholeFace { per_face: 10 };
         assert!(matches!(
             Instrument::new(Plate::flat(0.0, 0.01, 0.03), l, None),
-            Err(InstrumentError::NonPositive { what: "thickness", .. })
+            Err(InstrumentError::NonPositive {
+                what: "thickness",
+                ..
+            })
         ));
         assert!(matches!(
             Instrument::new(Plate::curved(1e-3, 0.01, 0.03, 0.005), l, None),
             Err(InstrumentError::BadRadius { .. })
         ));
         assert!(matches!(
-            Instrument::new(Plate::flat(1e-3, 0.01, 0.03), NodeLayout::WholeFace { per_face: 0 }, None),
+            Instrument::new(
+                Plate::flat(1e-3, 0.01, 0.03),
+                NodeLayout::WholeFace { per_face: 0 },
+                None
+            ),
             Err(InstrumentError::ZeroCount { .. })
         ));
         assert!(matches!(
-            Instrument::new(Plate::flat(1e-3, 0.01, 0.03), NodeLayout::Tip { per_face: 4, fraction: 0.0 }, None),
+            Instrument::new(
+                Plate::flat(1e-3, 0.01, 0.03),
+                NodeLayout::Tip {
+                    per_face: 4,
+                    fraction: 0.0
+                },
+                None
+            ),
             Err(InstrumentError::BadFraction(_))
         ));
     }
 
     #[test]
     fn place_applies_the_pose() {
-        let inst =
-            Instrument::new(Plate::flat(1e-3, 0.01, 0.03), NodeLayout::WholeFace { per_face: 6 }, None).unwrap();
+        let inst = Instrument::new(
+            Plate::flat(1e-3, 0.01, 0.03),
+            NodeLayout::WholeFace { per_face: 6 },
+            None,
+        )
+        .unwrap();
         let pose = Isometry3::from_parts(
             Translation3::new(0.1, 0.2, 0.3),
             UnitQuaternion::from_axis_angle(&Vector3::y_axis(), std::f64::consts::FRAC_PI_2),

@@ -29,7 +29,9 @@ pub use contact::{
     detect, detect_many,
 };
 pub use history::{History, HistoryMode, Stage};
-pub use instrument::{Instrument, InstrumentError, NodeKind, NodeLayout, Plate, RimNodes, SourceNode};
+pub use instrument::{
+    Instrument, InstrumentError, NodeKind, NodeLayout, Plate, RimNodes, SourceNode,
+};
 pub use ray::RayTest;
 
 use nalgebra::{Point3, Vector3};
@@ -82,8 +84,14 @@ pub trait RayBackend: Send {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum SurfaceError {
     /// A triangle refers to a vertex that does not exist.
-    #[error("triangle {triangle} refers to vertex {vertex}, but the surface has {vertices} vertices")]
-    VertexOutOfRange { triangle: usize, vertex: u32, vertices: usize },
+    #[error(
+        "triangle {triangle} refers to vertex {vertex}, but the surface has {vertices} vertices"
+    )]
+    VertexOutOfRange {
+        triangle: usize,
+        vertex: u32,
+        vertices: usize,
+    },
     /// A vertex position is NaN or infinite.
     #[error("surface vertex {vertex} has a non-finite coordinate")]
     NonFinite { vertex: usize },
@@ -95,14 +103,21 @@ pub(crate) fn check_surface(
     triangles: &[[u32; 3]],
     positions: &[Point3<f64>],
 ) -> Result<usize, SurfaceError> {
-    if let Some(vertex) = positions.iter().position(|p| !p.coords.iter().all(|c| c.is_finite())) {
+    if let Some(vertex) = positions
+        .iter()
+        .position(|p| !p.coords.iter().all(|c| c.is_finite()))
+    {
         return Err(SurfaceError::NonFinite { vertex });
     }
     let mut needed = 0usize;
     for (triangle, t) in triangles.iter().enumerate() {
         for &vertex in t {
             if vertex as usize >= positions.len() {
-                return Err(SurfaceError::VertexOutOfRange { triangle, vertex, vertices: positions.len() });
+                return Err(SurfaceError::VertexOutOfRange {
+                    triangle,
+                    vertex,
+                    vertices: positions.len(),
+                });
             }
             needed = needed.max(vertex as usize + 1);
         }

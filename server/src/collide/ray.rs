@@ -74,9 +74,12 @@ fn degenerate_or_parallel(
     let e3 = c - b;
     let n = e1.cross(&e2);
     let n2 = n.norm_squared();
-    let longest2 = e1.norm_squared().max(e2.norm_squared()).max(e3.norm_squared());
+    let longest2 = e1
+        .norm_squared()
+        .max(e2.norm_squared())
+        .max(e3.norm_squared());
     // |n| <= tol * longest^2  <=>  n2 <= tol^2 * longest^4
-    if n2 <= DEGENERACY_TOL * DEGENERACY_TOL * longest2 * longest2 || !(n2 > 0.0) {
+    if n2 <= DEGENERACY_TOL * DEGENERACY_TOL * longest2 * longest2 || n2.is_nan() || n2 <= 0.0 {
         return true;
     }
     let nd = n.dot(dir);
@@ -160,7 +163,16 @@ impl WatertightRay {
         } else {
             (0.0, 0.0, 0.0)
         };
-        Self { origin, dir, kx, ky, kz, sx, sy, sz }
+        Self {
+            origin,
+            dir,
+            kx,
+            ky,
+            kz,
+            sx,
+            sy,
+            sz,
+        }
     }
 
     /// Sheared 2D position of a vertex relative to the origin, and its scaled
@@ -169,7 +181,11 @@ impl WatertightRay {
     fn shear(&self, p: &Point3<f64>) -> (f64, f64, f64) {
         let d = p - self.origin;
         let z = d[self.kz];
-        (d[self.kx] - self.sx * z, d[self.ky] - self.sy * z, self.sz * z)
+        (
+            d[self.kx] - self.sx * z,
+            d[self.ky] - self.sy * z,
+            self.sz * z,
+        )
     }
 
     /// The watertight line-triangle test with the module's tie rule; `t` is
@@ -217,7 +233,11 @@ impl WatertightRay {
         }
         let t = (u * az + v * bz + w * cz) / det;
         let inv = 1.0 / det;
-        let hit = RayHit { t, u: v * inv, v: w * inv };
+        let hit = RayHit {
+            t,
+            u: v * inv,
+            v: w * inv,
+        };
         (t.is_finite() && hit.u.is_finite() && hit.v.is_finite()).then_some(hit)
     }
 }
@@ -245,7 +265,10 @@ impl PreparedRay {
     /// Prepares `origin + t * dir` for `test`.
     #[inline]
     pub fn new(test: RayTest, origin: Point3<f64>, dir: Vector3<f64>) -> Self {
-        Self { test, ray: WatertightRay::new(origin, dir) }
+        Self {
+            test,
+            ray: WatertightRay::new(origin, dir),
+        }
     }
 
     /// Intersects the line with triangle `(a, b, c)`.
@@ -283,7 +306,10 @@ mod tests {
         b: Point3<f64>,
         c: Point3<f64>,
     ) -> [Option<RayHit>; 2] {
-        [watertight(&o, &d, &a, &b, &c), moller_trumbore(&o, &d, &a, &b, &c)]
+        [
+            watertight(&o, &d, &a, &b, &c),
+            moller_trumbore(&o, &d, &a, &b, &c),
+        ]
     }
 
     #[test]
@@ -294,7 +320,10 @@ mod tests {
             for h in both(o, Vector3::z(), a, b, c) {
                 let h = h.expect("hit");
                 assert!((h.t - t).abs() < 1e-15, "{h:?}");
-                assert!((h.u - 0.2).abs() < 1e-15 && (h.v - 0.3).abs() < 1e-15, "{h:?}");
+                assert!(
+                    (h.u - 0.2).abs() < 1e-15 && (h.v - 0.3).abs() < 1e-15,
+                    "{h:?}"
+                );
             }
             // Reversed direction: same point, opposite sign of t.
             for h in both(o, -Vector3::z(), a, b, c) {
@@ -315,7 +344,10 @@ mod tests {
             (p(-1.0, 0.25, 0.0), Vector3::x()),
             (p(-1.0, 0.25, 0.0), Vector3::new(1.0, 1.0, 0.0).normalize()),
             (p(-1.0, 0.25, 1e-3), Vector3::x()),
-            (p(-1.0, 0.25, 0.0), Vector3::new(1.0, 0.0, 1e-14).normalize()),
+            (
+                p(-1.0, 0.25, 0.0),
+                Vector3::new(1.0, 0.0, 1e-14).normalize(),
+            ),
         ] {
             for h in both(o, d, a, b, c) {
                 assert!(h.is_none(), "{o} {d} {h:?}");
@@ -349,7 +381,12 @@ mod tests {
     #[test]
     fn shared_edge_hits_exactly_one() {
         // Quad split along its diagonal (0,0)-(1,1), consistently oriented.
-        let q = [p(0.0, 0.0, 0.0), p(1.0, 0.0, 0.0), p(1.0, 1.0, 0.0), p(0.0, 1.0, 0.0)];
+        let q = [
+            p(0.0, 0.0, 0.0),
+            p(1.0, 0.0, 0.0),
+            p(1.0, 1.0, 0.0),
+            p(0.0, 1.0, 0.0),
+        ];
         let tris = [[0, 1, 2], [0, 2, 3]];
         for dz in [1.0, -1.0] {
             for s in [0.25, 0.5, 0.75, 0.0, 1.0] {
@@ -382,11 +419,18 @@ mod tests {
     /// crack, no double hit) even where rounding moves the ray off the edge.
     #[test]
     fn oblique_rays_through_shared_edges_hit_exactly_one() {
-        let q = [p(0.1, -0.2, 0.3), p(1.3, 0.1, 0.2), p(1.1, 1.2, 0.5), p(-0.1, 0.9, 0.1)];
+        let q = [
+            p(0.1, -0.2, 0.3),
+            p(1.3, 0.1, 0.2),
+            p(1.1, 1.2, 0.5),
+            p(-0.1, 0.9, 0.1),
+        ];
         let tris = [[0, 1, 2], [0, 2, 3]];
         let mut k = 0u64;
         let mut rnd = || {
-            k = k.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            k = k
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             (k >> 11) as f64 / (1u64 << 53) as f64
         };
         for _ in 0..2000 {
@@ -414,7 +458,11 @@ mod tests {
                         // Irregular ring with exactly representable coordinates.
                         let ang = std::f64::consts::TAU * ((i + rot) as f64 + 0.3 * (i % 2) as f64)
                             / sides as f64;
-                        p((ang.cos() * 8.0).round() / 8.0, (ang.sin() * 8.0).round() / 8.0, 0.25)
+                        p(
+                            (ang.cos() * 8.0).round() / 8.0,
+                            (ang.sin() * 8.0).round() / 8.0,
+                            0.25,
+                        )
                     })
                     .collect();
                 for dz in [1.0, -1.0] {
@@ -438,9 +486,15 @@ mod tests {
         let (a, b, c) = (p(0.0, 0.0, 1.0), p(1.0, 0.0, 1.5), p(0.0, 1.0, 0.5));
         let o = p(0.2, 0.2, -1.0);
         let d = Vector3::new(0.1, 0.05, 1.0).normalize();
-        let w = PreparedRay::new(RayTest::Watertight, o, d).intersect(&a, &b, &c).unwrap();
-        let m = PreparedRay::new(RayTest::MollerTrumbore, o, d).intersect(&a, &b, &c).unwrap();
-        assert!((w.t - m.t).abs() < 1e-14 && (w.u - m.u).abs() < 1e-14 && (w.v - m.v).abs() < 1e-14);
+        let w = PreparedRay::new(RayTest::Watertight, o, d)
+            .intersect(&a, &b, &c)
+            .unwrap();
+        let m = PreparedRay::new(RayTest::MollerTrumbore, o, d)
+            .intersect(&a, &b, &c)
+            .unwrap();
+        assert!(
+            (w.t - m.t).abs() < 1e-14 && (w.u - m.u).abs() < 1e-14 && (w.v - m.v).abs() < 1e-14
+        );
         assert_eq!(Some(w), watertight(&o, &d, &a, &b, &c));
     }
 }
