@@ -1,1 +1,3 @@
 //! Client logic of the `fissure` command: replay, demo, mesh tools, benchmarks.
+
+pub mod mesh_cmd;
