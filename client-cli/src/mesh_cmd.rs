@@ -69,8 +69,20 @@ pub enum MeshCommand {
 /// Runs a mesh subcommand, printing its result to stdout.
 pub fn run(cmd: MeshCommand) -> anyhow::Result<()> {
     match cmd {
-        MeshCommand::Generate { preset, out, size, cells } => {
-            let mesh = generate(&preset, &out, &CubeOptions { size_m: size, cells })?;
+        MeshCommand::Generate {
+            preset,
+            out,
+            size,
+            cells,
+        } => {
+            let mesh = generate(
+                &preset,
+                &out,
+                &CubeOptions {
+                    size_m: size,
+                    cells,
+                },
+            )?;
             println!(
                 "wrote {}: {} nodes, {} tetrahedra",
                 out.display(),
@@ -82,8 +94,18 @@ pub fn run(cmd: MeshCommand) -> anyhow::Result<()> {
             let s = convert(&input, &output)?;
             println!("wrote {}: {s}", output.display());
         }
-        MeshCommand::Inspect { file, json, duplicate_tolerance, bins, max_listed } => {
-            let opts = InspectOptions { duplicate_tolerance, bins, max_listed };
+        MeshCommand::Inspect {
+            file,
+            json,
+            duplicate_tolerance,
+            bins,
+            max_listed,
+        } => {
+            let opts = InspectOptions {
+                duplicate_tolerance,
+                bins,
+                max_listed,
+            };
             let report = inspect(&file, &opts)?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&report)?);
@@ -115,7 +137,10 @@ pub fn preset_mesh(name: &str, cube: &CubeOptions) -> anyhow::Result<TetMesh> {
     Ok(match name {
         "cube" => {
             if !(cube.size_m > 0.0 && cube.size_m.is_finite()) || cube.cells == 0 {
-                bail!("cube: size must be positive (got {} m) and cells at least 1", cube.size_m);
+                bail!(
+                    "cube: size must be positive (got {} m) and cells at least 1",
+                    cube.size_m
+                );
             }
             blocks::cube(cube.size_m, cube.cells)
         }
@@ -158,10 +183,17 @@ pub fn convert(input: &Path, output: &Path) -> anyhow::Result<String> {
     if VolumeFormat::from_path(input).is_some() {
         let r = io::read_volume_report(input)?;
         write_any(&r.mesh, output)?;
-        let mut s = format!("{} nodes, {} tetrahedra", r.mesh.nodes.len(), r.mesh.tets.len());
+        let mut s = format!(
+            "{} nodes, {} tetrahedra",
+            r.mesh.nodes.len(),
+            r.mesh.tets.len()
+        );
         for (n, what) in [
             (r.ignored_cells, "other cells skipped"),
-            (r.higher_order_tets, "higher-order tetrahedra reduced to corners"),
+            (
+                r.higher_order_tets,
+                "higher-order tetrahedra reduced to corners",
+            ),
             (r.flipped_tets, "tetrahedra reoriented"),
             (r.dropped_nodes, "unused nodes dropped"),
         ] {
@@ -172,7 +204,11 @@ pub fn convert(input: &Path, output: &Path) -> anyhow::Result<String> {
         return Ok(s);
     }
     if SurfaceFormat::from_path(input).is_some() {
-        if out_volume && !output.extension().is_some_and(|e| e.eq_ignore_ascii_case("vtu")) {
+        if out_volume
+            && !output
+                .extension()
+                .is_some_and(|e| e.eq_ignore_ascii_case("vtu"))
+        {
             bail!(
                 "{}: a surface cannot be converted to a volume format; mesh its inside first",
                 input.display()
@@ -180,7 +216,11 @@ pub fn convert(input: &Path, output: &Path) -> anyhow::Result<String> {
         }
         let s = io::read_surface(input)?;
         io::write_surface(output, &s.vertices, &s.triangles)?;
-        return Ok(format!("{} vertices, {} triangles", s.vertices.len(), s.triangles.len()));
+        return Ok(format!(
+            "{} vertices, {} triangles",
+            s.vertices.len(),
+            s.triangles.len()
+        ));
     }
     bail!(
         "{}: unknown input format (expected .msh, .vtk, .vtu, .node, .ele, .obj, .ply or .stl)",
@@ -201,7 +241,11 @@ pub struct InspectOptions {
 
 impl Default for InspectOptions {
     fn default() -> Self {
-        Self { duplicate_tolerance: 1e-9, bins: 10, max_listed: 20 }
+        Self {
+            duplicate_tolerance: 1e-9,
+            bins: 10,
+            max_listed: 20,
+        }
     }
 }
 
@@ -218,7 +262,11 @@ pub struct HistogramReport {
 
 impl From<Histogram> for HistogramReport {
     fn from(h: Histogram) -> Self {
-        Self { lo: h.lo, hi: h.hi, counts: h.counts }
+        Self {
+            lo: h.lo,
+            hi: h.hi,
+            counts: h.counts,
+        }
     }
 }
 
@@ -268,7 +316,10 @@ pub struct Report {
 /// [`io::read_volume`] would load them (negatively oriented ones reoriented)
 /// but with every node of the file, so unused nodes show up as problems.
 pub fn inspect(path: &Path, opts: &InspectOptions) -> anyhow::Result<Report> {
-    let vopts = ValidateOptions { duplicate_tolerance: opts.duplicate_tolerance, ..Default::default() };
+    let vopts = ValidateOptions {
+        duplicate_tolerance: opts.duplicate_tolerance,
+        ..Default::default()
+    };
     let file = path.display().to_string();
     if VolumeFormat::from_path(path).is_some() {
         let raw = io::read_volume_raw(path)?;
@@ -284,7 +335,10 @@ pub fn inspect(path: &Path, opts: &InspectOptions) -> anyhow::Result<Report> {
         let problems = validate(&raw.nodes, &tets, &vopts);
         let q = tets_quality(&raw.nodes, &tets);
         let s = QualitySummary::of(&q);
-        let mesh = TetMesh { nodes: raw.nodes, tets };
+        let mesh = TetMesh {
+            nodes: raw.nodes,
+            tets,
+        };
         let surface_triangles = mesh.boundary().triangles.len();
         let (lo, hi) = mesh.bounds();
         let bins = opts.bins.max(1);
@@ -303,7 +357,9 @@ pub fn inspect(path: &Path, opts: &InspectOptions) -> anyhow::Result<Report> {
             max_dihedral_deg: s.map(|s| s.max_dihedral_deg),
             min_radius_ratio: s.map(|s| s.min_radius_ratio),
             mean_radius_ratio: s.map(|s| s.mean_radius_ratio),
-            radius_ratio_histogram: Some(Histogram::new(q.iter().map(|q| q.radius_ratio), 0.0, 1.0, bins).into()),
+            radius_ratio_histogram: Some(
+                Histogram::new(q.iter().map(|q| q.radius_ratio), 0.0, 1.0, bins).into(),
+            ),
             min_dihedral_histogram: Some(
                 Histogram::new(q.iter().map(|q| q.min_dihedral_deg), 0.0, 90.0, bins).into(),
             ),
@@ -314,7 +370,10 @@ pub fn inspect(path: &Path, opts: &InspectOptions) -> anyhow::Result<Report> {
     if SurfaceFormat::from_path(path).is_some() {
         let s = io::read_surface(path)?;
         let problems = validate_surface(&s.vertices, &s.triangles, &vopts);
-        let mesh = TetMesh { nodes: s.vertices.clone(), tets: Vec::new() };
+        let mesh = TetMesh {
+            nodes: s.vertices.clone(),
+            tets: Vec::new(),
+        };
         let (lo, hi) = mesh.bounds();
         // Enclosed volume: sum over triangles of a . (b x c) / 6.
         let volume: f64 = s
@@ -354,7 +413,11 @@ pub fn inspect(path: &Path, opts: &InspectOptions) -> anyhow::Result<Report> {
 }
 
 fn bbox(lo: nalgebra::Point3<f64>, hi: nalgebra::Point3<f64>, empty: bool) -> [[f64; 3]; 2] {
-    if empty { [[0.0; 3]; 2] } else { [[lo.x, lo.y, lo.z], [hi.x, hi.y, hi.z]] }
+    if empty {
+        [[0.0; 3]; 2]
+    } else {
+        [[lo.x, lo.y, lo.z], [hi.x, hi.y, hi.z]]
+    }
 }
 
 impl Report {
@@ -375,8 +438,14 @@ impl Report {
             row("triangles", self.surface_triangles.to_string());
         }
         let [lo, hi] = self.bounding_box_m;
-        row("bounding box min (m)", format!("{:.6e} {:.6e} {:.6e}", lo[0], lo[1], lo[2]));
-        row("bounding box max (m)", format!("{:.6e} {:.6e} {:.6e}", hi[0], hi[1], hi[2]));
+        row(
+            "bounding box min (m)",
+            format!("{:.6e} {:.6e} {:.6e}", lo[0], lo[1], lo[2]),
+        );
+        row(
+            "bounding box max (m)",
+            format!("{:.6e} {:.6e} {:.6e}", hi[0], hi[1], hi[2]),
+        );
         row("volume (m^3)", format!("{:.6e}", self.volume_m3));
         if let (Some(a), Some(b)) = (self.min_dihedral_deg, self.max_dihedral_deg) {
             row("dihedral min/max (deg)", format!("{a:.2} / {b:.2}"));
@@ -422,23 +491,51 @@ mod tests {
     fn generate_convert_inspect() {
         let dir = tempfile::tempdir().unwrap();
         let vtu = dir.path().join("v.vtu");
-        let mesh = generate("v-valley", &vtu, &CubeOptions { size_m: 0.05, cells: 8 }).unwrap();
+        let mesh = generate(
+            "v-valley",
+            &vtu,
+            &CubeOptions {
+                size_m: 0.05,
+                cells: 8,
+            },
+        )
+        .unwrap();
         assert_eq!(mesh.tets.len(), 4608);
 
         let msh = dir.path().join("v.msh");
         let summary = convert(&vtu, &msh).unwrap();
-        assert!(summary.starts_with(&format!("{} nodes, 4608 tetrahedra", mesh.nodes.len())), "{summary}");
+        assert!(
+            summary.starts_with(&format!("{} nodes, 4608 tetrahedra", mesh.nodes.len())),
+            "{summary}"
+        );
         let stl = dir.path().join("v.stl");
         convert(&msh, &stl).unwrap();
 
         let r = inspect(&msh, &InspectOptions::default()).unwrap();
-        assert_eq!((r.nodes, r.tets, r.surface_triangles), (mesh.nodes.len(), 4608, 1088));
+        assert_eq!(
+            (r.nodes, r.tets, r.surface_triangles),
+            (mesh.nodes.len(), 4608, 1088)
+        );
         assert_eq!(r.problems_found, 0);
         let expect: f64 = (0..mesh.tets.len()).map(|t| mesh.signed_volume(t)).sum();
         assert!((r.volume_m3 - expect).abs() < 1e-15);
-        assert_eq!(r.radius_ratio_histogram.as_ref().unwrap().counts.iter().sum::<usize>(), 4608);
+        assert_eq!(
+            r.radius_ratio_histogram
+                .as_ref()
+                .unwrap()
+                .counts
+                .iter()
+                .sum::<usize>(),
+            4608
+        );
         let json: serde_json::Value = serde_json::to_value(&r).unwrap();
-        for key in ["nodes", "tets", "surface_triangles", "min_dihedral_deg", "max_dihedral_deg"] {
+        for key in [
+            "nodes",
+            "tets",
+            "surface_triangles",
+            "min_dihedral_deg",
+            "max_dihedral_deg",
+        ] {
             assert!(json.get(key).is_some_and(|v| !v.is_null()), "{key}");
         }
         assert!(r.table().contains("tetrahedra             4608"));
@@ -471,7 +568,10 @@ mod tests {
         assert_eq!(r.problems, vec![Problem::UnusedNode { node: 8 }]);
         assert!(r.table().contains("node 8 is used by no element"));
         let s = convert(&node, &dir.path().join("out.vtu")).unwrap();
-        assert!(s.contains("1 tetrahedra reoriented") && s.contains("1 unused nodes dropped"), "{s}");
+        assert!(
+            s.contains("1 tetrahedra reoriented") && s.contains("1 unused nodes dropped"),
+            "{s}"
+        );
 
         let e = inspect(&dir.path().join("nope.msh"), &InspectOptions::default()).unwrap_err();
         assert!(e.to_string().contains("nope.msh"), "{e}");
@@ -479,7 +579,16 @@ mod tests {
         assert!(e.to_string().contains("x.txt"), "{e}");
         let e = convert(&dir.path().join("s.stl"), &dir.path().join("x.msh")).unwrap_err();
         assert!(e.to_string().contains("s.stl"), "{e}");
-        assert!(preset_mesh("brain", &CubeOptions { size_m: 0.05, cells: 2 }).is_err());
+        assert!(
+            preset_mesh(
+                "brain",
+                &CubeOptions {
+                    size_m: 0.05,
+                    cells: 2
+                }
+            )
+            .is_err()
+        );
     }
 
     #[test]
@@ -497,7 +606,12 @@ mod tests {
                 if arg.get_id() == "help" {
                     continue;
                 }
-                assert!(arg.get_help().is_some(), "{} {}", sub.get_name(), arg.get_id());
+                assert!(
+                    arg.get_help().is_some(),
+                    "{} {}",
+                    sub.get_name(),
+                    arg.get_id()
+                );
             }
         }
     }

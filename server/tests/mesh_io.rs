@@ -20,7 +20,9 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 fn data(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data").join(name)
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data")
+        .join(name)
 }
 
 fn volume(m: &TetMesh) -> f64 {
@@ -45,9 +47,12 @@ fn require(tool: &str, present: bool) -> bool {
 }
 
 fn python() -> Option<&'static str> {
-    ["python3", "python"]
-        .into_iter()
-        .find(|p| Command::new(p).arg("--version").output().is_ok_and(|o| o.status.success()))
+    ["python3", "python"].into_iter().find(|p| {
+        Command::new(p)
+            .arg("--version")
+            .output()
+            .is_ok_and(|o| o.status.success())
+    })
 }
 
 fn python_has(module: &str) -> Option<&'static str> {
@@ -61,14 +66,23 @@ fn python_has(module: &str) -> Option<&'static str> {
 
 /// Runs a Python script and parses the JSON it prints last.
 fn run_python(py: &str, script: &str, args: &[&str]) -> serde_json::Value {
-    let out = Command::new(py).arg("-c").arg(script).args(args).output().expect("python runs");
+    let out = Command::new(py)
+        .arg("-c")
+        .arg(script)
+        .args(args)
+        .output()
+        .expect("python runs");
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
         out.status.success(),
         "python failed:\n{stdout}\n{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let last = stdout.lines().rev().find(|l| l.starts_with('{')).expect("a JSON line");
+    let last = stdout
+        .lines()
+        .rev()
+        .find(|l| l.starts_with('{'))
+        .expect("a JSON line");
     serde_json::from_str(last).expect("JSON")
 }
 
@@ -126,23 +140,49 @@ fn gmsh_box_and_sphere_in_every_msh_form() {
         ("sphere", "2.2", "1"),
     ] {
         let path = dir.path().join(format!("{shape}-{version}-{binary}.msh"));
-        let want = run_python(py, GMSH_SCRIPT, &[path.to_str().unwrap(), shape, version, binary]);
+        let want = run_python(
+            py,
+            GMSH_SCRIPT,
+            &[path.to_str().unwrap(), shape, version, binary],
+        );
         let what = format!("{shape} MSH {version} binary={binary}");
         let raw = read_volume_raw(&path).unwrap_or_else(|e| panic!("{what}: {e}"));
-        assert_eq!(raw.nodes.len() as u64, want["nodes"].as_u64().unwrap(), "{what}");
-        assert_eq!(raw.tets.len() as u64, want["tets"].as_u64().unwrap(), "{what}");
-        assert!(raw.ignored_cells > 0, "{what}: surface and edge elements are skipped");
+        assert_eq!(
+            raw.nodes.len() as u64,
+            want["nodes"].as_u64().unwrap(),
+            "{what}"
+        );
+        assert_eq!(
+            raw.tets.len() as u64,
+            want["tets"].as_u64().unwrap(),
+            "{what}"
+        );
+        assert!(
+            raw.ignored_cells > 0,
+            "{what}: surface and edge elements are skipped"
+        );
         let r = read_volume_report(&path).unwrap();
-        assert_eq!(r.mesh.nodes.len() as u64, want["used"].as_u64().unwrap(), "{what}");
+        assert_eq!(
+            r.mesh.nodes.len() as u64,
+            want["used"].as_u64().unwrap(),
+            "{what}"
+        );
         let v = volume(&r.mesh);
-        assert!(close(v, want["volume"].as_f64().unwrap(), 1e-12), "{what}: {v}");
+        assert!(
+            close(v, want["volume"].as_f64().unwrap(), 1e-12),
+            "{what}: {v}"
+        );
         if shape == "box" {
             assert!(close(v, 0.02 * 0.03 * 0.04, 1e-9), "{what}: box volume {v}");
         } else {
             let ball = 4.0 / 3.0 * std::f64::consts::PI * 0.05f64.powi(3);
             assert!(close(v, ball, 0.05), "{what}: sphere volume {v} vs {ball}");
         }
-        assert_eq!(validate_mesh(&r.mesh, &ValidateOptions::default()), vec![], "{what}");
+        assert_eq!(
+            validate_mesh(&r.mesh, &ValidateOptions::default()),
+            vec![],
+            "{what}"
+        );
     }
 
     // Gmsh reads back what we write.
@@ -208,11 +248,25 @@ fn meshio_vtk_vtu_msh_and_tetgen_forms() {
     let want = run_python(
         py,
         MESHIO_SCRIPT,
-        &[src.to_str().unwrap(), dir.path().to_str().unwrap(), "ours.vtk", "ours.msh", "src.vtu"],
+        &[
+            src.to_str().unwrap(),
+            dir.path().to_str().unwrap(),
+            "ours.vtk",
+            "ours.msh",
+            "src.vtu",
+        ],
     );
     for (name, got) in want["ours"].as_object().unwrap() {
-        assert_eq!(got["points"].as_u64().unwrap(), mesh.nodes.len() as u64, "meshio reads {name}");
-        assert_eq!(got["tets"].as_u64().unwrap(), mesh.tets.len() as u64, "meshio reads {name}");
+        assert_eq!(
+            got["points"].as_u64().unwrap(),
+            mesh.nodes.len() as u64,
+            "meshio reads {name}"
+        );
+        assert_eq!(
+            got["tets"].as_u64().unwrap(),
+            mesh.tets.len() as u64,
+            "meshio reads {name}"
+        );
     }
     let files = want["files"].as_array().unwrap();
     assert_eq!(files.len(), 11);
@@ -222,14 +276,29 @@ fn meshio_vtk_vtu_msh_and_tetgen_forms() {
         let r = read_volume_report(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
         assert_eq!(r.mesh.tets.len(), mesh.tets.len(), "{name}");
         // Binary forms keep every f64; meshio's ASCII forms print 12 digits.
-        let worst = r.mesh.nodes.iter().zip(&mesh.nodes).map(|(a, b)| (a - b).norm()).fold(0.0, f64::max);
-        let exact = ["bin", "zlib", "raw", "41"].iter().any(|k| name.contains(k));
-        assert!(if exact { worst == 0.0 } else { worst < 1e-12 }, "{name}: points moved {worst} m");
+        let worst = r
+            .mesh
+            .nodes
+            .iter()
+            .zip(&mesh.nodes)
+            .map(|(a, b)| (a - b).norm())
+            .fold(0.0, f64::max);
+        let exact = ["bin", "zlib", "raw", "41"]
+            .iter()
+            .any(|k| name.contains(k));
+        assert!(
+            if exact { worst == 0.0 } else { worst < 1e-12 },
+            "{name}: points moved {worst} m"
+        );
         if name != "meshio.node" && name != "meshio-41.msh" {
             // These two hold tetrahedra only.
             assert_eq!(r.ignored_cells, 7, "{name}: the triangles are skipped");
         }
-        assert_eq!(r.flipped_tets as u64, want["flipped"].as_u64().unwrap(), "{name}");
+        assert_eq!(
+            r.flipped_tets as u64,
+            want["flipped"].as_u64().unwrap(),
+            "{name}"
+        );
         // Same tetrahedra as the source once oriented: compare node sets.
         let key = |t: &[u32; 4]| {
             let mut k = *t;
@@ -272,21 +341,42 @@ fn tetgen_linear_and_quadratic() {
     let smesh = dir.path().join("block.smesh");
     write_smesh(&smesh, &block);
     for (switches, order2) in [("-pQ", false), ("-pqQo2a2e-7", true)] {
-        let out = Command::new("tetgen").arg(switches).arg(&smesh).output().unwrap();
-        assert!(out.status.success(), "tetgen {switches}: {}", String::from_utf8_lossy(&out.stderr));
+        let out = Command::new("tetgen")
+            .arg(switches)
+            .arg(&smesh)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "tetgen {switches}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
         let ele = dir.path().join("block.1.ele");
         let r = read_volume_report(&ele).unwrap_or_else(|e| panic!("tetgen {switches}: {e}"));
-        assert!(close(volume(&r.mesh), 0.03f64.powi(3), 1e-9), "tetgen {switches}");
-        assert_eq!(validate_mesh(&r.mesh, &ValidateOptions::default()), vec![], "tetgen {switches}");
+        assert!(
+            close(volume(&r.mesh), 0.03f64.powi(3), 1e-9),
+            "tetgen {switches}"
+        );
+        assert_eq!(
+            validate_mesh(&r.mesh, &ValidateOptions::default()),
+            vec![],
+            "tetgen {switches}"
+        );
         if order2 {
             assert_eq!(r.higher_order_tets, r.mesh.tets.len());
             assert!(r.dropped_nodes > 0, "mid-edge nodes are dropped");
-            assert!(r.mesh.tets.len() > block.tets.len(), "the volume bound refines");
+            assert!(
+                r.mesh.tets.len() > block.tets.len(),
+                "the volume bound refines"
+            );
         } else {
             assert_eq!(r.higher_order_tets, 0);
             // The boundary survives: same surface area as the block's.
             let s = read_surface(&ele).unwrap();
-            assert_eq!(validate_surface(&s.vertices, &s.triangles, &ValidateOptions::default()), vec![]);
+            assert_eq!(
+                validate_surface(&s.vertices, &s.triangles, &ValidateOptions::default()),
+                vec![]
+            );
         }
         // Reading the .node path names the same pair.
         let same = read_volume(dir.path().join("block.1.node")).unwrap();
@@ -312,11 +402,18 @@ fn committed_tool_fixtures_load() {
         counts.push((r.mesh.nodes.len(), r.mesh.tets.len()));
         let v = volume(&r.mesh);
         assert!(close(v, 0.02 * 0.03 * 0.04, 1e-9), "{name}: volume {v}");
-        assert_eq!(validate_mesh(&r.mesh, &ValidateOptions::default()), vec![], "{name}");
+        assert_eq!(
+            validate_mesh(&r.mesh, &ValidateOptions::default()),
+            vec![],
+            "{name}"
+        );
     }
     // Gmsh's mesh in four forms (MSH 4.1, MSH 2.2, VTU, VTK) is one mesh.
     assert!(counts[..4].iter().all(|c| *c == counts[0]), "{counts:?}");
-    assert_eq!(read_volume(data("gmsh-box-41.msh")).unwrap(), read_volume(data("meshio-zlib.vtu")).unwrap());
+    assert_eq!(
+        read_volume(data("gmsh-box-41.msh")).unwrap(),
+        read_volume(data("meshio-zlib.vtu")).unwrap()
+    );
 }
 
 #[test]
@@ -327,7 +424,7 @@ fn round_trips_through_every_writer() {
         let p = dir.path().join(format!("m.{ext}"));
         write_volume(&p, &mesh).unwrap();
         assert_eq!(read_volume(&p).unwrap(), mesh, "{ext}");
-        assert_eq!(VolumeFormat::from_path(&p).is_some(), true);
+        assert!(VolumeFormat::from_path(&p).is_some());
     }
     let b = mesh.boundary();
     let mut v = Vec::new();
@@ -358,10 +455,17 @@ fn round_trips_through_every_writer() {
 fn errors_name_the_file_line_and_field() {
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("bad.msh");
-    std::fs::write(&p, "$MeshFormat\n4.1 0 8\n$EndMeshFormat\n$Nodes\n1 1 1 1\n3 1 0 1\n1\n0 0 zz\n$EndNodes\n").unwrap();
+    std::fs::write(
+        &p,
+        "$MeshFormat\n4.1 0 8\n$EndMeshFormat\n$Nodes\n1 1 1 1\n3 1 0 1\n1\n0 0 zz\n$EndNodes\n",
+    )
+    .unwrap();
     let e = read_volume(&p).unwrap_err();
     let text = e.to_string();
-    assert!(text.contains("bad.msh") && text.contains("line 8") && text.contains(": z:"), "{text}");
+    assert!(
+        text.contains("bad.msh") && text.contains("line 8") && text.contains(": z:"),
+        "{text}"
+    );
     assert!(matches!(e, IoError::Parse { .. }));
 
     let e = read_volume(dir.path().join("missing.vtu")).unwrap_err();
@@ -378,7 +482,10 @@ fn errors_name_the_file_line_and_field() {
     let p = dir.path().join("flat.vtk");
     std::fs::write(&p, "# vtk DataFile Version 3.0\nt\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 4 float\n0 0 0 1 0 0 0 1 0 1 1 0\nCELLS 1 5\n4 0 1 2 3\nCELL_TYPES 1\n10\n").unwrap();
     let e = read_volume(&p).unwrap_err();
-    assert!(matches!(e, IoError::Mesh { .. }) && e.to_string().contains("tetrahedron 0"), "{e}");
+    assert!(
+        matches!(e, IoError::Mesh { .. }) && e.to_string().contains("tetrahedron 0"),
+        "{e}"
+    );
 }
 
 /// Every prefix and many single-byte corruptions of valid files give a
@@ -399,7 +506,11 @@ fn truncated_and_corrupted_files_do_not_panic() {
     let mut buf = Vec::new();
     io::vtu::write_vtu(&mut buf, &mesh.nodes, &mesh.tets, &[], &[]).unwrap();
     files.push((buf, "vtu"));
-    for name in ["gmsh-box-22-bin.msh", "meshio-zlib.vtu", "meshio-51-bin.vtk"] {
+    for name in [
+        "gmsh-box-22-bin.msh",
+        "meshio-zlib.vtu",
+        "meshio-51-bin.vtk",
+    ] {
         let ext = name.rsplit('.').next().unwrap();
         files.push((std::fs::read(data(name)).unwrap(), ext));
     }
