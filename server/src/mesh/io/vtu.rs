@@ -742,6 +742,38 @@ mod tests {
     }
 
     #[test]
+    fn appended_raw_data() {
+        // ParaView's default layout: appended raw data, UInt32 headers.
+        let pts: Vec<u8> = [0.0f64, 0., 0., 1., 0., 0., 0., 1., 0., 0., 0., 1.]
+            .iter()
+            .flat_map(|x| x.to_le_bytes())
+            .collect();
+        let conn: Vec<u8> = [0i32, 1, 2, 3]
+            .iter()
+            .flat_map(|x| x.to_le_bytes())
+            .collect();
+        let offs: Vec<u8> = 4i32.to_le_bytes().to_vec();
+        let types = vec![10u8];
+        let mut blob = Vec::new();
+        let mut at = Vec::new();
+        for a in [&pts, &conn, &offs, &types] {
+            at.push(blob.len());
+            blob.extend_from_slice(&(a.len() as u32).to_le_bytes());
+            blob.extend_from_slice(a);
+        }
+        let mut file = format!(
+            "<VTKFile type=\"UnstructuredGrid\" byte_order=\"LittleEndian\"><UnstructuredGrid><Piece NumberOfPoints=\"4\" NumberOfCells=\"1\"><Points><DataArray type=\"Float64\" NumberOfComponents=\"3\" format=\"appended\" offset=\"{}\"/></Points><Cells><DataArray type=\"Int32\" Name=\"connectivity\" format=\"appended\" offset=\"{}\"/><DataArray type=\"Int32\" Name=\"offsets\" format=\"appended\" offset=\"{}\"/><DataArray type=\"UInt8\" Name=\"types\" format=\"appended\" offset=\"{}\"/></Cells></Piece></UnstructuredGrid><AppendedData encoding=\"raw\">\n_",
+            at[0], at[1], at[2], at[3]
+        )
+        .into_bytes();
+        file.extend_from_slice(&blob);
+        file.extend_from_slice(b"\n</AppendedData></VTKFile>");
+        let raw = parse(&file).unwrap();
+        assert_eq!(raw.tets, vec![[0, 1, 2, 3]]);
+        assert_eq!(raw.nodes[3], Point3::new(0.0, 0.0, 1.0));
+    }
+
+    #[test]
     fn compressed_header_claims_are_bounded() {
         // A zlib header claiming 2^40 bytes from a few compressed bytes.
         let mut head = Vec::new();
