@@ -1,8 +1,0 @@
-//! Client logic of the `fissure` command: trajectories, replay, the demo, mesh
-//! tools and benchmarks. The binary (`main.rs`) only parses arguments.
-
-pub mod bench_collision;
-pub mod demo;
-pub mod replay;
-pub mod report;
-pub mod trajectory;

@@ -183,8 +183,10 @@ mod tests {
                     Some(o) => {
                         let o = *o as usize;
                         assert!(nb[o].contains(&Some(t as u32)));
-                        let shared =
-                            mesh.tets[t].iter().filter(|v| mesh.tets[o].contains(v)).count();
+                        let shared = mesh.tets[t]
+                            .iter()
+                            .filter(|v| mesh.tets[o].contains(v))
+                            .count();
                         assert_eq!(shared, 3);
                         // The shared face is the one opposite local vertex i.
                         assert!(!mesh.tets[o].contains(&mesh.tets[t][i]));

@@ -59,7 +59,11 @@ pub fn tet_quality(p: [Point3<f64>; 4]) -> TetQuality {
             + v.norm_squared() * w.cross(&u)
             + w.norm_squared() * u.cross(&v);
         let r_circ = o.norm() / (2.0 * six_v.abs());
-        if r_circ > 0.0 && r_circ.is_finite() { (3.0 * r_in / r_circ).min(1.0) } else { 0.0 }
+        if r_circ > 0.0 && r_circ.is_finite() {
+            (3.0 * r_in / r_circ).min(1.0)
+        } else {
+            0.0
+        }
     };
 
     let mut min_dihedral_deg = f64::INFINITY;
@@ -81,7 +85,12 @@ pub fn tet_quality(p: [Point3<f64>; 4]) -> TetQuality {
         min_dihedral_deg = 0.0;
         max_dihedral_deg = 180.0;
     }
-    TetQuality { volume, radius_ratio, min_dihedral_deg, max_dihedral_deg }
+    TetQuality {
+        volume,
+        radius_ratio,
+        min_dihedral_deg,
+        max_dihedral_deg,
+    }
 }
 
 /// Quality of every tetrahedron of `mesh`, in element order.
@@ -191,7 +200,12 @@ impl Histogram {
                 counts[k.min(bins - 1)] += 1;
             }
         }
-        Self { lo, hi, counts, outside }
+        Self {
+            lo,
+            hi,
+            counts,
+            outside,
+        }
     }
 
     /// Lower and upper edge of bin `k`.
@@ -286,7 +300,12 @@ mod tests {
 
     #[test]
     fn histogram_counts_every_value_once() {
-        let h = Histogram::new([0.0, 0.1, 0.5, 0.99, 1.0, 1.5, f64::NAN, -0.1], 0.0, 1.0, 10);
+        let h = Histogram::new(
+            [0.0, 0.1, 0.5, 0.99, 1.0, 1.5, f64::NAN, -0.1],
+            0.0,
+            1.0,
+            10,
+        );
         assert_eq!(h.counts.iter().sum::<usize>() + h.outside, 8);
         assert_eq!(h.outside, 3);
         assert_eq!(h.counts[0], 1);

@@ -37,7 +37,11 @@ pub struct ValidateOptions {
 
 impl Default for ValidateOptions {
     fn default() -> Self {
-        Self { duplicate_tolerance: 1e-9, degenerate_ratio: 1e-6, max_problems: 10_000 }
+        Self {
+            duplicate_tolerance: 1e-9,
+            degenerate_ratio: 1e-6,
+            max_problems: 10_000,
+        }
     }
 }
 
@@ -58,7 +62,11 @@ pub enum Problem {
     #[error(
         "tetrahedron {tet} is degenerate (signed volume {volume:e} m^3, normalised volume {normalised:e})"
     )]
-    Degenerate { tet: usize, volume: f64, normalised: f64 },
+    Degenerate {
+        tet: usize,
+        volume: f64,
+        normalised: f64,
+    },
     /// A tetrahedron uses one node twice.
     #[error("tetrahedron {tet} repeats node {node}")]
     RepeatedNode { tet: usize, node: u32 },
@@ -77,13 +85,23 @@ pub enum Problem {
     NonManifoldVertex { node: u32, fans: usize },
     /// Two nodes closer than the tolerance.
     #[error("node {node} duplicates node {of} (distance {distance:e} m)")]
-    DuplicateNode { node: usize, of: usize, distance: f64 },
+    DuplicateNode {
+        node: usize,
+        of: usize,
+        distance: f64,
+    },
     /// A node used by no tetrahedron (or, for a surface, by no triangle).
     #[error("node {node} is used by no element")]
     UnusedNode { node: usize },
     /// A surface triangle names a vertex that does not exist.
-    #[error("triangle {triangle} refers to vertex {vertex}, but the surface has {vertices} vertices")]
-    TriangleOutOfRange { triangle: usize, vertex: u32, vertices: usize },
+    #[error(
+        "triangle {triangle} refers to vertex {vertex}, but the surface has {vertices} vertices"
+    )]
+    TriangleOutOfRange {
+        triangle: usize,
+        vertex: u32,
+        vertices: usize,
+    },
     /// A surface triangle has (near) zero area: `2 A / l_max^2` below
     /// [`ValidateOptions::degenerate_ratio`], or a repeated vertex.
     #[error("triangle {triangle} is degenerate (area {area:e} m^2)")]
@@ -103,10 +121,15 @@ pub fn validate_mesh(mesh: &TetMesh, opts: &ValidateOptions) -> Vec<Problem> {
 /// list in the module doc, each kind in increasing element or node order, at
 /// most `opts.max_problems` of them.
 pub fn validate(nodes: &[Point3<f64>], tets: &[[u32; 4]], opts: &ValidateOptions) -> Vec<Problem> {
-    let mut out = Problems { list: Vec::new(), max: opts.max_problems };
+    let mut out = Problems {
+        list: Vec::new(),
+        max: opts.max_problems,
+    };
     let n = nodes.len();
-    let finite: Vec<bool> =
-        nodes.iter().map(|p| p.coords.iter().all(|c| c.is_finite())).collect();
+    let finite: Vec<bool> = nodes
+        .iter()
+        .map(|p| p.coords.iter().all(|c| c.is_finite()))
+        .collect();
     for (node, ok) in finite.iter().enumerate() {
         if !ok {
             out.push(Problem::NonFiniteNode { node });
@@ -117,7 +140,11 @@ pub fn validate(nodes: &[Point3<f64>], tets: &[[u32; 4]], opts: &ValidateOptions
     let mut good = vec![true; tets.len()];
     for (tet, t) in tets.iter().enumerate() {
         if let Some(&node) = t.iter().find(|&&i| i as usize >= n) {
-            out.push(Problem::NodeOutOfRange { tet, node, nodes: n });
+            out.push(Problem::NodeOutOfRange {
+                tet,
+                node,
+                nodes: n,
+            });
             good[tet] = false;
             continue;
         }
@@ -138,10 +165,17 @@ pub fn validate(nodes: &[Point3<f64>], tets: &[[u32; 4]], opts: &ValidateOptions
             }
         }
         let l_rms = (l2 / 6.0).sqrt();
-        let normalised =
-            if l_rms > 0.0 { 6.0 * 2f64.sqrt() * volume.abs() / l_rms.powi(3) } else { 0.0 };
+        let normalised = if l_rms > 0.0 {
+            6.0 * 2f64.sqrt() * volume.abs() / l_rms.powi(3)
+        } else {
+            0.0
+        };
         if normalised < opts.degenerate_ratio {
-            out.push(Problem::Degenerate { tet, volume, normalised });
+            out.push(Problem::Degenerate {
+                tet,
+                volume,
+                normalised,
+            });
         } else if volume < 0.0 {
             out.push(Problem::Inverted { tet, volume });
         }
@@ -157,11 +191,17 @@ pub fn validate(nodes: &[Point3<f64>], tets: &[[u32; 4]], opts: &ValidateOptions
             let tri = [t[f[0]], t[f[1]], t[f[2]]];
             let mut key = tri;
             key.sort_unstable();
-            faces.entry(key).and_modify(|e| e.0 += 1).or_insert((1, tri));
+            faces
+                .entry(key)
+                .and_modify(|e| e.0 += 1)
+                .or_insert((1, tri));
         }
     }
-    let mut shared: Vec<([u32; 3], usize)> =
-        faces.iter().filter(|(_, v)| v.0 > 2).map(|(k, v)| (*k, v.0 as usize)).collect();
+    let mut shared: Vec<([u32; 3], usize)> = faces
+        .iter()
+        .filter(|(_, v)| v.0 > 2)
+        .map(|(k, v)| (*k, v.0 as usize))
+        .collect();
     shared.sort_unstable();
     for (face, tets) in shared {
         out.push(Problem::NonManifoldFace { face, tets });
@@ -201,10 +241,15 @@ pub fn validate_surface(
     triangles: &[[u32; 3]],
     opts: &ValidateOptions,
 ) -> Vec<Problem> {
-    let mut out = Problems { list: Vec::new(), max: opts.max_problems };
+    let mut out = Problems {
+        list: Vec::new(),
+        max: opts.max_problems,
+    };
     let n = vertices.len();
-    let finite: Vec<bool> =
-        vertices.iter().map(|p| p.coords.iter().all(|c| c.is_finite())).collect();
+    let finite: Vec<bool> = vertices
+        .iter()
+        .map(|p| p.coords.iter().all(|c| c.is_finite()))
+        .collect();
     for (node, ok) in finite.iter().enumerate() {
         if !ok {
             out.push(Problem::NonFiniteNode { node });
@@ -213,14 +258,24 @@ pub fn validate_surface(
     let mut good = Vec::with_capacity(triangles.len());
     for (triangle, t) in triangles.iter().enumerate() {
         if let Some(&vertex) = t.iter().find(|&&i| i as usize >= n) {
-            out.push(Problem::TriangleOutOfRange { triangle, vertex, vertices: n });
+            out.push(Problem::TriangleOutOfRange {
+                triangle,
+                vertex,
+                vertices: n,
+            });
             continue;
         }
         let [a, b, c] = t.map(|i| vertices[i as usize]);
         let area = 0.5 * (b - a).cross(&(c - a)).norm();
-        let l2 = (b - a).norm_squared().max((c - b).norm_squared()).max((a - c).norm_squared());
+        let l2 = (b - a)
+            .norm_squared()
+            .max((c - b).norm_squared())
+            .max((a - c).norm_squared());
         let repeated = t[0] == t[1] || t[1] == t[2] || t[0] == t[2];
-        if repeated || !(l2 > 0.0) || 2.0 * area / l2 < opts.degenerate_ratio {
+        if repeated
+            || l2.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater)
+            || 2.0 * area / l2 < opts.degenerate_ratio
+        {
             out.push(Problem::DegenerateTriangle { triangle, area });
         }
         if !repeated {
@@ -272,8 +327,11 @@ fn check_surface(boundary: &[[u32; 3]], out: &mut Problems) {
             *edges.entry([a.min(b), a.max(b)]).or_insert(0) += 1;
         }
     }
-    let mut bad_edges: Vec<([u32; 2], usize)> =
-        edges.iter().filter(|(_, c)| **c != 2).map(|(e, c)| (*e, *c)).collect();
+    let mut bad_edges: Vec<([u32; 2], usize)> = edges
+        .iter()
+        .filter(|(_, c)| **c != 2)
+        .map(|(e, c)| (*e, *c))
+        .collect();
     bad_edges.sort_unstable();
     for (edge, c) in bad_edges {
         if c == 1 {
@@ -306,7 +364,6 @@ fn check_surface(boundary: &[[u32; 3]], out: &mut Problems) {
         }
         start = end;
     }
-
 }
 
 /// Duplicate nodes: each node is compared with the earlier nodes kept in the
@@ -338,13 +395,16 @@ fn check_duplicates(nodes: &[Point3<f64>], finite: &[bool], tol: f64, out: &mut 
                 }
             }
             if let Some((of, distance)) = found {
-                out.push(Problem::DuplicateNode { node: i, of, distance });
+                out.push(Problem::DuplicateNode {
+                    node: i,
+                    of,
+                    distance,
+                });
             } else {
                 grid.entry([c.x, c.y, c.z]).or_default().push(i);
             }
         }
     }
-
 }
 
 /// Number of edge-connected groups among the triangles `tris` around vertex
@@ -373,7 +433,9 @@ fn count_fans(v: u32, tris: &[u32], boundary: &[[u32; 3]]) -> usize {
             }
         }
     }
-    (0..tris.len()).filter(|&i| find(&mut parent, i) == i).count()
+    (0..tris.len())
+        .filter(|&i| find(&mut parent, i) == i)
+        .count()
 }
 
 /// The problem list with a cap.
@@ -415,8 +477,16 @@ mod tests {
         let mut tets = mesh.tets.clone();
         tets.push([0, 1, 3, 8]);
         let p = validate(&nodes, &tets, &opts());
-        assert!(p.iter().any(|x| matches!(x, Problem::Inverted { tet: 2, .. })), "{p:?}");
-        assert!(p.iter().any(|x| matches!(x, Problem::Degenerate { tet: 6, .. })), "{p:?}");
+        assert!(
+            p.iter()
+                .any(|x| matches!(x, Problem::Inverted { tet: 2, .. })),
+            "{p:?}"
+        );
+        assert!(
+            p.iter()
+                .any(|x| matches!(x, Problem::Degenerate { tet: 6, .. })),
+            "{p:?}"
+        );
     }
 
     #[test]
@@ -430,12 +500,15 @@ mod tests {
         assert!(!p.iter().any(|x| matches!(x, Problem::OpenEdge { .. })));
         assert!(p.contains(&Problem::UnusedNode { node: 8 }));
         assert!(
-            p.iter().any(|x| matches!(x, Problem::DuplicateNode { node: 8, of: 0, .. })),
+            p.iter()
+                .any(|x| matches!(x, Problem::DuplicateNode { node: 8, of: 0, .. })),
             "{p:?}"
         );
         let used: Vec<u32> = tets[0].to_vec();
         for node in 0..8u32 {
-            let unused = p.contains(&Problem::UnusedNode { node: node as usize });
+            let unused = p.contains(&Problem::UnusedNode {
+                node: node as usize,
+            });
             assert_eq!(unused, !used.contains(&node));
         }
     }
@@ -451,7 +524,13 @@ mod tests {
             Point3::new(0.2, 0.2, -1.0),
         ];
         let p = validate(&base, &[[0, 1, 2, 3], [0, 1, 2, 4], [0, 2, 1, 5]], &opts());
-        assert!(p.contains(&Problem::NonManifoldFace { face: [0, 1, 2], tets: 3 }), "{p:?}");
+        assert!(
+            p.contains(&Problem::NonManifoldFace {
+                face: [0, 1, 2],
+                tets: 3
+            }),
+            "{p:?}"
+        );
 
         // Two tets sharing only the edge (0, 1): a non-manifold boundary edge.
         let nodes = vec![
@@ -470,7 +549,13 @@ mod tests {
             }
         }
         let p = validate(&nodes, &tets, &opts());
-        assert!(p.contains(&Problem::NonManifoldEdge { edge: [0, 1], triangles: 4 }), "{p:?}");
+        assert!(
+            p.contains(&Problem::NonManifoldEdge {
+                edge: [0, 1],
+                triangles: 4
+            }),
+            "{p:?}"
+        );
 
         // Two tets sharing only node 0: a non-manifold vertex.
         let nodes = vec![
@@ -506,14 +591,21 @@ mod tests {
         let t = b.triangles[0];
         for k in 0..3 {
             let (a, c) = (t[k], t[(k + 1) % 3]);
-            assert!(p.contains(&Problem::OpenEdge { edge: [a.min(c), a.max(c)] }), "{p:?}");
+            assert!(
+                p.contains(&Problem::OpenEdge {
+                    edge: [a.min(c), a.max(c)]
+                }),
+                "{p:?}"
+            );
         }
         // Flip one triangle: its edges are used twice in one direction.
         let mut flipped = b.triangles.clone();
         flipped[0].swap(1, 2);
         let p = validate_surface(&v, &flipped, &opts());
         assert_eq!(
-            p.iter().filter(|x| matches!(x, Problem::InconsistentOrientation { .. })).count(),
+            p.iter()
+                .filter(|x| matches!(x, Problem::InconsistentOrientation { .. }))
+                .count(),
             3
         );
         // Degenerate and out-of-range triangles.
@@ -521,8 +613,14 @@ mod tests {
         bad.push([0, 0, 1]);
         bad.push([0, 1, 1000]);
         let p = validate_surface(&v, &bad, &opts());
-        assert!(p.contains(&Problem::DegenerateTriangle { triangle: bad.len() - 2, area: 0.0 }));
-        assert!(p.iter().any(|x| matches!(x, Problem::TriangleOutOfRange { vertex: 1000, .. })));
+        assert!(p.contains(&Problem::DegenerateTriangle {
+            triangle: bad.len() - 2,
+            area: 0.0
+        }));
+        assert!(
+            p.iter()
+                .any(|x| matches!(x, Problem::TriangleOutOfRange { vertex: 1000, .. }))
+        );
     }
 
     #[test]
@@ -531,7 +629,14 @@ mod tests {
         let mut tets = mesh.tets.clone();
         tets.push([0, 1, 2, 99]);
         let p = validate(&mesh.nodes, &tets, &opts());
-        assert_eq!(p, vec![Problem::NodeOutOfRange { tet: 6, node: 99, nodes: 8 }]);
+        assert_eq!(
+            p,
+            vec![Problem::NodeOutOfRange {
+                tet: 6,
+                node: 99,
+                nodes: 8
+            }]
+        );
         let p = validate(&mesh.nodes, &[[0, 0, 1, 2]], &opts());
         assert!(p.contains(&Problem::RepeatedNode { tet: 0, node: 0 }));
     }

@@ -17,15 +17,28 @@ pub(crate) struct Cursor<'a> {
 
 impl<'a> Cursor<'a> {
     pub fn new(data: &'a [u8]) -> Self {
-        Self { data, pos: 0, line: 1, binary: false }
+        Self {
+            data,
+            pos: 0,
+            line: 1,
+            binary: false,
+        }
     }
 
     pub fn loc(&self) -> Loc {
-        if self.binary { Loc::Byte(self.pos) } else { Loc::Line(self.line) }
+        if self.binary {
+            Loc::Byte(self.pos)
+        } else {
+            Loc::Line(self.line)
+        }
     }
 
     pub fn err(&self, field: &str, message: impl Into<String>) -> ParseError {
-        ParseError { loc: self.loc(), field: field.to_string(), message: message.into() }
+        ParseError {
+            loc: self.loc(),
+            field: field.to_string(),
+            message: message.into(),
+        }
     }
 
     pub fn remaining(&self) -> usize {
@@ -63,16 +76,21 @@ impl<'a> Cursor<'a> {
 
     /// The next token parsed as `T`.
     pub fn parse<T: FromStr>(&mut self, field: &str) -> Result<T, ParseError> {
-        let tok = self.token().ok_or_else(|| self.err(field, "missing (unexpected end of file)"))?;
-        parse_token(tok).ok_or_else(|| {
-            self.err(field, format!("'{}' is not a valid value", show(tok)))
-        })
+        let tok = self
+            .token()
+            .ok_or_else(|| self.err(field, "missing (unexpected end of file)"))?;
+        parse_token(tok)
+            .ok_or_else(|| self.err(field, format!("'{}' is not a valid value", show(tok))))
     }
 
     /// The next token as a finite `f64`.
     pub fn f64(&mut self, field: &str) -> Result<f64, ParseError> {
         let x: f64 = self.parse(field)?;
-        if x.is_finite() { Ok(x) } else { Err(self.err(field, "not a finite number")) }
+        if x.is_finite() {
+            Ok(x)
+        } else {
+            Err(self.err(field, "not a finite number"))
+        }
     }
 
     /// Requires the next token to be `word`.
@@ -80,7 +98,10 @@ impl<'a> Cursor<'a> {
         match self.token() {
             Some(t) if t == word.as_bytes() => Ok(()),
             Some(t) => Err(self.err(word, format!("expected '{word}', found '{}'", show(t)))),
-            None => Err(self.err(word, format!("expected '{word}', found the end of the file"))),
+            None => Err(self.err(
+                word,
+                format!("expected '{word}', found the end of the file"),
+            )),
         }
     }
 
@@ -113,7 +134,10 @@ impl<'a> Cursor<'a> {
         if n > self.remaining() {
             return Err(self.err(
                 field,
-                format!("needs {n} bytes, only {} left in the file", self.remaining()),
+                format!(
+                    "needs {n} bytes, only {} left in the file",
+                    self.remaining()
+                ),
             ));
         }
         let s = &self.data[self.pos..self.pos + n];
@@ -129,7 +153,10 @@ impl<'a> Cursor<'a> {
             Some(i) => self.pos + i + needle.len(),
             None => self.data.len(),
         };
-        self.line += self.data[self.pos.min(end)..end].iter().filter(|&&b| b == b'\n').count();
+        self.line += self.data[self.pos.min(end)..end]
+            .iter()
+            .filter(|&&b| b == b'\n')
+            .count();
         self.pos = end;
         found.is_some()
     }
@@ -137,21 +164,33 @@ impl<'a> Cursor<'a> {
     /// Checks that `count` items of at least `min_bytes` each fit in the rest
     /// of the input, and returns the count as `usize`. This bounds every
     /// allocation by the file size.
-    pub fn check_count(&self, count: u64, min_bytes: usize, field: &str) -> Result<usize, ParseError> {
+    pub fn check_count(
+        &self,
+        count: u64,
+        min_bytes: usize,
+        field: &str,
+    ) -> Result<usize, ParseError> {
         let fits = (count as u128) * (min_bytes.max(1) as u128) <= self.remaining() as u128 + 1;
         if fits {
             Ok(count as usize)
         } else {
             Err(self.err(
                 field,
-                format!("count {count} exceeds what the {} remaining bytes can hold", self.remaining()),
+                format!(
+                    "count {count} exceeds what the {} remaining bytes can hold",
+                    self.remaining()
+                ),
             ))
         }
     }
 
     pub fn bin_u32(&mut self, big: bool, field: &str) -> Result<u32, ParseError> {
         let b: [u8; 4] = self.take(4, field)?.try_into().unwrap_or([0; 4]);
-        Ok(if big { u32::from_be_bytes(b) } else { u32::from_le_bytes(b) })
+        Ok(if big {
+            u32::from_be_bytes(b)
+        } else {
+            u32::from_le_bytes(b)
+        })
     }
 
     pub fn bin_i32(&mut self, big: bool, field: &str) -> Result<i32, ParseError> {
@@ -160,17 +199,29 @@ impl<'a> Cursor<'a> {
 
     pub fn bin_u64(&mut self, big: bool, field: &str) -> Result<u64, ParseError> {
         let b: [u8; 8] = self.take(8, field)?.try_into().unwrap_or([0; 8]);
-        Ok(if big { u64::from_be_bytes(b) } else { u64::from_le_bytes(b) })
+        Ok(if big {
+            u64::from_be_bytes(b)
+        } else {
+            u64::from_le_bytes(b)
+        })
     }
 
     pub fn bin_f64(&mut self, big: bool, field: &str) -> Result<f64, ParseError> {
         let x = f64::from_bits(self.bin_u64(big, field)?);
-        if x.is_finite() { Ok(x) } else { Err(self.err(field, "not a finite number")) }
+        if x.is_finite() {
+            Ok(x)
+        } else {
+            Err(self.err(field, "not a finite number"))
+        }
     }
 
     pub fn bin_f32(&mut self, big: bool, field: &str) -> Result<f64, ParseError> {
         let x = f32::from_bits(self.bin_u32(big, field)?) as f64;
-        if x.is_finite() { Ok(x) } else { Err(self.err(field, "not a finite number")) }
+        if x.is_finite() {
+            Ok(x)
+        } else {
+            Err(self.err(field, "not a finite number"))
+        }
     }
 }
 

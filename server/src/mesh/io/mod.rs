@@ -74,7 +74,11 @@ pub struct ParseError {
 impl ParseError {
     /// An error about the file as a whole.
     pub fn file(field: &str, message: impl Into<String>) -> Self {
-        Self { loc: Loc::File, field: field.to_string(), message: message.into() }
+        Self {
+            loc: Loc::File,
+            field: field.to_string(),
+            message: message.into(),
+        }
     }
 }
 
@@ -97,7 +101,10 @@ pub enum IoError {
     },
     /// The extension names no supported format.
     #[error("{}: unknown mesh format (extension); {expected}", path.display())]
-    UnknownFormat { path: PathBuf, expected: &'static str },
+    UnknownFormat {
+        path: PathBuf,
+        expected: &'static str,
+    },
     /// The file holds no tetrahedra.
     #[error("{}: no tetrahedra in the file ({ignored} other cells ignored)", path.display())]
     NoTetrahedra { path: PathBuf, ignored: usize },
@@ -112,10 +119,16 @@ pub enum IoError {
 
 impl IoError {
     fn io(path: &Path, source: std::io::Error) -> Self {
-        Self::Io { path: path.to_path_buf(), source }
+        Self::Io {
+            path: path.to_path_buf(),
+            source,
+        }
     }
     fn parse(path: &Path, source: ParseError) -> Self {
-        Self::Parse { path: path.to_path_buf(), source }
+        Self::Parse {
+            path: path.to_path_buf(),
+            source,
+        }
     }
 }
 
@@ -188,7 +201,10 @@ const VOLUME_EXTS: &str = "expected .msh, .vtk, .vtu, .node or .ele";
 const SURFACE_EXTS: &str = "expected .obj, .ply, .stl (or a volume format: its boundary)";
 
 fn extension(path: &Path) -> String {
-    path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase()
+    path.extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase()
 }
 
 impl VolumeFormat {
@@ -227,9 +243,10 @@ pub fn parse_volume(bytes: &[u8], format: VolumeFormat) -> Result<RawVolume, Par
         VolumeFormat::Msh => msh::parse(bytes),
         VolumeFormat::Vtk => vtk::parse(bytes),
         VolumeFormat::Vtu => vtu::parse(bytes),
-        VolumeFormat::TetGen => {
-            Err(ParseError::file("format", "TetGen meshes are two files; use tetgen::parse"))
-        }
+        VolumeFormat::TetGen => Err(ParseError::file(
+            "format",
+            "TetGen meshes are two files; use tetgen::parse",
+        )),
     }
 }
 
@@ -244,15 +261,24 @@ pub fn parse_surface(bytes: &[u8], format: SurfaceFormat) -> Result<SurfaceMesh,
 
 /// Reads a volume file as it is (no orientation fix, all nodes kept).
 pub fn read_volume_raw(path: &Path) -> Result<RawVolume, IoError> {
-    let format = VolumeFormat::from_path(path)
-        .ok_or_else(|| IoError::UnknownFormat { path: path.to_path_buf(), expected: VOLUME_EXTS })?;
+    let format = VolumeFormat::from_path(path).ok_or_else(|| IoError::UnknownFormat {
+        path: path.to_path_buf(),
+        expected: VOLUME_EXTS,
+    })?;
     if format == VolumeFormat::TetGen {
         let node_path = path.with_extension("node");
         let ele_path = path.with_extension("ele");
         let node = read_bytes(&node_path)?;
         let ele = read_bytes(&ele_path)?;
         return tetgen::parse(&node, &ele).map_err(|(which, e)| {
-            IoError::parse(if which == tetgen::Which::Node { &node_path } else { &ele_path }, e)
+            IoError::parse(
+                if which == tetgen::Which::Node {
+                    &node_path
+                } else {
+                    &ele_path
+                },
+                e,
+            )
         });
     }
     let bytes = read_bytes(path)?;
@@ -264,9 +290,15 @@ pub fn read_volume_raw(path: &Path) -> Result<RawVolume, IoError> {
 pub fn read_volume_report(path: &Path) -> Result<VolumeRead, IoError> {
     let raw = read_volume_raw(path)?;
     if raw.tets.is_empty() {
-        return Err(IoError::NoTetrahedra { path: path.to_path_buf(), ignored: raw.ignored_cells });
+        return Err(IoError::NoTetrahedra {
+            path: path.to_path_buf(),
+            ignored: raw.ignored_cells,
+        });
     }
-    finish_volume(raw).map_err(|source| IoError::Mesh { path: path.to_path_buf(), source })
+    finish_volume(raw).map_err(|source| IoError::Mesh {
+        path: path.to_path_buf(),
+        source,
+    })
 }
 
 /// Reads a volume mesh (`.msh`, `.vtk`, `.vtu`, `.node`/`.ele`): positive
@@ -278,7 +310,12 @@ pub fn read_volume(path: impl AsRef<Path>) -> Result<TetMesh, IoError> {
 /// Orients every tetrahedron positively and drops unused nodes, then checks
 /// the mesh with [`TetMesh::new`] (a degenerate tetrahedron is an error).
 pub fn finish_volume(raw: RawVolume) -> Result<VolumeRead, MeshError> {
-    let RawVolume { nodes, mut tets, ignored_cells, higher_order_tets } = raw;
+    let RawVolume {
+        nodes,
+        mut tets,
+        ignored_cells,
+        higher_order_tets,
+    } = raw;
     let mut flipped_tets = 0;
     for t in &mut tets {
         let [a, b, c, d] = t.map(|i| nodes.get(i as usize).copied().unwrap_or(Point3::origin()));
@@ -311,7 +348,14 @@ pub fn finish_volume(raw: RawVolume) -> Result<VolumeRead, MeshError> {
         }
     }
     let mesh = TetMesh::new(kept, tets)?;
-    Ok(VolumeRead { mesh, file_nodes, ignored_cells, higher_order_tets, flipped_tets, dropped_nodes })
+    Ok(VolumeRead {
+        mesh,
+        file_nodes,
+        ignored_cells,
+        higher_order_tets,
+        flipped_tets,
+        dropped_nodes,
+    })
 }
 
 /// Reads a triangle surface (`.obj`, `.ply`, `.stl`); a volume format gives
@@ -335,16 +379,28 @@ pub fn read_surface(path: impl AsRef<Path>) -> Result<SurfaceMesh, IoError> {
         let b = mesh.boundary();
         let mut vertices = Vec::new();
         b.gather(&mesh.nodes, &mut vertices);
-        return Ok(SurfaceMesh { vertices, triangles: b.triangles });
+        return Ok(SurfaceMesh {
+            vertices,
+            triangles: b.triangles,
+        });
     }
-    Err(IoError::UnknownFormat { path: path.to_path_buf(), expected: SURFACE_EXTS })
+    Err(IoError::UnknownFormat {
+        path: path.to_path_buf(),
+        expected: SURFACE_EXTS,
+    })
 }
 
 fn create(path: &Path) -> Result<std::io::BufWriter<std::fs::File>, IoError> {
-    std::fs::File::create(path).map(std::io::BufWriter::new).map_err(|e| IoError::io(path, e))
+    std::fs::File::create(path)
+        .map(std::io::BufWriter::new)
+        .map_err(|e| IoError::io(path, e))
 }
 
-fn flush(path: &Path, w: std::io::BufWriter<std::fs::File>, r: std::io::Result<()>) -> Result<(), IoError> {
+fn flush(
+    path: &Path,
+    w: std::io::BufWriter<std::fs::File>,
+    r: std::io::Result<()>,
+) -> Result<(), IoError> {
     r.and_then(|()| w.into_inner().map_err(|e| e.into_error()).map(|_| ()))
         .map_err(|e| IoError::io(path, e))
 }
@@ -354,8 +410,10 @@ fn flush(path: &Path, w: std::io::BufWriter<std::fs::File>, r: std::io::Result<(
 /// (legacy ASCII) or `.node`/`.ele` (both files, 1-based).
 pub fn write_volume(path: impl AsRef<Path>, mesh: &TetMesh) -> Result<(), IoError> {
     let path = path.as_ref();
-    let format = VolumeFormat::from_path(path)
-        .ok_or_else(|| IoError::UnknownFormat { path: path.to_path_buf(), expected: VOLUME_EXTS })?;
+    let format = VolumeFormat::from_path(path).ok_or_else(|| IoError::UnknownFormat {
+        path: path.to_path_buf(),
+        expected: VOLUME_EXTS,
+    })?;
     match format {
         VolumeFormat::Vtu => {
             let q = super::quality::mesh_quality(mesh);

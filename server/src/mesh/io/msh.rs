@@ -64,7 +64,10 @@ enum Mode {
     Ascii,
     /// Binary with `size_t` of 4 or 8 bytes; `big` when the file's byte order
     /// differs from little endian.
-    Binary { size_t: usize, big: bool },
+    Binary {
+        size_t: usize,
+        big: bool,
+    },
 }
 
 struct Reader<'a> {
@@ -147,7 +150,10 @@ pub fn parse(bytes: &[u8]) -> Result<RawVolume, ParseError> {
                 [0, 0, 0, 1] => true,
                 _ => return Err(cur.err("endianness", "expected the integer 1")),
             };
-            Mode::Binary { size_t: data_size, big }
+            Mode::Binary {
+                size_t: data_size,
+                big,
+            }
         }
         t => return Err(cur.err("file-type", format!("{t} (expected 0 or 1)"))),
     };
@@ -206,7 +212,10 @@ pub fn parse(bytes: &[u8]) -> Result<RawVolume, ParseError> {
                 if !r.cur.skip_past(&end) {
                     return Err(r.cur.err(
                         &String::from_utf8_lossy(t),
-                        format!("no {} before the end of the file", String::from_utf8_lossy(&end)),
+                        format!(
+                            "no {} before the end of the file",
+                            String::from_utf8_lossy(&end)
+                        ),
                     ));
                 }
             }
@@ -267,7 +276,9 @@ fn add_node(
         return Err(r.cur.err("numNodes", "more than 2^32 - 1 nodes"));
     }
     if tags.insert(tag, nodes.len() as u32).is_some() {
-        return Err(r.cur.err("nodeTag", format!("node tag {tag} defined twice")));
+        return Err(r
+            .cur
+            .err("nodeTag", format!("node tag {tag} defined twice")));
     }
     nodes.push(p);
     Ok(())
@@ -284,7 +295,9 @@ fn nodes41(
     let _max = r.size("maxNodeTag")?;
     let per_node = r.min_size() + 3 * r.min_double();
     let total = r.cur.check_count(total, per_node, "numNodes")?;
-    let blocks = r.cur.check_count(blocks, 3 * r.min_int() + r.min_size(), "numEntityBlocks")?;
+    let blocks = r
+        .cur
+        .check_count(blocks, 3 * r.min_int() + r.min_size(), "numEntityBlocks")?;
     nodes.reserve(total);
     tags.reserve(total);
     for _ in 0..blocks {
@@ -294,7 +307,10 @@ fn nodes41(
         let n = r.size("numNodesInBlock")?;
         let n = r.cur.check_count(n, per_node, "numNodesInBlock")?;
         if nodes.len() + n > total {
-            return Err(r.cur.err("numNodesInBlock", format!("blocks hold more than numNodes = {total}")));
+            return Err(r.cur.err(
+                "numNodesInBlock",
+                format!("blocks hold more than numNodes = {total}"),
+            ));
         }
         if !(0..=3).contains(&dim) {
             return Err(r.cur.err("entityDim", format!("{dim} (expected 0..3)")));
@@ -313,7 +329,10 @@ fn nodes41(
         }
     }
     if nodes.len() != total {
-        return Err(r.cur.err("numNodes", format!("{total} declared, {} found in the blocks", nodes.len())));
+        return Err(r.cur.err(
+            "numNodes",
+            format!("{total} declared, {} found in the blocks", nodes.len()),
+        ));
     }
     Ok(())
 }
@@ -360,7 +379,10 @@ fn element(
         if etype != 4 {
             out.higher_order_tets += 1;
         }
-        pending.push((index, [node_tags[0], node_tags[1], node_tags[2], node_tags[3]]));
+        pending.push((
+            index,
+            [node_tags[0], node_tags[1], node_tags[2], node_tags[3]],
+        ));
     } else {
         out.ignored_cells += 1;
     }
@@ -376,19 +398,28 @@ fn elements41(
     let _min = r.size("minElementTag")?;
     let _max = r.size("maxElementTag")?;
     let total = r.cur.check_count(total, 2 * r.min_size(), "numElements")?;
-    let blocks = r.cur.check_count(blocks, 3 * r.min_int() + r.min_size(), "numEntityBlocks")?;
+    let blocks = r
+        .cur
+        .check_count(blocks, 3 * r.min_int() + r.min_size(), "numEntityBlocks")?;
     let mut seen = 0usize;
     let mut node_tags = Vec::new();
     for _ in 0..blocks {
         let _dim = r.int("entityDim")?;
         let _entity = r.int("entityTag")?;
         let etype = r.int("elementType")?;
-        let per = nodes_per_element(etype)
-            .ok_or_else(|| r.cur.err("elementType", format!("element type {etype} not supported")))?;
+        let per = nodes_per_element(etype).ok_or_else(|| {
+            r.cur
+                .err("elementType", format!("element type {etype} not supported"))
+        })?;
         let n = r.size("numElementsInBlock")?;
-        let n = r.cur.check_count(n, (per + 1) * r.min_size(), "numElementsInBlock")?;
+        let n = r
+            .cur
+            .check_count(n, (per + 1) * r.min_size(), "numElementsInBlock")?;
         if seen + n > total {
-            return Err(r.cur.err("numElementsInBlock", format!("blocks hold more than numElements = {total}")));
+            return Err(r.cur.err(
+                "numElementsInBlock",
+                format!("blocks hold more than numElements = {total}"),
+            ));
         }
         if is_tet(etype) {
             pending.reserve(n);
@@ -404,7 +435,10 @@ fn elements41(
         }
     }
     if seen != total {
-        return Err(r.cur.err("numElements", format!("{total} declared, {seen} found in the blocks")));
+        return Err(r.cur.err(
+            "numElements",
+            format!("{total} declared, {seen} found in the blocks"),
+        ));
     }
     Ok(())
 }
@@ -430,8 +464,10 @@ fn elements22(
                 for _ in 0..ntags {
                     r.cur.parse::<i64>("tag")?;
                 }
-                let per = nodes_per_element(etype)
-                    .ok_or_else(|| r.cur.err("elm-type", format!("element type {etype} not supported")))?;
+                let per = nodes_per_element(etype).ok_or_else(|| {
+                    r.cur
+                        .err("elm-type", format!("element type {etype} not supported"))
+                })?;
                 node_tags.clear();
                 for _ in 0..per {
                     node_tags.push(r.cur.parse::<u64>("node-number-list")?);
@@ -446,18 +482,27 @@ fn elements22(
                 let etype = r.cur.bin_i32(big, "elm-type")? as i64;
                 let follow = r.cur.bin_i32(big, "number-of-elements-following")?;
                 let ntags = r.cur.bin_i32(big, "number-of-tags")?;
-                let per = nodes_per_element(etype)
-                    .ok_or_else(|| r.cur.err("elm-type", format!("element type {etype} not supported")))?;
+                let per = nodes_per_element(etype).ok_or_else(|| {
+                    r.cur
+                        .err("elm-type", format!("element type {etype} not supported"))
+                })?;
                 if follow < 0 || ntags < 0 || index + follow as usize > total {
                     return Err(r.cur.err(
                         "number-of-elements-following",
-                        format!("{follow} elements with {ntags} tags do not fit the declared {total}"),
+                        format!(
+                            "{follow} elements with {ntags} tags do not fit the declared {total}"
+                        ),
                     ));
                 }
                 let each = 4 * (1 + ntags as usize + per);
-                let follow = r.cur.check_count(follow as u64, each, "number-of-elements-following")?;
+                let follow =
+                    r.cur
+                        .check_count(follow as u64, each, "number-of-elements-following")?;
                 if follow == 0 {
-                    return Err(r.cur.err("number-of-elements-following", "0 (a block must hold elements)"));
+                    return Err(r.cur.err(
+                        "number-of-elements-following",
+                        "0 (a block must hold elements)",
+                    ));
                 }
                 for _ in 0..follow {
                     r.cur.bin_i32(big, "elm-number")?;
@@ -487,7 +532,11 @@ fn entities41_binary(r: &mut Reader<'_>) -> Result<(), ParseError> {
     ];
     let (si, sd, ss) = (r.min_int(), r.min_double(), r.min_size());
     for (dim, &count) in counts.iter().enumerate() {
-        let each = if dim == 0 { si + 3 * sd + ss } else { si + 6 * sd + 2 * ss };
+        let each = if dim == 0 {
+            si + 3 * sd + ss
+        } else {
+            si + 6 * sd + 2 * ss
+        };
         let count = r.cur.check_count(count, each, "numEntities")?;
         for _ in 0..count {
             r.int("entityTag")?;
@@ -515,7 +564,11 @@ fn entities41_binary(r: &mut Reader<'_>) -> Result<(), ParseError> {
 /// Writes nodes (m) and tetrahedra as an ASCII MSH 4.1 file: one volume
 /// entity, node tags `1..=N`, element type 4, coordinates in shortest
 /// round-trip form (reading gives back the same `f64`).
-pub fn write_msh41<W: Write>(w: &mut W, nodes: &[Point3<f64>], tets: &[[u32; 4]]) -> std::io::Result<()> {
+pub fn write_msh41<W: Write>(
+    w: &mut W,
+    nodes: &[Point3<f64>],
+    tets: &[[u32; 4]],
+) -> std::io::Result<()> {
     let (n, m) = (nodes.len(), tets.len());
     writeln!(w, "$MeshFormat\n4.1 0 8\n$EndMeshFormat")?;
     writeln!(w, "$Entities\n0 0 0 1\n1 0 0 0 0 0 0 0 0\n$EndEntities")?;
@@ -528,7 +581,15 @@ pub fn write_msh41<W: Write>(w: &mut W, nodes: &[Point3<f64>], tets: &[[u32; 4]]
     }
     writeln!(w, "$EndNodes\n$Elements\n1 {m} 1 {m}\n3 1 4 {m}")?;
     for (e, t) in tets.iter().enumerate() {
-        writeln!(w, "{} {} {} {} {}", e + 1, t[0] + 1, t[1] + 1, t[2] + 1, t[3] + 1)?;
+        writeln!(
+            w,
+            "{} {} {} {} {}",
+            e + 1,
+            t[0] + 1,
+            t[1] + 1,
+            t[2] + 1,
+            t[3] + 1
+        )?;
     }
     writeln!(w, "$EndElements")
 }

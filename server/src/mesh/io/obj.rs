@@ -21,15 +21,20 @@ pub fn parse(bytes: &[u8]) -> Result<SurfaceMesh, ParseError> {
             field: field.to_string(),
             message,
         };
-        let mut toks = line.split(|b| b.is_ascii_whitespace()).filter(|t| !t.is_empty());
+        let mut toks = line
+            .split(|b| b.is_ascii_whitespace())
+            .filter(|t| !t.is_empty());
         match toks.next() {
             Some(b"v") => {
                 let mut p = [0.0; 3];
                 for (c, name) in ["x", "y", "z"].iter().enumerate() {
                     let t = toks.next().ok_or_else(|| err(name, "missing".into()))?;
-                    let v: f64 = parse_token(t)
-                        .filter(|v: &f64| v.is_finite())
-                        .ok_or_else(|| err(name, format!("'{}' is not a finite number", show(t))))?;
+                    let v: f64 =
+                        parse_token(t)
+                            .filter(|v: &f64| v.is_finite())
+                            .ok_or_else(|| {
+                                err(name, format!("'{}' is not a finite number", show(t)))
+                            })?;
                     p[c] = v;
                 }
                 if out.vertices.len() >= u32::MAX as usize {
@@ -54,7 +59,10 @@ pub fn parse(bytes: &[u8]) -> Result<SurfaceMesh, ParseError> {
                     face.push(k as u32);
                 }
                 if face.len() < 3 {
-                    return Err(err("f", format!("a face needs 3 vertices, found {}", face.len())));
+                    return Err(err(
+                        "f",
+                        format!("a face needs 3 vertices, found {}", face.len()),
+                    ));
                 }
                 for k in 1..face.len() - 1 {
                     out.triangles.push([face[0], face[k], face[k + 1]]);
@@ -67,8 +75,17 @@ pub fn parse(bytes: &[u8]) -> Result<SurfaceMesh, ParseError> {
 }
 
 /// Writes vertices (m, shortest round-trip decimal form) and triangles.
-pub fn write_obj<W: Write>(w: &mut W, vertices: &[Point3<f64>], triangles: &[[u32; 3]]) -> std::io::Result<()> {
-    writeln!(w, "# fissure surface: {} vertices, {} triangles", vertices.len(), triangles.len())?;
+pub fn write_obj<W: Write>(
+    w: &mut W,
+    vertices: &[Point3<f64>],
+    triangles: &[[u32; 3]],
+) -> std::io::Result<()> {
+    writeln!(
+        w,
+        "# fissure surface: {} vertices, {} triangles",
+        vertices.len(),
+        triangles.len()
+    )?;
     for p in vertices {
         writeln!(w, "v {:?} {:?} {:?}", p.x, p.y, p.z)?;
     }

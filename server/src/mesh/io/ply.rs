@@ -65,7 +65,12 @@ enum Format {
     Binary { big: bool },
 }
 
-fn read_scalar(cur: &mut Cursor<'_>, f: Format, ty: Scalar, field: &str) -> Result<f64, ParseError> {
+fn read_scalar(
+    cur: &mut Cursor<'_>,
+    f: Format,
+    ty: Scalar,
+    field: &str,
+) -> Result<f64, ParseError> {
     let big = match f {
         Format::Ascii => return cur.f64(field),
         Format::Binary { big } => big,
@@ -75,7 +80,11 @@ fn read_scalar(cur: &mut Cursor<'_>, f: Format, ty: Scalar, field: &str) -> Resu
         ($t:ty, $n:expr) => {{
             let mut a = [0u8; $n];
             a.copy_from_slice(b);
-            (if big { <$t>::from_be_bytes(a) } else { <$t>::from_le_bytes(a) }) as f64
+            (if big {
+                <$t>::from_be_bytes(a)
+            } else {
+                <$t>::from_le_bytes(a)
+            }) as f64
         }};
     }
     let v = match ty {
@@ -88,20 +97,32 @@ fn read_scalar(cur: &mut Cursor<'_>, f: Format, ty: Scalar, field: &str) -> Resu
         Scalar::F32 => get!(f32, 4),
         Scalar::F64 => get!(f64, 8),
     };
-    if v.is_finite() { Ok(v) } else { Err(cur.err(field, "not a finite number")) }
+    if v.is_finite() {
+        Ok(v)
+    } else {
+        Err(cur.err(field, "not a finite number"))
+    }
 }
 
 /// Parses a PLY file.
 pub fn parse(bytes: &[u8]) -> Result<SurfaceMesh, ParseError> {
     let mut cur = Cursor::new(bytes);
     if cur.line_bytes().map(|l| l.trim_ascii()) != Some(b"ply") {
-        return Err(ParseError { loc: super::Loc::Line(1), field: "magic".into(), message: "expected 'ply'".into() });
+        return Err(ParseError {
+            loc: super::Loc::Line(1),
+            field: "magic".into(),
+            message: "expected 'ply'".into(),
+        });
     }
     let mut format = None;
     let mut elements: Vec<Element> = Vec::new();
     loop {
-        let line = cur.line_bytes().ok_or_else(|| cur.err("end_header", "missing before the end of the file"))?;
-        let mut t = line.split(|b| b.is_ascii_whitespace()).filter(|t| !t.is_empty());
+        let line = cur
+            .line_bytes()
+            .ok_or_else(|| cur.err("end_header", "missing before the end of the file"))?;
+        let mut t = line
+            .split(|b| b.is_ascii_whitespace())
+            .filter(|t| !t.is_empty());
         let err = |c: &Cursor<'_>, field: &str, m: String| ParseError {
             loc: super::Loc::Line(c.line - 1),
             field: field.into(),
@@ -114,7 +135,11 @@ pub fn parse(bytes: &[u8]) -> Result<SurfaceMesh, ParseError> {
                     Some(b"binary_little_endian") => Format::Binary { big: false },
                     Some(b"binary_big_endian") => Format::Binary { big: true },
                     other => {
-                        return Err(err(&cur, "format", format!("'{}' not supported", show(other.unwrap_or_default()))));
+                        return Err(err(
+                            &cur,
+                            "format",
+                            format!("'{}' not supported", show(other.unwrap_or_default())),
+                        ));
                     }
                 })
             }
@@ -124,22 +149,41 @@ pub fn parse(bytes: &[u8]) -> Result<SurfaceMesh, ParseError> {
                     .next()
                     .and_then(super::cursor::parse_token::<u64>)
                     .ok_or_else(|| err(&cur, "element", "missing or bad count".into()))?;
-                elements.push(Element { name, count, props: Vec::new() });
+                elements.push(Element {
+                    name,
+                    count,
+                    props: Vec::new(),
+                });
             }
             Some(b"property") => {
-                let el = elements.last_mut().ok_or_else(|| err(&cur, "property", "before any element".into()))?;
+                let el = elements
+                    .last_mut()
+                    .ok_or_else(|| err(&cur, "property", "before any element".into()))?;
                 let first = t.next().unwrap_or_default();
                 let prop = if first == b"list" {
                     let ct = t.next().and_then(Scalar::parse);
                     let it = t.next().and_then(Scalar::parse);
                     match (ct, it) {
-                        (Some(c), Some(i)) => Property { name: t.next().unwrap_or_default().to_vec(), list: Some(c), ty: i },
+                        (Some(c), Some(i)) => Property {
+                            name: t.next().unwrap_or_default().to_vec(),
+                            list: Some(c),
+                            ty: i,
+                        },
                         _ => return Err(err(&cur, "property", "bad list types".into())),
                     }
                 } else {
-                    let ty = Scalar::parse(first)
-                        .ok_or_else(|| err(&cur, "property", format!("type '{}' not supported", show(first))))?;
-                    Property { name: t.next().unwrap_or_default().to_vec(), list: None, ty }
+                    let ty = Scalar::parse(first).ok_or_else(|| {
+                        err(
+                            &cur,
+                            "property",
+                            format!("type '{}' not supported", show(first)),
+                        )
+                    })?;
+                    Property {
+                        name: t.next().unwrap_or_default().to_vec(),
+                        list: None,
+                        ty,
+                    }
                 };
                 el.props.push(prop);
             }
@@ -168,7 +212,11 @@ pub fn parse(bytes: &[u8]) -> Result<SurfaceMesh, ParseError> {
         let is_face = el.name == b"face";
         let xyz: Vec<Option<usize>> = [b"x", b"y", b"z"]
             .iter()
-            .map(|n| el.props.iter().position(|p| p.name == *n && p.list.is_none()))
+            .map(|n| {
+                el.props
+                    .iter()
+                    .position(|p| p.name == *n && p.list.is_none())
+            })
             .collect();
         if is_vertex && xyz.iter().any(Option::is_none) {
             return Err(cur.err("vertex", "the vertex element lacks x, y or z"));
@@ -196,23 +244,38 @@ pub fn parse(bytes: &[u8]) -> Result<SurfaceMesh, ParseError> {
                         if !(0.0..=u32::MAX as f64).contains(&n) || n.fract() != 0.0 {
                             return Err(cur.err(&name, format!("bad list length {n}")));
                         }
-                        let each = if format == Format::Ascii { 2 } else { prop.ty.size() };
+                        let each = if format == Format::Ascii {
+                            2
+                        } else {
+                            prop.ty.size()
+                        };
                         let n = cur.check_count(n as u64, each, &name)?;
                         list.clear();
                         for _ in 0..n {
                             list.push(read_scalar(&mut cur, format, prop.ty, &name)?);
                         }
-                        let indices = prop.name == b"vertex_indices" || prop.name == b"vertex_index";
+                        let indices =
+                            prop.name == b"vertex_indices" || prop.name == b"vertex_index";
                         if is_face && indices {
                             if n < 3 {
                                 return Err(cur.err(&name, format!("face {item} has {n} vertices")));
                             }
                             let nv = out.vertices.len() as f64;
-                            if let Some(bad) = list.iter().find(|&&i| !(0.0..nv).contains(&i) || i.fract() != 0.0) {
-                                return Err(cur.err(&name, format!("face {item} refers to vertex {bad}, out of range")));
+                            if let Some(bad) = list
+                                .iter()
+                                .find(|&&i| !(0.0..nv).contains(&i) || i.fract() != 0.0)
+                            {
+                                return Err(cur.err(
+                                    &name,
+                                    format!("face {item} refers to vertex {bad}, out of range"),
+                                ));
                             }
                             for k in 1..n - 1 {
-                                out.triangles.push([list[0] as u32, list[k] as u32, list[k + 1] as u32]);
+                                out.triangles.push([
+                                    list[0] as u32,
+                                    list[k] as u32,
+                                    list[k + 1] as u32,
+                                ]);
                             }
                         }
                     }
@@ -228,7 +291,11 @@ pub fn parse(bytes: &[u8]) -> Result<SurfaceMesh, ParseError> {
 
 /// Writes a binary little-endian PLY: `double` x, y, z and a
 /// `list uchar int vertex_indices` per face.
-pub fn write_ply<W: Write>(w: &mut W, vertices: &[Point3<f64>], triangles: &[[u32; 3]]) -> std::io::Result<()> {
+pub fn write_ply<W: Write>(
+    w: &mut W,
+    vertices: &[Point3<f64>],
+    triangles: &[[u32; 3]],
+) -> std::io::Result<()> {
     write!(
         w,
         "ply\nformat binary_little_endian 1.0\ncomment fissure surface\nelement vertex {}\nproperty double x\nproperty double y\nproperty double z\nelement face {}\nproperty list uchar int vertex_indices\nend_header\n",

@@ -31,7 +31,10 @@ impl Dedupe {
 
 /// Parses an STL file (ASCII or binary).
 pub fn parse(bytes: &[u8]) -> Result<SurfaceMesh, ParseError> {
-    let mut d = Dedupe { map: HashMap::new(), out: SurfaceMesh::default() };
+    let mut d = Dedupe {
+        map: HashMap::new(),
+        out: SurfaceMesh::default(),
+    };
     if bytes.len() >= 84 {
         let n = u32::from_le_bytes([bytes[80], bytes[81], bytes[82], bytes[83]]) as usize;
         if bytes.len() == 84 + 50 * n {
@@ -43,7 +46,11 @@ pub fn parse(bytes: &[u8]) -> Result<SurfaceMesh, ParseError> {
                 cur.take(12, "normal")?;
                 let mut t = [0u32; 3];
                 for k in &mut t {
-                    let p = [cur.bin_f32(false, "x")?, cur.bin_f32(false, "y")?, cur.bin_f32(false, "z")?];
+                    let p = [
+                        cur.bin_f32(false, "x")?,
+                        cur.bin_f32(false, "y")?,
+                        cur.bin_f32(false, "z")?,
+                    ];
                     *k = d.vertex(p);
                 }
                 cur.take(2, "attribute byte count")?;
@@ -59,7 +66,9 @@ pub fn parse(bytes: &[u8]) -> Result<SurfaceMesh, ParseError> {
         match cur.token() {
             Some(b"facet") => {}
             Some(b"endsolid") | None => break,
-            Some(t) => return Err(cur.err("facet", format!("expected 'facet', found '{}'", show(t)))),
+            Some(t) => {
+                return Err(cur.err("facet", format!("expected 'facet', found '{}'", show(t))));
+            }
         }
         cur.expect("normal")?;
         for _ in 0..3 {
@@ -82,11 +91,22 @@ pub fn parse(bytes: &[u8]) -> Result<SurfaceMesh, ParseError> {
 
 /// Writes a binary STL (coordinates rounded to `f32`, facet normals from the
 /// vertex order).
-pub fn write_stl<W: Write>(w: &mut W, vertices: &[Point3<f64>], triangles: &[[u32; 3]]) -> std::io::Result<()> {
-    if let Some(bad) = triangles.iter().flatten().find(|&&i| i as usize >= vertices.len()) {
+pub fn write_stl<W: Write>(
+    w: &mut W,
+    vertices: &[Point3<f64>],
+    triangles: &[[u32; 3]],
+) -> std::io::Result<()> {
+    if let Some(bad) = triangles
+        .iter()
+        .flatten()
+        .find(|&&i| i as usize >= vertices.len())
+    {
         return Err(std::io::Error::new(
             std::io::ErrorKind::InvalidInput,
-            format!("a triangle refers to vertex {bad}, but there are {} vertices", vertices.len()),
+            format!(
+                "a triangle refers to vertex {bad}, but there are {} vertices",
+                vertices.len()
+            ),
         ));
     }
     let mut header = [b' '; 80];

@@ -25,13 +25,18 @@ pub enum Which {
 fn next_line<'a>(cur: &mut Cursor<'a>, toks: &mut Vec<&'a [u8]>) -> bool {
     loop {
         let line_no = cur.line;
-        let Some(line) = cur.line_bytes() else { return false };
+        let Some(line) = cur.line_bytes() else {
+            return false;
+        };
         let line = match line.iter().position(|&b| b == b'#') {
             Some(i) => &line[..i],
             None => line,
         };
         toks.clear();
-        toks.extend(line.split(|b| b.is_ascii_whitespace()).filter(|t| !t.is_empty()));
+        toks.extend(
+            line.split(|b| b.is_ascii_whitespace())
+                .filter(|t| !t.is_empty()),
+        );
         if !toks.is_empty() {
             cur.line = line_no; // report errors on this line
             return true;
@@ -39,7 +44,12 @@ fn next_line<'a>(cur: &mut Cursor<'a>, toks: &mut Vec<&'a [u8]>) -> bool {
     }
 }
 
-fn field<T: std::str::FromStr>(cur: &Cursor<'_>, toks: &[&[u8]], k: usize, name: &str) -> Result<T, ParseError> {
+fn field<T: std::str::FromStr>(
+    cur: &Cursor<'_>,
+    toks: &[&[u8]],
+    k: usize,
+    name: &str,
+) -> Result<T, ParseError> {
     let t = toks.get(k).ok_or_else(|| cur.err(name, "missing"))?;
     parse_token(t).ok_or_else(|| cur.err(name, format!("'{}' is not a valid value", show(t))))
 }
@@ -52,7 +62,10 @@ fn done(cur: &mut Cursor<'_>) {
 /// Parses a `.node` and an `.ele` file.
 pub fn parse(node: &[u8], ele: &[u8]) -> Result<RawVolume, (Which, ParseError)> {
     let (nodes, base) = parse_node(node).map_err(|e| (Which::Node, e))?;
-    let mut out = RawVolume { nodes, ..Default::default() };
+    let mut out = RawVolume {
+        nodes,
+        ..Default::default()
+    };
     parse_ele(ele, base, &mut out).map_err(|e| (Which::Ele, e))?;
     Ok(out)
 }
@@ -85,7 +98,10 @@ fn parse_node(bytes: &[u8]) -> Result<(Vec<Point3<f64>>, i64), ParseError> {
             }
             base = id;
         } else if id != base + k as i64 {
-            return Err(cur.err("point index", format!("{id} (expected {})", base + k as i64)));
+            return Err(cur.err(
+                "point index",
+                format!("{id} (expected {})", base + k as i64),
+            ));
         }
         let mut p = [0.0; 3];
         for (c, name) in ["x", "y", "z"].iter().enumerate() {
@@ -96,7 +112,14 @@ fn parse_node(bytes: &[u8]) -> Result<(Vec<Point3<f64>>, i64), ParseError> {
             p[c] = v;
         }
         if toks.len() > 4 + attrs + markers.min(1) {
-            return Err(cur.err("point", format!("{} values, expected at most {}", toks.len(), 4 + attrs + markers.min(1))));
+            return Err(cur.err(
+                "point",
+                format!(
+                    "{} values, expected at most {}",
+                    toks.len(),
+                    4 + attrs + markers.min(1)
+                ),
+            ));
         }
         nodes.push(Point3::from(p));
         done(&mut cur);
@@ -128,7 +151,10 @@ fn parse_ele(bytes: &[u8], base: i64, out: &mut RawVolume) -> Result<(), ParseEr
             let v: i64 = field(&cur, &toks, 1 + c, "node")?;
             let i = v - base;
             if i < 0 || i as usize >= out.nodes.len() {
-                return Err(cur.err("node", format!("tetrahedron {k} refers to node {v}, out of range")));
+                return Err(cur.err(
+                    "node",
+                    format!("tetrahedron {k} refers to node {v}, out of range"),
+                ));
             }
             if c < 4 {
                 t[c] = i as u32;
@@ -156,7 +182,15 @@ pub fn write_node<W: Write>(w: &mut W, nodes: &[Point3<f64>]) -> std::io::Result
 pub fn write_ele<W: Write>(w: &mut W, tets: &[[u32; 4]]) -> std::io::Result<()> {
     writeln!(w, "{} 4 0", tets.len())?;
     for (i, t) in tets.iter().enumerate() {
-        writeln!(w, "{} {} {} {} {}", i + 1, t[0] + 1, t[1] + 1, t[2] + 1, t[3] + 1)?;
+        writeln!(
+            w,
+            "{} {} {} {} {}",
+            i + 1,
+            t[0] + 1,
+            t[1] + 1,
+            t[2] + 1,
+            t[3] + 1
+        )?;
     }
     Ok(())
 }

@@ -81,7 +81,10 @@ fn read_ints(
     out: &mut Vec<i64>,
 ) -> Result<(), ParseError> {
     if is_float(ty) {
-        return Err(cur.err(field, format!("integer data expected, found type '{}'", show(ty))));
+        return Err(cur.err(
+            field,
+            format!("integer data expected, found type '{}'", show(ty)),
+        ));
     }
     if !binary {
         let n = cur.check_count(n as u64, 2, field)?;
@@ -107,7 +110,9 @@ fn skip_field(cur: &mut Cursor<'_>, binary: bool) -> Result<(), ParseError> {
         let _array = cur.token();
         let comps: u64 = cur.parse("FIELD numComponents")?;
         let tuples: u64 = cur.parse("FIELD numTuples")?;
-        let ty = cur.token().ok_or_else(|| cur.err("FIELD dataType", "missing"))?;
+        let ty = cur
+            .token()
+            .ok_or_else(|| cur.err("FIELD dataType", "missing"))?;
         let n = comps.saturating_mul(tuples);
         let n = cur.check_count(n, 1, "FIELD values")?;
         if binary {
@@ -167,7 +172,10 @@ pub fn parse(bytes: &[u8]) -> Result<RawVolume, ParseError> {
         other => {
             return Err(cur.err(
                 "file type",
-                format!("expected ASCII or BINARY, found '{}'", show(other.unwrap_or_default())),
+                format!(
+                    "expected ASCII or BINARY, found '{}'",
+                    show(other.unwrap_or_default())
+                ),
             ));
         }
     };
@@ -198,7 +206,9 @@ pub fn parse(bytes: &[u8]) -> Result<RawVolume, ParseError> {
             }
             b"POINTS" => {
                 let n: u64 = cur.parse("POINTS count")?;
-                let ty = cur.token().ok_or_else(|| cur.err("POINTS dataType", "missing"))?;
+                let ty = cur
+                    .token()
+                    .ok_or_else(|| cur.err("POINTS dataType", "missing"))?;
                 let n = cur.check_count(n, 3, "POINTS count")?;
                 if binary {
                     cur.skip_to_line_start();
@@ -212,7 +222,9 @@ pub fn parse(bytes: &[u8]) -> Result<RawVolume, ParseError> {
                 let b: u64 = cur.parse("CELLS size")?;
                 let save = (cur.pos, cur.line);
                 if cur.token() == Some(b"OFFSETS") {
-                    let ty = cur.token().ok_or_else(|| cur.err("OFFSETS dataType", "missing"))?;
+                    let ty = cur
+                        .token()
+                        .ok_or_else(|| cur.err("OFFSETS dataType", "missing"))?;
                     let a = cur.check_count(a, 1, "CELLS count")?;
                     if binary {
                         cur.skip_to_line_start();
@@ -220,7 +232,9 @@ pub fn parse(bytes: &[u8]) -> Result<RawVolume, ParseError> {
                     let mut offsets = Vec::new();
                     read_ints(&mut cur, binary, ty, a, "OFFSETS", &mut offsets)?;
                     cur.expect("CONNECTIVITY")?;
-                    let ty = cur.token().ok_or_else(|| cur.err("CONNECTIVITY dataType", "missing"))?;
+                    let ty = cur
+                        .token()
+                        .ok_or_else(|| cur.err("CONNECTIVITY dataType", "missing"))?;
                     let b = cur.check_count(b, 1, "CELLS size")?;
                     if binary {
                         cur.skip_to_line_start();
@@ -257,14 +271,25 @@ pub fn parse(bytes: &[u8]) -> Result<RawVolume, ParseError> {
         }
     }
     if !dataset {
-        return Err(ParseError::file("DATASET", "no DATASET UNSTRUCTURED_GRID line"));
+        return Err(ParseError::file(
+            "DATASET",
+            "no DATASET UNSTRUCTURED_GRID line",
+        ));
     }
     let points = points.ok_or_else(|| ParseError::file("POINTS", "no POINTS section"))?;
-    let cells = cells.unwrap_or(Cells::Legacy { count: 0, list: Vec::new() });
+    let cells = cells.unwrap_or(Cells::Legacy {
+        count: 0,
+        list: Vec::new(),
+    });
     let types = types.unwrap_or_default();
-    let nodes: Vec<Point3<f64>> =
-        points.chunks_exact(3).map(|c| Point3::new(c[0], c[1], c[2])).collect();
-    let mut out = RawVolume { nodes, ..Default::default() };
+    let nodes: Vec<Point3<f64>> = points
+        .chunks_exact(3)
+        .map(|c| Point3::new(c[0], c[1], c[2]))
+        .collect();
+    let mut out = RawVolume {
+        nodes,
+        ..Default::default()
+    };
     let cell_lists = split_cells(&cells)?;
     if cell_lists.len() != types.len() {
         return Err(ParseError::file(
@@ -325,7 +350,12 @@ fn split_cells(cells: &Cells) -> Result<Vec<&[i64]>, ParseError> {
 
 /// Adds cell `cell` of VTK type `ty` to `out`: tetrahedra kept (corners),
 /// other cells counted.
-pub(crate) fn add_cell(out: &mut RawVolume, cell: usize, ty: i64, ids: &[i64]) -> Result<(), ParseError> {
+pub(crate) fn add_cell(
+    out: &mut RawVolume,
+    cell: usize,
+    ty: i64,
+    ids: &[i64],
+) -> Result<(), ParseError> {
     let need = match ty {
         10 => 4,
         24 => 10,
@@ -338,7 +368,10 @@ pub(crate) fn add_cell(out: &mut RawVolume, cell: usize, ty: i64, ids: &[i64]) -
     if ids.len() < need {
         return Err(ParseError::file(
             "cells",
-            format!("cell {cell} of type {ty} has {} points (needs {need})", ids.len()),
+            format!(
+                "cell {cell} of type {ty} has {} points (needs {need})",
+                ids.len()
+            ),
         ));
     }
     if ty != 10 {
@@ -350,7 +383,10 @@ pub(crate) fn add_cell(out: &mut RawVolume, cell: usize, ty: i64, ids: &[i64]) -
         if i < 0 || i as usize >= out.nodes.len() {
             return Err(ParseError::file(
                 "cells",
-                format!("cell {cell} refers to point {i}, but there are {} points", out.nodes.len()),
+                format!(
+                    "cell {cell} refers to point {i}, but there are {} points",
+                    out.nodes.len()
+                ),
             ));
         }
         t[k] = i as u32;
@@ -361,8 +397,15 @@ pub(crate) fn add_cell(out: &mut RawVolume, cell: usize, ty: i64, ids: &[i64]) -
 
 /// Writes nodes (m) and tetrahedra as a legacy ASCII VTK file (version 3.0,
 /// classic `CELLS` list, cell type 10), readable by every VTK version.
-pub fn write_vtk<W: Write>(w: &mut W, nodes: &[Point3<f64>], tets: &[[u32; 4]]) -> std::io::Result<()> {
-    writeln!(w, "# vtk DataFile Version 3.0\nfissure tetrahedral mesh\nASCII\nDATASET UNSTRUCTURED_GRID")?;
+pub fn write_vtk<W: Write>(
+    w: &mut W,
+    nodes: &[Point3<f64>],
+    tets: &[[u32; 4]],
+) -> std::io::Result<()> {
+    writeln!(
+        w,
+        "# vtk DataFile Version 3.0\nfissure tetrahedral mesh\nASCII\nDATASET UNSTRUCTURED_GRID"
+    )?;
     writeln!(w, "POINTS {} double", nodes.len())?;
     for p in nodes {
         writeln!(w, "{:?} {:?} {:?}", p.x, p.y, p.z)?;

@@ -75,7 +75,11 @@ impl Ty {
             ($t:ty, $n:expr) => {{
                 let mut b = [0u8; $n];
                 b.copy_from_slice(&c[..$n]);
-                (if big { <$t>::from_be_bytes(b) } else { <$t>::from_le_bytes(b) }) as f64
+                (if big {
+                    <$t>::from_be_bytes(b)
+                } else {
+                    <$t>::from_le_bytes(b)
+                }) as f64
             }};
         }
         match self {
@@ -106,10 +110,18 @@ impl Ctx<'_> {
     fn read_header(&self, b: &[u8]) -> u64 {
         if self.header == 8 {
             let a: [u8; 8] = b[..8].try_into().unwrap_or([0; 8]);
-            if self.big { u64::from_be_bytes(a) } else { u64::from_le_bytes(a) }
+            if self.big {
+                u64::from_be_bytes(a)
+            } else {
+                u64::from_le_bytes(a)
+            }
         } else {
             let a: [u8; 4] = b[..4].try_into().unwrap_or([0; 4]);
-            (if self.big { u32::from_be_bytes(a) } else { u32::from_le_bytes(a) }) as u64
+            (if self.big {
+                u32::from_be_bytes(a)
+            } else {
+                u32::from_le_bytes(a)
+            }) as u64
         }
     }
 }
@@ -122,7 +134,10 @@ fn b64_chars(bytes: usize) -> usize {
 fn b64_prefix(t: &[u8], n: usize, field: &str) -> Result<Vec<u8>, ParseError> {
     let chars = b64_chars(n);
     if chars > t.len() {
-        return Err(perr(field, format!("base64 data too short: {} bytes needed", n)));
+        return Err(perr(
+            field,
+            format!("base64 data too short: {} bytes needed", n),
+        ));
     }
     let mut v = B64
         .decode(&t[..chars])
@@ -136,10 +151,19 @@ fn b64_prefix(t: &[u8], n: usize, field: &str) -> Result<Vec<u8>, ParseError> {
 
 /// The uncompressed bytes of a binary array whose encoded form starts at
 /// `src` (base64 text when `base64`, else raw bytes).
-fn binary_payload(ctx: &Ctx<'_>, src: &[u8], base64: bool, field: &str) -> Result<Vec<u8>, ParseError> {
+fn binary_payload(
+    ctx: &Ctx<'_>,
+    src: &[u8],
+    base64: bool,
+    field: &str,
+) -> Result<Vec<u8>, ParseError> {
     let h = ctx.header;
     // Upper bound of decoded bytes available, to check counts before allocating.
-    let avail = if base64 { src.len() / 4 * 3 + 3 } else { src.len() };
+    let avail = if base64 {
+        src.len() / 4 * 3 + 3
+    } else {
+        src.len()
+    };
     let take = |from: usize, n: usize| -> Result<Vec<u8>, ParseError> {
         if base64 {
             b64_prefix(src.get(from..).unwrap_or_default(), n, field)
@@ -153,7 +177,10 @@ fn binary_payload(ctx: &Ctx<'_>, src: &[u8], base64: bool, field: &str) -> Resul
         let first = take(0, h)?;
         let n = ctx.read_header(&first);
         if n > avail as u64 {
-            return Err(perr(field, format!("header says {n} bytes, only {avail} present")));
+            return Err(perr(
+                field,
+                format!("header says {n} bytes, only {avail} present"),
+            ));
         }
         let n = n as usize;
         if !base64 {
@@ -170,7 +197,10 @@ fn binary_payload(ctx: &Ctx<'_>, src: &[u8], base64: bool, field: &str) -> Resul
     let first = take(0, h)?;
     let blocks = ctx.read_header(&first);
     if blocks.saturating_mul(h as u64) > avail as u64 {
-        return Err(perr(field, format!("header says {blocks} compressed blocks, too many for the data")));
+        return Err(perr(
+            field,
+            format!("header says {blocks} compressed blocks, too many for the data"),
+        ));
     }
     let blocks = blocks as usize;
     let head = take(0, (3 + blocks) * h)?;
@@ -179,21 +209,39 @@ fn binary_payload(ctx: &Ctx<'_>, src: &[u8], base64: bool, field: &str) -> Resul
     let sizes: Vec<u64> = (0..blocks).map(|k| item(3 + k)).collect();
     let total: u64 = sizes.iter().fold(0u64, |a, &b| a.saturating_add(b));
     if total > avail as u64 {
-        return Err(perr(field, format!("compressed sizes add up to {total}, more than the data")));
+        return Err(perr(
+            field,
+            format!("compressed sizes add up to {total}, more than the data"),
+        ));
     }
-    let data_from = if base64 { b64_chars((3 + blocks) * h) } else { (3 + blocks) * h };
+    let data_from = if base64 {
+        b64_chars((3 + blocks) * h)
+    } else {
+        (3 + blocks) * h
+    };
     let data = if base64 {
-        b64_prefix(src.get(data_from..).unwrap_or_default(), total as usize, field)?
+        b64_prefix(
+            src.get(data_from..).unwrap_or_default(),
+            total as usize,
+            field,
+        )?
     } else {
         take(data_from, total as usize)?
     };
     let mut out = Vec::new();
     let mut at = 0usize;
     for (k, &c) in sizes.iter().enumerate() {
-        let expect = if k + 1 == blocks && last_size != 0 { last_size } else { block_size };
+        let expect = if k + 1 == blocks && last_size != 0 {
+            last_size
+        } else {
+            block_size
+        };
         // zlib cannot expand more than about 1032:1; refuse larger claims.
         if expect > c.saturating_mul(1100).saturating_add(1024) {
-            return Err(perr(field, format!("block {k} claims {expect} bytes from {c} compressed")));
+            return Err(perr(
+                field,
+                format!("block {k} claims {expect} bytes from {c} compressed"),
+            ));
         }
         let chunk = &data[at..at + c as usize];
         at += c as usize;
@@ -203,14 +251,25 @@ fn binary_payload(ctx: &Ctx<'_>, src: &[u8], base64: bool, field: &str) -> Resul
             .read_to_end(&mut out)
             .map_err(|e| perr(field, format!("zlib block {k}: {e}")))?;
         if (out.len() - before) as u64 != expect {
-            return Err(perr(field, format!("zlib block {k} gave {} bytes, header says {expect}", out.len() - before)));
+            return Err(perr(
+                field,
+                format!(
+                    "zlib block {k} gave {} bytes, header says {expect}",
+                    out.len() - before
+                ),
+            ));
         }
     }
     Ok(out)
 }
 
 /// Reads a `DataArray` as `f64` values, checking that it holds `count` values.
-fn read_array(ctx: &Ctx<'_>, node: roxmltree::Node<'_, '_>, count: usize, field: &str) -> Result<Vec<f64>, ParseError> {
+fn read_array(
+    ctx: &Ctx<'_>,
+    node: roxmltree::Node<'_, '_>,
+    count: usize,
+    field: &str,
+) -> Result<Vec<f64>, ParseError> {
     let ty_name = node.attribute("type").unwrap_or("");
     let ty = Ty::parse(ty_name)
         .ok_or_else(|| perr(field, format!("DataArray type '{ty_name}' not supported")))?;
@@ -220,9 +279,9 @@ fn read_array(ctx: &Ctx<'_>, node: roxmltree::Node<'_, '_>, count: usize, field:
         "ascii" => {
             let mut v = Vec::with_capacity(count.min(text.len() / 2 + 1));
             for tok in text.split_ascii_whitespace() {
-                let x: f64 = tok
-                    .parse()
-                    .map_err(|_| perr(field, format!("'{}' is not a number", show(tok.as_bytes()))))?;
+                let x: f64 = tok.parse().map_err(|_| {
+                    perr(field, format!("'{}' is not a number", show(tok.as_bytes())))
+                })?;
                 if !x.is_finite() {
                     return Err(perr(field, "not a finite number"));
                 }
@@ -255,7 +314,10 @@ fn read_array(ctx: &Ctx<'_>, node: roxmltree::Node<'_, '_>, count: usize, field:
     };
     let size = ty.size();
     if bytes.len() / size < count {
-        return Err(perr(field, format!("{} values, expected {count}", bytes.len() / size)));
+        return Err(perr(
+            field,
+            format!("{} values, expected {count}", bytes.len() / size),
+        ));
     }
     let mut v = Vec::with_capacity(count);
     for c in bytes.chunks_exact(size).take(count) {
@@ -307,7 +369,10 @@ impl Grid {
 /// Parses a `.vtu` file into its tetrahedra.
 pub fn parse(bytes: &[u8]) -> Result<RawVolume, ParseError> {
     let grid = parse_grid(bytes)?;
-    let mut out = RawVolume { nodes: Vec::new(), ..Default::default() };
+    let mut out = RawVolume {
+        nodes: Vec::new(),
+        ..Default::default()
+    };
     out.nodes.clone_from(&grid.points);
     for (c, ty, ids) in grid.cells() {
         add_cell(&mut out, c, ty, ids)?;
@@ -324,16 +389,27 @@ pub fn parse_surface(bytes: &[u8]) -> Result<super::SurfaceMesh, ParseError> {
         if ty == 5 {
             let mut t = [0u32; 3];
             for k in 0..3 {
-                let i = *ids.get(k).ok_or_else(|| perr("connectivity", format!("triangle {c} has {} points", ids.len())))?;
+                let i = *ids.get(k).ok_or_else(|| {
+                    perr(
+                        "connectivity",
+                        format!("triangle {c} has {} points", ids.len()),
+                    )
+                })?;
                 if i < 0 || i as usize >= grid.points.len() {
-                    return Err(perr("connectivity", format!("cell {c} refers to point {i}, out of range")));
+                    return Err(perr(
+                        "connectivity",
+                        format!("cell {c} refers to point {i}, out of range"),
+                    ));
                 }
                 t[k] = i as u32;
             }
             triangles.push(t);
         }
     }
-    Ok(super::SurfaceMesh { vertices: grid.points, triangles })
+    Ok(super::SurfaceMesh {
+        vertices: grid.points,
+        triangles,
+    })
 }
 
 fn parse_grid(bytes: &[u8]) -> Result<Grid, ParseError> {
@@ -341,10 +417,14 @@ fn parse_grid(bytes: &[u8]) -> Result<Grid, ParseError> {
     let mut xml: Vec<u8>;
     let (mut appended, mut appended_base64): (&[u8], bool) = (&[], false);
     if let Some(start) = super::cursor::find(bytes, b"<AppendedData") {
-        let open_end = start + super::cursor::find(&bytes[start..], b">").ok_or_else(|| perr("AppendedData", "unterminated tag"))?;
+        let open_end = start
+            + super::cursor::find(&bytes[start..], b">")
+                .ok_or_else(|| perr("AppendedData", "unterminated tag"))?;
         let tag = String::from_utf8_lossy(&bytes[start..open_end]);
         appended_base64 = tag.contains("\"base64\"");
-        let us = open_end + super::cursor::find(&bytes[open_end..], b"_").ok_or_else(|| perr("AppendedData", "no '_' before the data"))?;
+        let us = open_end
+            + super::cursor::find(&bytes[open_end..], b"_")
+                .ok_or_else(|| perr("AppendedData", "no '_' before the data"))?;
         let close = bytes
             .windows(15)
             .rposition(|w| w == b"</AppendedData>")
@@ -359,19 +439,34 @@ fn parse_grid(bytes: &[u8]) -> Result<Grid, ParseError> {
     let text = std::str::from_utf8(&xml).map_err(|e| perr("XML", format!("not UTF-8: {e}")))?;
     let doc = roxmltree::Document::parse(text).map_err(|e| {
         let p = e.pos();
-        ParseError { loc: super::Loc::Line(p.row as usize), field: "XML".into(), message: e.to_string() }
+        ParseError {
+            loc: super::Loc::Line(p.row as usize),
+            field: "XML".into(),
+            message: e.to_string(),
+        }
     })?;
     let root = doc.root_element();
     if !root.has_tag_name("VTKFile") {
         return Err(perr("VTKFile", "the root element is not VTKFile"));
     }
     if root.attribute("type") != Some("UnstructuredGrid") {
-        return Err(perr("VTKFile", format!("type '{}' not supported (UnstructuredGrid is)", root.attribute("type").unwrap_or(""))));
+        return Err(perr(
+            "VTKFile",
+            format!(
+                "type '{}' not supported (UnstructuredGrid is)",
+                root.attribute("type").unwrap_or("")
+            ),
+        ));
     }
     let compressed = match root.attribute("compressor") {
         None | Some("") => false,
         Some("vtkZLibDataCompressor") => true,
-        Some(c) => return Err(perr("compressor", format!("'{c}' not supported (vtkZLibDataCompressor is)"))),
+        Some(c) => {
+            return Err(perr(
+                "compressor",
+                format!("'{c}' not supported (vtkZLibDataCompressor is)"),
+            ));
+        }
     };
     let header = match root.attribute("header_type") {
         None | Some("UInt32") => 4,
@@ -379,12 +474,24 @@ fn parse_grid(bytes: &[u8]) -> Result<Grid, ParseError> {
         Some(h) => return Err(perr("header_type", format!("'{h}' not supported"))),
     };
     let big = root.attribute("byte_order") == Some("BigEndian");
-    let ctx = Ctx { big, header, compressed, appended, appended_base64 };
+    let ctx = Ctx {
+        big,
+        header,
+        compressed,
+        appended,
+        appended_base64,
+    };
     // No array can hold more values than bytes in the file (times the
     // largest compression ratio).
     let limit = bytes.len().saturating_mul(1100) + 1024;
-    let grid = child(root, "UnstructuredGrid").ok_or_else(|| perr("UnstructuredGrid", "missing"))?;
-    let mut out = Grid { points: Vec::new(), types: Vec::new(), ends: Vec::new(), conn: Vec::new() };
+    let grid =
+        child(root, "UnstructuredGrid").ok_or_else(|| perr("UnstructuredGrid", "missing"))?;
+    let mut out = Grid {
+        points: Vec::new(),
+        types: Vec::new(),
+        ends: Vec::new(),
+        conn: Vec::new(),
+    };
     let mut pieces = 0;
     for piece in grid.children().filter(|c| c.has_tag_name("Piece")) {
         pieces += 1;
@@ -396,10 +503,14 @@ fn parse_grid(bytes: &[u8]) -> Result<Grid, ParseError> {
             .ok_or_else(|| perr("Points", "missing Points/DataArray"))?;
         let comps = pts.attribute("NumberOfComponents").unwrap_or("1");
         if comps.trim() != "3" {
-            return Err(perr("Points", format!("NumberOfComponents {comps} (expected 3)")));
+            return Err(perr(
+                "Points",
+                format!("NumberOfComponents {comps} (expected 3)"),
+            ));
         }
         let xyz = read_array(&ctx, pts, 3 * np, "Points")?;
-        out.points.extend(xyz.chunks_exact(3).map(|c| Point3::new(c[0], c[1], c[2])));
+        out.points
+            .extend(xyz.chunks_exact(3).map(|c| Point3::new(c[0], c[1], c[2])));
         let cells = child(piece, "Cells").ok_or_else(|| perr("Cells", "missing"))?;
         let named = |name: &str| {
             cells
@@ -418,9 +529,16 @@ fn parse_grid(bytes: &[u8]) -> Result<Grid, ParseError> {
         for c in 0..nc {
             let end = offsets[c];
             if end < prev as f64 || end > total {
-                return Err(perr("offsets", format!("cell {c}: offset {end} out of order")));
+                return Err(perr(
+                    "offsets",
+                    format!("cell {c}: offset {end} out of order"),
+                ));
             }
-            out.conn.extend(conn[prev..end as usize].iter().map(|&i| i as i64 + base as i64));
+            out.conn.extend(
+                conn[prev..end as usize]
+                    .iter()
+                    .map(|&i| i as i64 + base as i64),
+            );
             out.ends.push(out.conn.len());
             out.types.push(types[c] as i64);
             prev = end as usize;
@@ -440,7 +558,13 @@ fn encode_block(data: &[u8]) -> String {
     base64::engine::general_purpose::STANDARD.encode(buf)
 }
 
-fn data_array<W: Write>(w: &mut W, ty: &str, name: &str, comps: usize, data: &[u8]) -> std::io::Result<()> {
+fn data_array<W: Write>(
+    w: &mut W,
+    ty: &str,
+    name: &str,
+    comps: usize,
+    data: &[u8],
+) -> std::io::Result<()> {
     writeln!(
         w,
         "<DataArray type=\"{ty}\" Name=\"{name}\" NumberOfComponents=\"{comps}\" format=\"binary\">\n{}\n</DataArray>",
@@ -457,7 +581,10 @@ fn bad_len(what: &str, name: &str, got: usize, want: usize) -> std::io::Error {
 
 /// Escapes a data array name for an XML attribute.
 fn xml_name(s: &str) -> String {
-    s.replace('&', "&amp;").replace('"', "&quot;").replace('<', "&lt;").replace('>', "&gt;")
+    s.replace('&', "&amp;")
+        .replace('"', "&quot;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
 }
 
 fn write_grid<W: Write>(
@@ -483,20 +610,36 @@ fn write_grid<W: Write>(
     if let Some(&bad) = conn.iter().find(|&&i| i as usize >= points.len()) {
         return Err(std::io::Error::new(
             std::io::ErrorKind::InvalidInput,
-            format!("a cell refers to point {bad}, but there are {} points", points.len()),
+            format!(
+                "a cell refers to point {bad}, but there are {} points",
+                points.len()
+            ),
         ));
     }
     writeln!(w, "<?xml version=\"1.0\"?>")?;
-    writeln!(w, "<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">")?;
-    writeln!(w, "<UnstructuredGrid>\n<Piece NumberOfPoints=\"{}\" NumberOfCells=\"{cells}\">", points.len())?;
-    let f64s = |it: &mut dyn Iterator<Item = f64>| -> Vec<u8> { it.flat_map(f64::to_le_bytes).collect() };
+    writeln!(
+        w,
+        "<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">"
+    )?;
+    writeln!(
+        w,
+        "<UnstructuredGrid>\n<Piece NumberOfPoints=\"{}\" NumberOfCells=\"{cells}\">",
+        points.len()
+    )?;
+    let f64s =
+        |it: &mut dyn Iterator<Item = f64>| -> Vec<u8> { it.flat_map(f64::to_le_bytes).collect() };
     writeln!(w, "<Points>")?;
     let xyz = f64s(&mut points.iter().flat_map(|p| [p.x, p.y, p.z]));
     data_array(w, "Float64", "Points", 3, &xyz)?;
     writeln!(w, "</Points>\n<Cells>")?;
-    let c: Vec<u8> = conn.iter().flat_map(|&i| (i as i64).to_le_bytes()).collect();
+    let c: Vec<u8> = conn
+        .iter()
+        .flat_map(|&i| (i as i64).to_le_bytes())
+        .collect();
     data_array(w, "Int64", "connectivity", 1, &c)?;
-    let o: Vec<u8> = (1..=cells).flat_map(|k| ((k * per_cell) as i64).to_le_bytes()).collect();
+    let o: Vec<u8> = (1..=cells)
+        .flat_map(|k| ((k * per_cell) as i64).to_le_bytes())
+        .collect();
     data_array(w, "Int64", "offsets", 1, &o)?;
     data_array(w, "UInt8", "types", 1, &vec![cell_type; cells])?;
     writeln!(w, "</Cells>")?;
@@ -544,7 +687,15 @@ pub fn write_vtu_surface<W: Write>(
     point_data: &[(&str, &[Vector3<f64>])],
     cell_data: &[(&str, &[f64])],
 ) -> std::io::Result<()> {
-    write_grid(w, vertices, triangles.as_flattened(), 3, 5, point_data, cell_data)
+    write_grid(
+        w,
+        vertices,
+        triangles.as_flattened(),
+        3,
+        5,
+        point_data,
+        cell_data,
+    )
 }
 
 #[cfg(test)]
@@ -557,7 +708,14 @@ mod tests {
         let u: Vec<Vector3<f64>> = mesh.nodes.iter().map(|p| p.coords * 0.1).collect();
         let q: Vec<f64> = (0..mesh.tets.len()).map(|k| k as f64 / 7.0).collect();
         let mut buf = Vec::new();
-        write_vtu(&mut buf, &mesh.nodes, &mesh.tets, &[("displacement", &u)], &[("quality", &q)]).unwrap();
+        write_vtu(
+            &mut buf,
+            &mesh.nodes,
+            &mesh.tets,
+            &[("displacement", &u)],
+            &[("quality", &q)],
+        )
+        .unwrap();
         let raw = parse(&buf).unwrap();
         assert_eq!(raw.nodes, mesh.nodes);
         assert_eq!(raw.tets, mesh.tets);
@@ -584,6 +742,38 @@ mod tests {
     }
 
     #[test]
+    fn appended_raw_data() {
+        // ParaView's default layout: appended raw data, UInt32 headers.
+        let pts: Vec<u8> = [0.0f64, 0., 0., 1., 0., 0., 0., 1., 0., 0., 0., 1.]
+            .iter()
+            .flat_map(|x| x.to_le_bytes())
+            .collect();
+        let conn: Vec<u8> = [0i32, 1, 2, 3]
+            .iter()
+            .flat_map(|x| x.to_le_bytes())
+            .collect();
+        let offs: Vec<u8> = 4i32.to_le_bytes().to_vec();
+        let types = vec![10u8];
+        let mut blob = Vec::new();
+        let mut at = Vec::new();
+        for a in [&pts, &conn, &offs, &types] {
+            at.push(blob.len());
+            blob.extend_from_slice(&(a.len() as u32).to_le_bytes());
+            blob.extend_from_slice(a);
+        }
+        let mut file = format!(
+            "<VTKFile type=\"UnstructuredGrid\" byte_order=\"LittleEndian\"><UnstructuredGrid><Piece NumberOfPoints=\"4\" NumberOfCells=\"1\"><Points><DataArray type=\"Float64\" NumberOfComponents=\"3\" format=\"appended\" offset=\"{}\"/></Points><Cells><DataArray type=\"Int32\" Name=\"connectivity\" format=\"appended\" offset=\"{}\"/><DataArray type=\"Int32\" Name=\"offsets\" format=\"appended\" offset=\"{}\"/><DataArray type=\"UInt8\" Name=\"types\" format=\"appended\" offset=\"{}\"/></Cells></Piece></UnstructuredGrid><AppendedData encoding=\"raw\">\n_",
+            at[0], at[1], at[2], at[3]
+        )
+        .into_bytes();
+        file.extend_from_slice(&blob);
+        file.extend_from_slice(b"\n</AppendedData></VTKFile>");
+        let raw = parse(&file).unwrap();
+        assert_eq!(raw.tets, vec![[0, 1, 2, 3]]);
+        assert_eq!(raw.nodes[3], Point3::new(0.0, 0.0, 1.0));
+    }
+
+    #[test]
     fn compressed_header_claims_are_bounded() {
         // A zlib header claiming 2^40 bytes from a few compressed bytes.
         let mut head = Vec::new();
@@ -597,6 +787,9 @@ mod tests {
             enc.encode([0u8; 8])
         );
         let e = parse(text.as_bytes()).unwrap_err();
-        assert!(e.message.contains("claims") || e.message.contains("more than"), "{e}");
+        assert!(
+            e.message.contains("claims") || e.message.contains("more than"),
+            "{e}"
+        );
     }
 }
