@@ -84,7 +84,11 @@ impl Compliance {
         }
         frame.finish(&model.pattern, &lift, &mut values, &mut rhs);
         let mut factor = SparseLlt::new(&model.pattern)?;
-        factor.factorize(&model.pattern, &values)?;
+        factor.factorize(&model.pattern, &values).map_err(|e| {
+            SolveError::Factorization(format!(
+                "{e}; the fixed supports must prevent every rigid motion for this strategy"
+            ))
+        })?;
         let rec_nodes: Vec<u32> = match recover {
             Recover::All => (0..n_nodes as u32).collect(),
             Recover::Surface => {
