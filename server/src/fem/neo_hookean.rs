@@ -113,6 +113,8 @@ impl NeoHookean {
 
     fn iterate(&mut self) -> Result<u32, SolveError> {
         self.u.copy_from_slice(&self.good);
+        // The inversion that last shortened a step toward the enforced values.
+        let mut blocking: Option<SolveError> = None;
         for it in 1..=self.opts.max_outer {
             // Remaining gap to the enforced values, in node bases.
             self.trial.copy_from_slice(&self.u);
@@ -137,6 +139,11 @@ impl NeoHookean {
                 return Ok(it);
             }
             if it == self.opts.max_outer {
+                if gap > 0.0 {
+                    if let Some(e) = blocking {
+                        return Err(e);
+                    }
+                }
                 return Err(SolveError::NotConverged { iterations: it, residual: res / total.max(f64::MIN_POSITIVE) });
             }
             if self.factor.factorize(&self.model.pattern, &self.values).is_err() {
@@ -169,6 +176,14 @@ impl NeoHookean {
             }
             if !accepted {
                 return Err(last_err.unwrap_or(SolveError::NotConverged { iterations: it, residual: res / total.max(f64::MIN_POSITIVE) }));
+            }
+            if gap > 0.0 && alpha < 1.0 {
+                // Enforced values that cannot be reached without inverting
+                // an element: stop once the steps become negligible.
+                if alpha < 1e-6 {
+                    return Err(last_err.unwrap_or(SolveError::NotConverged { iterations: it, residual: gap }));
+                }
+                blocking = last_err;
             }
             std::mem::swap(&mut self.u, &mut self.trial);
         }
