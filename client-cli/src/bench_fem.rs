@@ -36,7 +36,10 @@ impl Default for FemBenchOptions {
             strategies: Strategy::ALL.to_vec(),
             contact_counts: vec![10, 50, 200],
             steps: 5,
-            material: Material { youngs_modulus_pa: 3000.0, poisson_ratio: 0.45 },
+            material: Material {
+                youngs_modulus_pa: 3000.0,
+                poisson_ratio: 0.45,
+            },
             depth_m: 1e-3,
             compliance_surface_too: true,
         }
@@ -74,7 +77,9 @@ pub struct Row {
 pub fn run_fem_bench(mesh: &TetMesh, preset_name: &str, opts: &FemBenchOptions) -> Vec<Row> {
     let (lo, hi) = mesh.bounds();
     let zcut = lo.z + 0.02 * (hi.z - lo.z);
-    let fixed: Vec<u32> = (0..mesh.nodes.len() as u32).filter(|&i| mesh.nodes[i as usize].z <= zcut).collect();
+    let fixed: Vec<u32> = (0..mesh.nodes.len() as u32)
+        .filter(|&i| mesh.nodes[i as usize].z <= zcut)
+        .collect();
     let top = Point3::new(0.5 * (lo.x + hi.x), 0.5 * (lo.y + hi.y), hi.z);
     let mut surface = mesh.boundary().to_volume;
     surface.retain(|&n| mesh.nodes[n as usize].z > zcut);
@@ -98,7 +103,10 @@ pub fn run_fem_bench(mesh: &TetMesh, preset_name: &str, opts: &FemBenchOptions) 
             mesh,
             opts.material,
             &fixed,
-            &SolverOptions { recover, ..Default::default() },
+            &SolverOptions {
+                recover,
+                ..Default::default()
+            },
         );
         let setup_ms = t0.elapsed().as_secs_f64() * 1e3;
         let mut solver = match solver {
@@ -120,13 +128,23 @@ pub fn run_fem_bench(mesh: &TetMesh, preset_name: &str, opts: &FemBenchOptions) 
                 continue;
             }
         };
-        let steps = if strategy == Strategy::NeoHookean { opts.steps.min(2) } else { opts.steps }.max(1);
+        let steps = if strategy == Strategy::NeoHookean {
+            opts.steps.min(2)
+        } else {
+            opts.steps
+        }
+        .max(1);
         for &m in &opts.contact_counts {
             let m = m.min(surface.len());
             let contact = &surface[..m];
-            let mut pres: Vec<Prescribed> =
-                contact.iter().map(|&node| Prescribed { node, displacement: Vector3::zeros() }).collect();
-            let mut set_depth = |pres: &mut Vec<Prescribed>, d: f64| {
+            let mut pres: Vec<Prescribed> = contact
+                .iter()
+                .map(|&node| Prescribed {
+                    node,
+                    displacement: Vector3::zeros(),
+                })
+                .collect();
+            let set_depth = |pres: &mut Vec<Prescribed>, d: f64| {
                 for p in pres.iter_mut() {
                     p.displacement = Vector3::new(0.0, 0.0, -d);
                 }
@@ -175,7 +193,10 @@ pub fn run_fem_bench(mesh: &TetMesh, preset_name: &str, opts: &FemBenchOptions) 
 /// Prints rows as a table, or as JSON when `json`.
 pub fn print(rows: &[Row], json: bool) {
     if json {
-        println!("{}", serde_json::to_string_pretty(rows).unwrap_or_else(|e| format!("\"{e}\"")));
+        println!(
+            "{}",
+            serde_json::to_string_pretty(rows).unwrap_or_else(|e| format!("\"{e}\""))
+        );
         return;
     }
     println!(
@@ -206,7 +227,11 @@ mod tests {
     #[test]
     fn small_bench_produces_rows_for_every_strategy() {
         let mesh = cuboid([0.02, 0.02, 0.01], [4, 4, 2]);
-        let opts = FemBenchOptions { contact_counts: vec![3, 6], steps: 1, ..Default::default() };
+        let opts = FemBenchOptions {
+            contact_counts: vec![3, 6],
+            steps: 1,
+            ..Default::default()
+        };
         let rows = run_fem_bench(&mesh, "tiny", &opts);
         assert_eq!(rows.len(), 5 * 2);
         for r in &rows {

@@ -80,7 +80,13 @@ impl Pattern {
                 col_ptr.push(row_idx.len());
             }
         }
-        let mut pattern = Self { n_dofs, col_ptr, row_idx, diag, scatter: Vec::new() };
+        let mut pattern = Self {
+            n_dofs,
+            col_ptr,
+            row_idx,
+            diag,
+            scatter: Vec::new(),
+        };
         pattern.scatter = tets
             .iter()
             .map(|t| {
@@ -100,7 +106,9 @@ impl Pattern {
     /// (only called on entries the mesh creates).
     fn index(&self, row: usize, col: usize) -> usize {
         let (a, b) = (self.col_ptr[col], self.col_ptr[col + 1]);
-        a + self.row_idx[a..b].binary_search(&row).expect("entry in the mesh pattern")
+        a + self.row_idx[a..b]
+            .binary_search(&row)
+            .expect("entry in the mesh pattern")
     }
 
     /// Number of stored nonzeros.
@@ -198,13 +206,19 @@ mod tests {
         let kel: Vec<_> = mesh
             .tets
             .iter()
-            .map(|t| TetGeometry::new(t.map(|i| mesh.nodes[i as usize])).unwrap().stiffness(3e3, 1e3))
+            .map(|t| {
+                TetGeometry::new(t.map(|i| mesh.nodes[i as usize]))
+                    .unwrap()
+                    .stiffness(3e3, 1e3)
+            })
             .collect();
         let mut values = vec![0.0; pattern.nnz()];
         for (e, k) in kel.iter().enumerate() {
             pattern.add_element(e, k, &mut values);
         }
-        let x: Vec<f64> = (0..pattern.n_dofs).map(|i| ((i * 37 % 11) as f64 - 5.0) * 1e-3).collect();
+        let x: Vec<f64> = (0..pattern.n_dofs)
+            .map(|i| ((i * 37 % 11) as f64 - 5.0) * 1e-3)
+            .collect();
         let (mut y1, mut y2) = (vec![0.0; x.len()], vec![0.0; x.len()]);
         pattern.sym_matvec(&values, &x, &mut y1);
         element_matvec(&mesh.tets, &kel, &x, &mut y2);

@@ -80,7 +80,15 @@ impl Compliance {
         let mut rhs = vec![0.0; model.pattern.n_dofs];
         let lift = vec![0.0; model.pattern.n_dofs];
         for (e, t) in model.tets.iter().enumerate() {
-            frame.scatter(&model.pattern, e, t, &model.kel[e], &lift, &mut values, &mut rhs);
+            frame.scatter(
+                &model.pattern,
+                e,
+                t,
+                &model.kel[e],
+                &lift,
+                &mut values,
+                &mut rhs,
+            );
         }
         frame.finish(&model.pattern, &lift, &mut values, &mut rhs);
         let mut factor = SparseLlt::new(&model.pattern)?;
@@ -92,7 +100,10 @@ impl Compliance {
         let rec_nodes: Vec<u32> = match recover {
             Recover::All => (0..n_nodes as u32).collect(),
             Recover::Surface => {
-                let mesh = crate::mesh::TetMesh { nodes: model.rest.clone(), tets: model.tets.clone() };
+                let mesh = crate::mesh::TetMesh {
+                    nodes: model.rest.clone(),
+                    tets: model.tets.clone(),
+                };
                 let mut v = mesh.boundary().to_volume;
                 v.sort_unstable();
                 v
@@ -101,7 +112,10 @@ impl Compliance {
                 v.sort_unstable();
                 v.dedup();
                 if let Some(&n) = v.iter().find(|&&n| n as usize >= n_nodes) {
-                    return Err(SolveError::BadConstraint { node: n, reason: "recovered node out of range".into() });
+                    return Err(SolveError::BadConstraint {
+                        node: n,
+                        reason: "recovered node out of range".into(),
+                    });
                 }
                 v
             }
@@ -127,12 +141,19 @@ impl Compliance {
             cols: Vec::new(),
             n_slots: 0,
             cmat: Mat::zeros(0, 0),
-            chol_buf: MemBuffer::new(llt::factor::cholesky_in_place_scratch::<f64>(0, Par::Seq, Default::default())),
+            chol_buf: MemBuffer::new(llt::factor::cholesky_in_place_scratch::<f64>(
+                0,
+                Par::Seq,
+                Default::default(),
+            )),
             lambda: Vec::new(),
             tmp_rows: Vec::new(),
             node_reaction: Vec::new(),
             u_rec: vec![0.0; 3 * rec_nodes.len()],
-            solution: Solution { displacements: vec![Vector3::zeros(); n_nodes], ..Default::default() },
+            solution: Solution {
+                displacements: vec![Vector3::zeros(); n_nodes],
+                ..Default::default()
+            },
             local: LocalModel {
                 nodes: Vec::new(),
                 compliance: DMatrix::zeros(0, 0),
@@ -240,10 +261,16 @@ impl Compliance {
     fn prepare<C: Into<Constraint> + Copy>(&mut self, cons: &[C]) -> Result<(), SolveError> {
         self.prepared = false;
         self.rows.set(cons, &self.model.support)?;
-        if let Some(&n) = self.rows.nodes.iter().find(|&&n| self.rec_of[n as usize] == NONE) {
+        if let Some(&n) = self
+            .rows
+            .nodes
+            .iter()
+            .find(|&&n| self.rec_of[n as usize] == NONE)
+        {
             return Err(SolveError::BadConstraint {
                 node: n,
-                reason: "the node is not among the recovered nodes of this compliance solver".into(),
+                reason: "the node is not among the recovered nodes of this compliance solver"
+                    .into(),
             });
         }
         self.fill_cache();
@@ -251,7 +278,11 @@ impl Compliance {
         if k > self.cmat.nrows() {
             let cap = k.max(2 * self.cmat.nrows());
             self.cmat = Mat::zeros(cap, cap);
-            self.chol_buf = MemBuffer::new(llt::factor::cholesky_in_place_scratch::<f64>(cap, Par::Seq, Default::default()));
+            self.chol_buf = MemBuffer::new(llt::factor::cholesky_in_place_scratch::<f64>(
+                cap,
+                Par::Seq,
+                Default::default(),
+            ));
             self.lambda.resize(cap, 0.0);
             self.tmp_rows.resize(cap, 0.0);
         }
@@ -278,7 +309,9 @@ impl Compliance {
             MemStack::new(&mut self.chol_buf),
             Default::default(),
         )
-        .map_err(|e| SolveError::Factorization(format!("compliance block: {e:?} (redundant constraints?)")))?;
+        .map_err(|e| {
+            SolveError::Factorization(format!("compliance block: {e:?} (redundant constraints?)"))
+        })?;
         self.prepared = true;
         Ok(())
     }
@@ -336,10 +369,14 @@ impl Compliance {
         for (i, &n) in self.rec_nodes.iter().enumerate() {
             self.solution.displacements[n as usize] = node_vec(&self.u_rec, i);
         }
-        self.rows.reactions_from_multipliers(&self.lambda[..k], &mut self.solution.reactions);
+        self.rows
+            .reactions_from_multipliers(&self.lambda[..k], &mut self.solution.reactions);
         self.solution.iterations = 1;
         // Local model: full 3m x 3m compliance of the contact nodes.
-        let mut data: Vec<f64> = std::mem::replace(&mut self.local.compliance, DMatrix::zeros(0, 0)).data.into();
+        let mut data: Vec<f64> =
+            std::mem::replace(&mut self.local.compliance, DMatrix::zeros(0, 0))
+                .data
+                .into();
         data.clear();
         data.resize(9 * ns * ns, 0.0);
         let mut c = DMatrix::from_vec(3 * ns, 3 * ns, data);
@@ -353,18 +390,25 @@ impl Compliance {
         self.local.nodes.clear();
         self.local.nodes.extend_from_slice(&self.rows.nodes);
         self.local.displacements.clear();
-        self.local.displacements.extend(self.rows.nodes.iter().map(|&n| self.solution.displacements[n as usize]));
+        self.local.displacements.extend(
+            self.rows
+                .nodes
+                .iter()
+                .map(|&n| self.solution.displacements[n as usize]),
+        );
         self.local.reactions.clear();
         self.local.reactions.extend_from_slice(&self.node_reaction);
         // Support reactions need every node's displacement.
         self.support_reactions.clear();
         if self.rec_nodes.len() == self.model.n_nodes() {
-            self.support_reactions.resize(self.model.fixed.len(), Vector3::zeros());
+            self.support_reactions
+                .resize(self.model.fixed.len(), Vector3::zeros());
             for &e in &self.support_elems {
                 let t = &self.model.tets[e];
                 let mut ue = nalgebra::SVector::<f64, 12>::zeros();
                 for a in 0..4 {
-                    ue.fixed_rows_mut::<3>(3 * a).copy_from(&self.solution.displacements[t[a] as usize]);
+                    ue.fixed_rows_mut::<3>(3 * a)
+                        .copy_from(&self.solution.displacements[t[a] as usize]);
                 }
                 let fe = self.model.kel[e] * ue;
                 for a in 0..4 {
@@ -380,7 +424,10 @@ impl Compliance {
 
     /// Prepares a step (for a caller that applies the constrained inverse
     /// repeatedly, see [`Compliance::constrained_solve`]).
-    pub(crate) fn prepare_constraints<C: Into<Constraint> + Copy>(&mut self, cons: &[C]) -> Result<(), SolveError> {
+    pub(crate) fn prepare_constraints<C: Into<Constraint> + Copy>(
+        &mut self,
+        cons: &[C],
+    ) -> Result<(), SolveError> {
         self.prepare(cons)
     }
 

@@ -18,7 +18,10 @@ pub enum ConstraintKind {
     Full(Vector3<f64>),
     /// Only `normal . u = displacement` (unit `normal`); the node slides freely
     /// in the tangent plane.
-    Normal { normal: Vector3<f64>, displacement: f64 },
+    Normal {
+        normal: Vector3<f64>,
+        displacement: f64,
+    },
     /// Only `u[axis] = displacement` (axis 0, 1, 2 = x, y, z): a roller.
     Axis { axis: u8, displacement: f64 },
 }
@@ -34,7 +37,10 @@ pub struct Constraint {
 
 impl From<Prescribed> for Constraint {
     fn from(p: Prescribed) -> Self {
-        Self { node: p.node, kind: ConstraintKind::Full(p.displacement) }
+        Self {
+            node: p.node,
+            kind: ConstraintKind::Full(p.displacement),
+        }
     }
 }
 
@@ -76,7 +82,10 @@ const NONE: u32 = u32::MAX;
 impl StepRows {
     /// Empty rows for a mesh of `n_nodes` nodes.
     pub fn new(n_nodes: usize) -> Self {
-        Self { slot: vec![NONE; n_nodes], ..Default::default() }
+        Self {
+            slot: vec![NONE; n_nodes],
+            ..Default::default()
+        }
     }
 
     /// Number of constraints given to the last [`StepRows::set`].
@@ -100,16 +109,24 @@ impl StepRows {
         self.start.clear();
         self.n_constraints = cons.len();
         let n_nodes = self.slot.len();
-        let bad = |node: u32, reason: &str| SolveError::BadConstraint { node, reason: reason.into() };
+        let bad = |node: u32, reason: &str| SolveError::BadConstraint {
+            node,
+            reason: reason.into(),
+        };
         for (ci, c) in cons.iter().enumerate() {
             let c: Constraint = (*c).into();
             let node = c.node;
             if node as usize >= n_nodes {
-                return Err(bad(node, &format!("out of range (the mesh has {n_nodes} nodes)")));
+                return Err(bad(
+                    node,
+                    &format!("out of range (the mesh has {n_nodes} nodes)"),
+                ));
             }
             let mut push = |dir: Vector3<f64>, value: f64, axis_dof: Option<usize>| {
                 if !value.is_finite() || !dir.iter().all(|v| v.is_finite()) {
-                    return Err(SolveError::NonFinite(format!("constraint {ci} on node {node}")));
+                    return Err(SolveError::NonFinite(format!(
+                        "constraint {ci} on node {node}"
+                    )));
                 }
                 let base = 3 * node as usize;
                 let clash = match axis_dof {
@@ -119,7 +136,12 @@ impl StepRows {
                 if clash {
                     return Err(bad(node, "the node is a fixed support"));
                 }
-                self.rows.push(Row { node, dir, value, constraint: ci as u32 });
+                self.rows.push(Row {
+                    node,
+                    dir,
+                    value,
+                    constraint: ci as u32,
+                });
                 Ok(())
             };
             match c.kind {
@@ -132,9 +154,16 @@ impl StepRows {
                     if axis > 2 {
                         return Err(bad(node, &format!("axis {axis} is not 0, 1 or 2")));
                     }
-                    push(Vector3::ith(axis as usize, 1.0), displacement, Some(axis as usize))?;
+                    push(
+                        Vector3::ith(axis as usize, 1.0),
+                        displacement,
+                        Some(axis as usize),
+                    )?;
                 }
-                ConstraintKind::Normal { normal, displacement } => {
+                ConstraintKind::Normal {
+                    normal,
+                    displacement,
+                } => {
                     let len = normal.norm();
                     if !len.is_finite() {
                         return Err(SolveError::NonFinite(format!("normal of constraint {ci}")));
@@ -260,7 +289,9 @@ impl Frame {
             let n = node as usize;
             self.touched.push(node);
             let nr = rows.node_rows(s);
-            let cartesian = nr.iter().all(|r| r.dir.iter().filter(|&&c| c == 0.0).count() == 2);
+            let cartesian = nr
+                .iter()
+                .all(|r| r.dir.iter().filter(|&&c| c == 0.0).count() == 2);
             if cartesian {
                 for r in nr {
                     let a = r.dir.iamax();
@@ -305,13 +336,16 @@ impl Frame {
             let b = self.basis[t[a] as usize];
             // Columns of node a: K[:, 3a..3a+3] * B; rows: B^T * K[3a..3a+3, :].
             for r in 0..12 {
-                let row = nalgebra::RowVector3::new(k[(r, 3 * a)], k[(r, 3 * a + 1)], k[(r, 3 * a + 2)]) * b;
+                let row =
+                    nalgebra::RowVector3::new(k[(r, 3 * a)], k[(r, 3 * a + 1)], k[(r, 3 * a + 2)])
+                        * b;
                 for c in 0..3 {
                     k[(r, 3 * a + c)] = row[c];
                 }
             }
             for c in 0..12 {
-                let col = b.transpose() * Vector3::new(k[(3 * a, c)], k[(3 * a + 1, c)], k[(3 * a + 2, c)]);
+                let col = b.transpose()
+                    * Vector3::new(k[(3 * a, c)], k[(3 * a + 1, c)], k[(3 * a + 2, c)]);
                 for r in 0..3 {
                     k[(3 * a + r, c)] = col[r];
                 }
@@ -357,7 +391,10 @@ impl Frame {
         rhs: &mut [f64],
     ) {
         let dof = |p: usize| 3 * t[p / 3] as usize + p % 3;
-        for (s, &(p, q)) in pattern.scatter[e].iter().zip(super::assembly::LOCAL_PAIRS.iter()) {
+        for (s, &(p, q)) in pattern.scatter[e]
+            .iter()
+            .zip(super::assembly::LOCAL_PAIRS.iter())
+        {
             let (p, q) = (p as usize, q as usize);
             let (gp, gq) = (dof(p), dof(q));
             let (cp, cq) = (self.fixed[gp], self.fixed[gq]);
@@ -374,7 +411,13 @@ impl Frame {
 
     /// After scattering all elements: constrained rows become `diag * x = diag * g`.
     /// A zero diagonal (a node in no element) is replaced by 1.
-    pub fn finish(&self, pattern: &super::assembly::Pattern, lift: &[f64], values: &mut [f64], rhs: &mut [f64]) {
+    pub fn finish(
+        &self,
+        pattern: &super::assembly::Pattern,
+        lift: &[f64],
+        values: &mut [f64],
+        rhs: &mut [f64],
+    ) {
         for d in 0..pattern.n_dofs {
             if self.fixed[d] {
                 let i = pattern.diag[d];
@@ -395,20 +438,53 @@ mod tests {
     fn rejects_bad_constraints() {
         let support = vec![true, true, true, false, false, false, false, false, false];
         let mut rows = StepRows::new(3);
-        let p = |node, d: [f64; 3]| Prescribed { node, displacement: Vector3::from(d) };
-        assert!(matches!(rows.set(&[p(7, [0.0; 3])], &support), Err(SolveError::BadConstraint { node: 7, .. })));
-        assert!(matches!(rows.set(&[p(0, [0.0; 3])], &support), Err(SolveError::BadConstraint { node: 0, .. })));
-        assert!(matches!(rows.set(&[p(1, [f64::NAN, 0.0, 0.0])], &support), Err(SolveError::NonFinite(_))));
-        assert!(matches!(rows.set(&[p(1, [0.0; 3]), p(1, [0.0; 3])], &support), Err(SolveError::BadConstraint { node: 1, .. })));
+        let p = |node, d: [f64; 3]| Prescribed {
+            node,
+            displacement: Vector3::from(d),
+        };
+        assert!(matches!(
+            rows.set(&[p(7, [0.0; 3])], &support),
+            Err(SolveError::BadConstraint { node: 7, .. })
+        ));
+        assert!(matches!(
+            rows.set(&[p(0, [0.0; 3])], &support),
+            Err(SolveError::BadConstraint { node: 0, .. })
+        ));
+        assert!(matches!(
+            rows.set(&[p(1, [f64::NAN, 0.0, 0.0])], &support),
+            Err(SolveError::NonFinite(_))
+        ));
+        assert!(matches!(
+            rows.set(&[p(1, [0.0; 3]), p(1, [0.0; 3])], &support),
+            Err(SolveError::BadConstraint { node: 1, .. })
+        ));
         let tilted = Constraint {
             node: 2,
-            kind: ConstraintKind::Normal { normal: Vector3::new(0.0, 2.0, 0.0), displacement: 0.1 },
+            kind: ConstraintKind::Normal {
+                normal: Vector3::new(0.0, 2.0, 0.0),
+                displacement: 0.1,
+            },
         };
-        assert!(matches!(rows.set(&[tilted], &support), Err(SolveError::BadConstraint { node: 2, .. })));
+        assert!(matches!(
+            rows.set(&[tilted], &support),
+            Err(SolveError::BadConstraint { node: 2, .. })
+        ));
         // Two rollers on one node are fine.
         let rollers = [
-            Constraint { node: 2, kind: ConstraintKind::Axis { axis: 0, displacement: 0.0 } },
-            Constraint { node: 2, kind: ConstraintKind::Axis { axis: 2, displacement: 0.1 } },
+            Constraint {
+                node: 2,
+                kind: ConstraintKind::Axis {
+                    axis: 0,
+                    displacement: 0.0,
+                },
+            },
+            Constraint {
+                node: 2,
+                kind: ConstraintKind::Axis {
+                    axis: 2,
+                    displacement: 0.1,
+                },
+            },
         ];
         rows.set(&rollers, &support).unwrap();
         assert_eq!(rows.nodes, vec![2]);

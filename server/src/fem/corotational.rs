@@ -14,6 +14,9 @@
 //! Convergence: `|P f| <= tol (|f_c| + tiny)`, with `P` the projection off the
 //! constrained and supported DOFs and `f_c` the internal force at them.
 
+// Negated comparisons are deliberate: NaN must fail the positivity checks.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 use super::assembly::{gather, node_vec, scatter_add};
 use super::compliance::{Compliance, Recover};
 use super::constraint::Constraint;
@@ -35,7 +38,11 @@ pub struct IterativeOptions {
 
 impl Default for IterativeOptions {
     fn default() -> Self {
-        Self { tolerance: 1e-6, max_outer: 30, max_inner: 100 }
+        Self {
+            tolerance: 1e-6,
+            max_outer: 30,
+            max_inner: 100,
+        }
     }
 }
 
@@ -60,7 +67,9 @@ pub struct Corotational {
 
 impl std::fmt::Debug for Corotational {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Corotational").field("opts", &self.opts).finish()
+        f.debug_struct("Corotational")
+            .field("opts", &self.opts)
+            .finish()
     }
 }
 
@@ -82,7 +91,10 @@ impl Corotational {
             q: vec![0.0; n],
             du: vec![0.0; n],
             good: vec![0.0; n],
-            solution: Solution { displacements: vec![Vector3::zeros(); nn], ..Default::default() },
+            solution: Solution {
+                displacements: vec![Vector3::zeros(); nn],
+                ..Default::default()
+            },
             support_reactions: Vec::new(),
             last_inner_iterations: 0,
         })
@@ -97,7 +109,12 @@ impl Corotational {
             let j = f.determinant();
             match polar_rotation_fast(&f) {
                 Some(r) => self.rot[e] = r,
-                None => return Err(SolveError::Inverted { element: e, jacobian: j }),
+                None => {
+                    return Err(SolveError::Inverted {
+                        element: e,
+                        jacobian: j,
+                    });
+                }
             }
         }
         Ok(())
@@ -119,7 +136,8 @@ impl Corotational {
             let k = m.kel[e] * loc;
             let mut out = SVector::<f64, 12>::zeros();
             for a in 0..4 {
-                out.fixed_rows_mut::<3>(3 * a).copy_from(&(r * k.fixed_rows::<3>(3 * a)));
+                out.fixed_rows_mut::<3>(3 * a)
+                    .copy_from(&(r * k.fixed_rows::<3>(3 * a)));
             }
             scatter_add(t, &out, &mut self.f);
         }
@@ -134,12 +152,14 @@ impl Corotational {
             let xe = gather(t, x);
             let mut loc = SVector::<f64, 12>::zeros();
             for a in 0..4 {
-                loc.fixed_rows_mut::<3>(3 * a).copy_from(&(r.transpose() * xe.fixed_rows::<3>(3 * a)));
+                loc.fixed_rows_mut::<3>(3 * a)
+                    .copy_from(&(r.transpose() * xe.fixed_rows::<3>(3 * a)));
             }
             let k = m.kel[e] * loc;
             let mut out = SVector::<f64, 12>::zeros();
             for a in 0..4 {
-                out.fixed_rows_mut::<3>(3 * a).copy_from(&(r * k.fixed_rows::<3>(3 * a)));
+                out.fixed_rows_mut::<3>(3 * a)
+                    .copy_from(&(r * k.fixed_rows::<3>(3 * a)));
             }
             scatter_add(t, &out, y);
         }
@@ -185,7 +205,10 @@ impl Corotational {
                 return Ok(outer);
             }
             if outer == self.opts.max_outer {
-                return Err(SolveError::NotConverged { iterations: outer, residual: res / total.max(f64::MIN_POSITIVE) });
+                return Err(SolveError::NotConverged {
+                    iterations: outer,
+                    residual: res / total.max(f64::MIN_POSITIVE),
+                });
             }
             // PCG on K_R du = -P f in the constrained subspace.
             for v in self.r.iter_mut() {
@@ -248,10 +271,13 @@ impl Corotational {
         for (i, d) in self.solution.displacements.iter_mut().enumerate() {
             *d = node_vec(&self.u, i);
         }
-        self.lin.step_rows().reactions_from_forces(&self.f, &mut self.solution.reactions);
+        self.lin
+            .step_rows()
+            .reactions_from_forces(&self.f, &mut self.solution.reactions);
         self.support_reactions.clear();
         let m = self.lin.model();
-        self.support_reactions.extend(m.fixed.iter().map(|&n| node_vec(&self.f, n as usize)));
+        self.support_reactions
+            .extend(m.fixed.iter().map(|&n| node_vec(&self.f, n as usize)));
         self.solution.iterations = iterations;
         Ok(&self.solution)
     }

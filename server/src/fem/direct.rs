@@ -61,15 +61,32 @@ impl Direct {
         let m = &self.model;
         self.values.fill(0.0);
         self.rhs.fill(0.0);
-        let any_rotated = self.rows.nodes.iter().any(|&n| self.frame.rotated[n as usize]);
+        let any_rotated = self
+            .rows
+            .nodes
+            .iter()
+            .any(|&n| self.frame.rotated[n as usize]);
         for (e, t) in m.tets.iter().enumerate() {
             let mut k = m.kel[e];
             if any_rotated {
                 self.frame.rotate_element(t, &mut k);
             }
-            self.frame.scatter(&m.pattern, e, t, &k, &self.frame.value, &mut self.values, &mut self.rhs);
+            self.frame.scatter(
+                &m.pattern,
+                e,
+                t,
+                &k,
+                &self.frame.value,
+                &mut self.values,
+                &mut self.rhs,
+            );
         }
-        self.frame.finish(&m.pattern, &self.frame.value, &mut self.values, &mut self.rhs);
+        self.frame.finish(
+            &m.pattern,
+            &self.frame.value,
+            &mut self.values,
+            &mut self.rhs,
+        );
         self.factor.factorize(&m.pattern, &self.values)?;
         self.factor.solve(&mut self.rhs);
         self.frame.to_global_basis(&mut self.rhs);
@@ -80,11 +97,13 @@ impl Direct {
         for (i, d) in self.solution.displacements.iter_mut().enumerate() {
             *d = Vector3::new(self.rhs[3 * i], self.rhs[3 * i + 1], self.rhs[3 * i + 2]);
         }
-        self.rows.reactions_from_forces(&self.ku, &mut self.solution.reactions);
+        self.rows
+            .reactions_from_forces(&self.ku, &mut self.solution.reactions);
         self.support_reactions.clear();
         for &n in &m.fixed {
             let n = 3 * n as usize;
-            self.support_reactions.push(Vector3::new(self.ku[n], self.ku[n + 1], self.ku[n + 2]));
+            self.support_reactions
+                .push(Vector3::new(self.ku[n], self.ku[n + 1], self.ku[n + 2]));
         }
         self.solution.iterations = 1;
         Ok(&self.solution)

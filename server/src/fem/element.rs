@@ -9,6 +9,9 @@
 //! the Hessian of the strain energy `W = V (mu eps:eps + lambda/2 tr(eps)^2)`
 //! with `eps = sym(sum_a u_a (x) g_a)`.
 
+// Negated comparisons are deliberate: NaN must fail the positivity checks.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 use nalgebra::{Matrix3, Point3, SMatrix, Vector3};
 
 /// A 12 x 12 element matrix (N/m).
@@ -43,7 +46,11 @@ impl TetGeometry {
         if !grads.iter().all(|g| g.iter().all(|c| c.is_finite())) {
             return None;
         }
-        Some(Self { grads, dm_inv, volume })
+        Some(Self {
+            grads,
+            dm_inv,
+            volume,
+        })
     }
 
     /// Deformation gradient `F = Ds Dm^-1` for current corner positions `x`.
@@ -101,11 +108,14 @@ pub fn polar_rotation(f: &Matrix3<f64>) -> Matrix3<f64> {
     let mut r = u * vt;
     if r.determinant() < 0.0 {
         // Flip the column of U for the smallest singular value.
-        let (imin, _) = svd
-            .singular_values
-            .iter()
-            .enumerate()
-            .fold((0, f64::INFINITY), |acc, (i, &s)| if s < acc.1 { (i, s) } else { acc });
+        let (imin, _) =
+            svd.singular_values
+                .iter()
+                .enumerate()
+                .fold(
+                    (0, f64::INFINITY),
+                    |acc, (i, &s)| if s < acc.1 { (i, s) } else { acc },
+                );
         let mut u2 = u;
         u2.column_mut(imin).neg_mut();
         r = u2 * vt;
@@ -229,11 +239,16 @@ mod tests {
         let scale = k.abs().max();
         for p in 0..12 {
             for q in 0..12 {
-                let num = (energy(&[(p, h), (q, h)]) - energy(&[(p, h), (q, -h)])
+                let num = (energy(&[(p, h), (q, h)])
+                    - energy(&[(p, h), (q, -h)])
                     - energy(&[(p, -h), (q, h)])
                     + energy(&[(p, -h), (q, -h)]))
                     / (4.0 * h * h);
-                assert!((num - k[(p, q)]).abs() < 1e-7 * scale, "K[{p},{q}] = {} vs {num}", k[(p, q)]);
+                assert!(
+                    (num - k[(p, q)]).abs() < 1e-7 * scale,
+                    "K[{p},{q}] = {} vs {num}",
+                    k[(p, q)]
+                );
             }
         }
     }
@@ -258,8 +273,12 @@ mod tests {
         let kl = g.stiffness(lambda, mu);
         assert!((k0 - kl).abs().max() < 1e-9 * kl.abs().max());
         // Force = gradient of the energy at a deformed state.
-        let x0 = [Vector3::new(0.0, 0.0, 0.0), Vector3::new(0.01, 0.001, 0.0),
-            Vector3::new(0.001, 0.011, 0.0), Vector3::new(0.0, 0.001, 0.009)];
+        let x0 = [
+            Vector3::new(0.0, 0.0, 0.0),
+            Vector3::new(0.01, 0.001, 0.0),
+            Vector3::new(0.001, 0.011, 0.0),
+            Vector3::new(0.0, 0.001, 0.009),
+        ];
         let energy = |x: &[Vector3<f64>; 4]| {
             g.volume * neo_hookean_density(&g.deformation_gradient(x), lambda, mu).unwrap()
         };
@@ -272,7 +291,11 @@ mod tests {
                 xp[a][i] += h;
                 xm[a][i] -= h;
                 let num = (energy(&xp) - energy(&xm)) / (2.0 * h);
-                assert!((num - forces[a][i]).abs() < 1e-5 * forces[a].norm().max(1e-3), "{num} vs {}", forces[a][i]);
+                assert!(
+                    (num - forces[a][i]).abs() < 1e-5 * forces[a].norm().max(1e-3),
+                    "{num} vs {}",
+                    forces[a][i]
+                );
             }
         }
     }

@@ -45,7 +45,13 @@ impl SparseLlt {
         );
         let solve_buf = MemBuffer::new(symbolic.solve_in_place_scratch::<f64>(1, Par::Seq));
         let l_values = vec![0.0; symbolic.len_val()];
-        Ok(Self { symbolic, l_values, factor_buf, solve_buf, factored: false })
+        Ok(Self {
+            symbolic,
+            l_values,
+            factor_buf,
+            solve_buf,
+            factored: false,
+        })
     }
 
     /// Nonzeros of the factor L.
@@ -71,7 +77,9 @@ impl SparseLlt {
                 MemStack::new(&mut self.factor_buf),
                 Default::default(),
             )
-            .map_err(|e| SolveError::Factorization(format!("{e:?} (matrix not positive definite)")))?;
+            .map_err(|e| {
+                SolveError::Factorization(format!("{e:?} (matrix not positive definite)"))
+            })?;
         self.factored = true;
         Ok(())
     }

@@ -123,9 +123,10 @@ pub trait DeformationSolver: Send {
         let mut prescribed = Vec::with_capacity(constraints.len());
         for c in constraints {
             match c.kind {
-                ConstraintKind::Full(displacement) => {
-                    prescribed.push(Prescribed { node: c.node, displacement })
-                }
+                ConstraintKind::Full(displacement) => prescribed.push(Prescribed {
+                    node: c.node,
+                    displacement,
+                }),
                 _ => {
                     return Err(SolveError::BadConstraint {
                         node: c.node,
@@ -164,7 +165,12 @@ pub enum Strategy {
 
 impl Strategy {
     /// All strategies.
-    pub const ALL: [Strategy; 4] = [Self::Direct, Self::Compliance, Self::Corotational, Self::NeoHookean];
+    pub const ALL: [Strategy; 4] = [
+        Self::Direct,
+        Self::Compliance,
+        Self::Corotational,
+        Self::NeoHookean,
+    ];
 
     /// The scene-file name.
     pub fn name(self) -> &'static str {
@@ -183,7 +189,11 @@ impl std::str::FromStr for Strategy {
         Self::ALL
             .into_iter()
             .find(|k| k.name() == s)
-            .ok_or_else(|| SolveError::InvalidModel(format!("unknown strategy {s:?} (direct, compliance, corotational, neo-hookean)")))
+            .ok_or_else(|| {
+                SolveError::InvalidModel(format!(
+                    "unknown strategy {s:?} (direct, compliance, corotational, neo-hookean)"
+                ))
+            })
     }
 }
 
@@ -215,21 +225,29 @@ pub fn build_solver(
     let solver: Box<dyn DeformationSolver> = match strategy {
         Strategy::Direct => Box::new(direct::Direct::new(model)?),
         Strategy::Compliance => {
-            let recover = if options.skull.is_some() && options.recover != compliance::Recover::All {
+            let recover = if options.skull.is_some() && options.recover != compliance::Recover::All
+            {
                 compliance::Recover::Surface
             } else {
                 options.recover.clone()
             };
             Box::new(compliance::Compliance::new(model, recover)?)
         }
-        Strategy::Corotational => Box::new(corotational::Corotational::new(model, options.iterative)?),
+        Strategy::Corotational => {
+            Box::new(corotational::Corotational::new(model, options.iterative)?)
+        }
         Strategy::NeoHookean => Box::new(neo_hookean::NeoHookean::new(model, options.iterative)?),
     };
     match options.skull {
         None => Ok(solver),
         Some(s) => {
             let candidates = mesh.boundary().to_volume;
-            Ok(Box::new(skull::SkullSolver::new(solver, s, mesh.nodes.clone(), candidates)?))
+            Ok(Box::new(skull::SkullSolver::new(
+                solver,
+                s,
+                mesh.nodes.clone(),
+                candidates,
+            )?))
         }
     }
 }

@@ -53,10 +53,14 @@ impl Model {
     ) -> Result<Self, SolveError> {
         let (e, nu) = (material.youngs_modulus_pa, material.poisson_ratio);
         if !(e.is_finite() && e > 0.0) {
-            return Err(SolveError::InvalidModel(format!("Young's modulus {e} Pa is not positive")));
+            return Err(SolveError::InvalidModel(format!(
+                "Young's modulus {e} Pa is not positive"
+            )));
         }
         if !(nu.is_finite() && (0.0..0.5).contains(&nu)) {
-            return Err(SolveError::InvalidModel(format!("Poisson ratio {nu} is not in [0, 0.5)")));
+            return Err(SolveError::InvalidModel(format!(
+                "Poisson ratio {nu} is not in [0, 0.5)"
+            )));
         }
         let (lambda, mu) = material.lame();
         let n_nodes = mesh.nodes.len();
@@ -64,7 +68,9 @@ impl Model {
         let mut used = vec![false; n_nodes];
         for (i, t) in mesh.tets.iter().enumerate() {
             if let Some(&n) = t.iter().find(|&&n| n as usize >= n_nodes) {
-                return Err(SolveError::InvalidModel(format!("element {i} refers to node {n} of {n_nodes}")));
+                return Err(SolveError::InvalidModel(format!(
+                    "element {i} refers to node {n} of {n_nodes}"
+                )));
             }
             let g = TetGeometry::new(t.map(|n| mesh.nodes[n as usize])).ok_or_else(|| {
                 SolveError::InvalidModel(format!("element {i} is degenerate or inverted at rest"))
@@ -77,13 +83,19 @@ impl Model {
         let mut support = vec![false; 3 * n_nodes];
         for &n in fixed {
             if n as usize >= n_nodes {
-                return Err(SolveError::BadConstraint { node: n, reason: "fixed node out of range".into() });
+                return Err(SolveError::BadConstraint {
+                    node: n,
+                    reason: "fixed node out of range".into(),
+                });
             }
             support[3 * n as usize..3 * n as usize + 3].fill(true);
         }
         for s in axis {
             if s.node as usize >= n_nodes || s.axis > 2 {
-                return Err(SolveError::BadConstraint { node: s.node, reason: format!("bad axis support (axis {})", s.axis) });
+                return Err(SolveError::BadConstraint {
+                    node: s.node,
+                    reason: format!("bad axis support (axis {})", s.axis),
+                });
             }
             support[3 * s.node as usize + s.axis as usize] = true;
         }

@@ -56,7 +56,10 @@ impl NeoHookean {
             f: vec![0.0; n],
             fnode: vec![0.0; n],
             good: vec![0.0; n],
-            solution: Solution { displacements: vec![Vector3::zeros(); model.n_nodes()], ..Default::default() },
+            solution: Solution {
+                displacements: vec![Vector3::zeros(); model.n_nodes()],
+                ..Default::default()
+            },
             support_reactions: Vec::new(),
             opts,
             model,
@@ -71,7 +74,12 @@ impl NeoHookean {
             let f = m.geoms[e].deformation_gradient(&x);
             match neo_hookean_density(&f, m.lambda, m.mu) {
                 Some(psi) => w += m.geoms[e].volume * psi,
-                None => return Err(SolveError::Inverted { element: e, jacobian: f.determinant() }),
+                None => {
+                    return Err(SolveError::Inverted {
+                        element: e,
+                        jacobian: f.determinant(),
+                    });
+                }
             }
         }
         Ok(w)
@@ -87,8 +95,12 @@ impl NeoHookean {
         for (e, t) in m.tets.iter().enumerate() {
             let x = t.map(|n| m.rest[n as usize].coords + node_vec(&self.u, n as usize));
             let fdef = m.geoms[e].deformation_gradient(&x);
-            let (forces, mut k) = neo_hookean_element(&m.geoms[e], &fdef, m.lambda, m.mu)
-                .ok_or(SolveError::Inverted { element: e, jacobian: fdef.determinant() })?;
+            let (forces, mut k) = neo_hookean_element(&m.geoms[e], &fdef, m.lambda, m.mu).ok_or(
+                SolveError::Inverted {
+                    element: e,
+                    jacobian: fdef.determinant(),
+                },
+            )?;
             let mut fe = SVector::<f64, 12>::zeros();
             for a in 0..4 {
                 fe.fixed_rows_mut::<3>(3 * a).copy_from(&forces[a]);
@@ -98,7 +110,15 @@ impl NeoHookean {
                 k = m.kel[e];
             }
             self.frame.rotate_element(t, &mut k);
-            self.frame.scatter(&m.pattern, e, t, &k, &self.lift, &mut self.values, &mut self.rhs);
+            self.frame.scatter(
+                &m.pattern,
+                e,
+                t,
+                &k,
+                &self.lift,
+                &mut self.values,
+                &mut self.rhs,
+            );
         }
         self.fnode.copy_from_slice(&self.f);
         self.frame.to_node_basis(&mut self.fnode);
@@ -107,7 +127,8 @@ impl NeoHookean {
                 self.rhs[d] -= self.fnode[d];
             }
         }
-        self.frame.finish(&m.pattern, &self.lift, &mut self.values, &mut self.rhs);
+        self.frame
+            .finish(&m.pattern, &self.lift, &mut self.values, &mut self.rhs);
         Ok(())
     }
 
@@ -121,7 +142,11 @@ impl NeoHookean {
             self.frame.to_node_basis(&mut self.trial);
             let mut gap = 0.0f64;
             for d in 0..self.lift.len() {
-                self.lift[d] = if self.frame.fixed[d] { self.frame.value[d] - self.trial[d] } else { 0.0 };
+                self.lift[d] = if self.frame.fixed[d] {
+                    self.frame.value[d] - self.trial[d]
+                } else {
+                    0.0
+                };
                 gap = gap.max(self.lift[d].abs());
             }
             self.assemble(false)?;
@@ -144,16 +169,27 @@ impl NeoHookean {
                         return Err(e);
                     }
                 }
-                return Err(SolveError::NotConverged { iterations: it, residual: res / total.max(f64::MIN_POSITIVE) });
+                return Err(SolveError::NotConverged {
+                    iterations: it,
+                    residual: res / total.max(f64::MIN_POSITIVE),
+                });
             }
-            if self.factor.factorize(&self.model.pattern, &self.values).is_err() {
+            if self
+                .factor
+                .factorize(&self.model.pattern, &self.values)
+                .is_err()
+            {
                 self.assemble(true)?;
                 self.factor.factorize(&self.model.pattern, &self.values)?;
             }
             self.factor.solve(&mut self.rhs);
             self.frame.to_global_basis(&mut self.rhs);
             // Line search.
-            let w0 = if gap == 0.0 { Self::energy(&self.model, &self.u)? } else { 0.0 };
+            let w0 = if gap == 0.0 {
+                Self::energy(&self.model, &self.u)?
+            } else {
+                0.0
+            };
             let slope: f64 = self.f.iter().zip(&self.rhs).map(|(a, b)| a * b).sum();
             let mut alpha = 1.0;
             let mut last_err = None;
@@ -175,13 +211,19 @@ impl NeoHookean {
                 alpha *= 0.5;
             }
             if !accepted {
-                return Err(last_err.unwrap_or(SolveError::NotConverged { iterations: it, residual: res / total.max(f64::MIN_POSITIVE) }));
+                return Err(last_err.unwrap_or(SolveError::NotConverged {
+                    iterations: it,
+                    residual: res / total.max(f64::MIN_POSITIVE),
+                }));
             }
             if gap > 0.0 && alpha < 1.0 {
                 // Enforced values that cannot be reached without inverting
                 // an element: stop once the steps become negligible.
                 if alpha < 1e-6 {
-                    return Err(last_err.unwrap_or(SolveError::NotConverged { iterations: it, residual: gap }));
+                    return Err(last_err.unwrap_or(SolveError::NotConverged {
+                        iterations: it,
+                        residual: gap,
+                    }));
                 }
                 blocking = last_err;
             }
@@ -198,9 +240,15 @@ impl NeoHookean {
         for (i, d) in self.solution.displacements.iter_mut().enumerate() {
             *d = node_vec(&self.u, i);
         }
-        self.rows.reactions_from_forces(&self.f, &mut self.solution.reactions);
+        self.rows
+            .reactions_from_forces(&self.f, &mut self.solution.reactions);
         self.support_reactions.clear();
-        self.support_reactions.extend(self.model.fixed.iter().map(|&n| node_vec(&self.f, n as usize)));
+        self.support_reactions.extend(
+            self.model
+                .fixed
+                .iter()
+                .map(|&n| node_vec(&self.f, n as usize)),
+        );
         self.solution.iterations = iterations;
         Ok(&self.solution)
     }

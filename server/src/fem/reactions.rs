@@ -46,7 +46,11 @@ mod tests {
         let (nf, nt) = net_force_torque(x, f, &Point3::origin());
         assert!(nf.norm() < 1e-15);
         assert!((nt - Vector3::new(0.0, 0.0, 2.0)).norm() < 1e-15);
-        let (inf, _) = instrument_load(x[..1].iter().copied(), f[..1].iter().copied(), &Point3::origin());
+        let (inf, _) = instrument_load(
+            x[..1].iter().copied(),
+            f[..1].iter().copied(),
+            &Point3::origin(),
+        );
         assert_eq!(inf, Vector3::new(0.0, -1.0, 0.0));
     }
 }

@@ -17,7 +17,10 @@ pub enum RoiCentre {
     /// Distance to a point.
     Point(Point3<f64>),
     /// Distance to the plane through `point` with unit `normal`.
-    Plane { point: Point3<f64>, normal: Vector3<f64> },
+    Plane {
+        point: Point3<f64>,
+        normal: Vector3<f64>,
+    },
 }
 
 impl RoiCentre {
@@ -51,19 +54,30 @@ pub struct Roi {
 /// Crops `mesh` to the tetrahedra whose centroid is within `distance` of
 /// `centre`. `fixed` are the full model's fixed nodes. Fails when nothing is
 /// kept or `distance` is not a positive number.
-pub fn crop(mesh: &TetMesh, centre: RoiCentre, distance: f64, fixed: &[u32]) -> Result<Roi, SolveError> {
+pub fn crop(
+    mesh: &TetMesh,
+    centre: RoiCentre,
+    distance: f64,
+    fixed: &[u32],
+) -> Result<Roi, SolveError> {
     if !(distance > 0.0 && distance.is_finite()) {
-        return Err(SolveError::InvalidModel(format!("ROI distance {distance} m is not positive")));
+        return Err(SolveError::InvalidModel(format!(
+            "ROI distance {distance} m is not positive"
+        )));
     }
     let kept: Vec<u32> = (0..mesh.tets.len() as u32)
         .filter(|&e| {
             let t = mesh.tets[e as usize];
-            let c = t.iter().fold(Vector3::zeros(), |acc, &n| acc + mesh.nodes[n as usize].coords) / 4.0;
+            let c = t.iter().fold(Vector3::zeros(), |acc, &n| {
+                acc + mesh.nodes[n as usize].coords
+            }) / 4.0;
             centre.distance(&Point3::from(c)) <= distance
         })
         .collect();
     if kept.is_empty() {
-        return Err(SolveError::InvalidModel(format!("no element within {distance} m of the ROI centre")));
+        return Err(SolveError::InvalidModel(format!(
+            "no element within {distance} m of the ROI centre"
+        )));
     }
     let key = |t: &[u32; 4], f: usize| {
         let mut k = [t[(f + 1) % 4], t[(f + 2) % 4], t[(f + 3) % 4]];
@@ -79,7 +93,9 @@ pub fn crop(mesh: &TetMesh, centre: RoiCentre, distance: f64, fixed: &[u32]) -> 
     let mut crop_count: HashMap<[u32; 3], u8> = HashMap::new();
     for &e in &kept {
         for f in 0..4 {
-            *crop_count.entry(key(&mesh.tets[e as usize], f)).or_default() += 1;
+            *crop_count
+                .entry(key(&mesh.tets[e as usize], f))
+                .or_default() += 1;
         }
     }
     let mut to_crop = vec![u32::MAX; mesh.nodes.len()];
@@ -103,12 +119,24 @@ pub fn crop(mesh: &TetMesh, centre: RoiCentre, distance: f64, fixed: &[u32]) -> 
     cut_nodes.sort_unstable();
     cut_nodes.dedup();
     let mut all_fixed = cut_nodes.clone();
-    all_fixed.extend(fixed.iter().filter_map(|&n| to_crop.get(n as usize).copied().filter(|&c| c != u32::MAX)));
+    all_fixed.extend(
+        fixed
+            .iter()
+            .filter_map(|&n| to_crop.get(n as usize).copied().filter(|&c| c != u32::MAX)),
+    );
     all_fixed.sort_unstable();
     all_fixed.dedup();
     let nodes = to_full.iter().map(|&n| mesh.nodes[n as usize]).collect();
-    let cropped = TetMesh::new(nodes, tets).map_err(|e| SolveError::InvalidModel(format!("cropped mesh: {e}")))?;
-    Ok(Roi { mesh: cropped, to_full, to_crop, tets_to_full: kept, cut_nodes, fixed: all_fixed })
+    let cropped = TetMesh::new(nodes, tets)
+        .map_err(|e| SolveError::InvalidModel(format!("cropped mesh: {e}")))?;
+    Ok(Roi {
+        mesh: cropped,
+        to_full,
+        to_crop,
+        tets_to_full: kept,
+        cut_nodes,
+        fixed: all_fixed,
+    })
 }
 
 #[cfg(test)]
@@ -119,7 +147,10 @@ mod tests {
     #[test]
     fn crop_maps_and_cut() {
         let mesh = cube(0.04, 8);
-        let centre = RoiCentre::Plane { point: Point3::new(0.02, 0.0, 0.0), normal: Vector3::x() };
+        let centre = RoiCentre::Plane {
+            point: Point3::new(0.02, 0.0, 0.0),
+            normal: Vector3::x(),
+        };
         let roi = crop(&mesh, centre, 0.0101, &[]).unwrap();
         // Two cell layers each side of x = 0.02: 4 x 8 x 8 cells.
         assert_eq!(roi.mesh.tets.len(), 6 * 4 * 8 * 8);
@@ -130,8 +161,20 @@ mod tests {
         // The cut nodes are exactly those on x = 0.01 and x = 0.03.
         for (c, p) in roi.mesh.nodes.iter().enumerate() {
             let on_cut = (p.x - 0.01).abs() < 1e-12 || (p.x - 0.03).abs() < 1e-12;
-            assert_eq!(roi.cut_nodes.binary_search(&(c as u32)).is_ok(), on_cut, "node {c} at {p}");
+            assert_eq!(
+                roi.cut_nodes.binary_search(&(c as u32)).is_ok(),
+                on_cut,
+                "node {c} at {p}"
+            );
         }
-        assert!(crop(&mesh, RoiCentre::Point(Point3::new(1.0, 1.0, 1.0)), 0.01, &[]).is_err());
+        assert!(
+            crop(
+                &mesh,
+                RoiCentre::Point(Point3::new(1.0, 1.0, 1.0)),
+                0.01,
+                &[]
+            )
+            .is_err()
+        );
     }
 }

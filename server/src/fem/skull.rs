@@ -11,7 +11,12 @@
 //! for the excluding sphere `r . n >= 0`). Rounds stop when the set no longer
 //! changes (at most `max_rounds`). Only the surface nodes are candidates.
 
-use super::{Constraint, ConstraintKind, DeformationSolver, LocalModel, Prescribed, Solution, SolveError};
+// Negated comparisons are deliberate: NaN must fail the positivity checks.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
+use super::{
+    Constraint, ConstraintKind, DeformationSolver, LocalModel, Prescribed, Solution, SolveError,
+};
 use nalgebra::{Point3, Vector3};
 
 /// A sphere, m.
@@ -59,10 +64,21 @@ pub struct SkullSolver {
 impl SkullSolver {
     /// Wraps `inner`; `rest` are the rest positions and `candidates` the
     /// nodes the skull may touch (the surface). Fails on a non-positive radius.
-    pub fn new(inner: Box<dyn DeformationSolver>, skull: Skull, rest: Vec<Point3<f64>>, candidates: Vec<u32>) -> Result<Self, SolveError> {
+    pub fn new(
+        inner: Box<dyn DeformationSolver>,
+        skull: Skull,
+        rest: Vec<Point3<f64>>,
+        candidates: Vec<u32>,
+    ) -> Result<Self, SolveError> {
         for s in [skull.containing, skull.excluding].into_iter().flatten() {
-            if !(s.radius > 0.0 && s.radius.is_finite() && s.centre.coords.iter().all(|c| c.is_finite())) {
-                return Err(SolveError::InvalidModel(format!("skull sphere of radius {} m", s.radius)));
+            if !(s.radius > 0.0
+                && s.radius.is_finite()
+                && s.centre.coords.iter().all(|c| c.is_finite()))
+            {
+                return Err(SolveError::InvalidModel(format!(
+                    "skull sphere of radius {} m",
+                    s.radius
+                )));
             }
         }
         let n = rest.len();
@@ -98,7 +114,12 @@ impl SkullSolver {
         Ok(&self.solution)
     }
 
-    fn radial(rest: &[Point3<f64>], node: u32, u: Vector3<f64>, s: &Sphere) -> (Vector3<f64>, f64, f64) {
+    fn radial(
+        rest: &[Point3<f64>],
+        node: u32,
+        u: Vector3<f64>,
+        s: &Sphere,
+    ) -> (Vector3<f64>, f64, f64) {
         let x = rest[node as usize];
         let d = x + u - s.centre;
         let dist = d.norm();
@@ -113,7 +134,13 @@ impl SkullSolver {
             self.cons.clear();
             self.cons.extend_from_slice(user);
             for a in &self.active {
-                self.cons.push(Constraint { node: a.node, kind: ConstraintKind::Normal { normal: a.normal, displacement: a.value } });
+                self.cons.push(Constraint {
+                    node: a.node,
+                    kind: ConstraintKind::Normal {
+                        normal: a.normal,
+                        displacement: a.value,
+                    },
+                });
             }
             let sol = self.inner.solve_constraints(&self.cons)?;
             let mut changed = false;
@@ -132,12 +159,23 @@ impl SkullSolver {
                     continue;
                 }
                 let u = sol.displacements[n as usize];
-                for (sphere, containing) in [(self.skull.containing, true), (self.skull.excluding, false)] {
+                for (sphere, containing) in
+                    [(self.skull.containing, true), (self.skull.excluding, false)]
+                {
                     let Some(s) = sphere else { continue };
                     let (normal, value, dist) = Self::radial(&self.rest, n, u, &s);
-                    let violated = if containing { dist > s.radius * (1.0 + 1e-9) } else { dist < s.radius * (1.0 - 1e-9) };
+                    let violated = if containing {
+                        dist > s.radius * (1.0 + 1e-9)
+                    } else {
+                        dist < s.radius * (1.0 - 1e-9)
+                    };
                     if violated {
-                        self.active.push(Active { node: n, normal, value, containing });
+                        self.active.push(Active {
+                            node: n,
+                            normal,
+                            value,
+                            containing,
+                        });
                         changed = true;
                         break;
                     }
@@ -146,14 +184,19 @@ impl SkullSolver {
             if !changed {
                 self.solution.displacements.clone_from(&sol.displacements);
                 self.solution.reactions.clear();
-                self.solution.reactions.extend_from_slice(&sol.reactions[..nu]);
+                self.solution
+                    .reactions
+                    .extend_from_slice(&sol.reactions[..nu]);
                 self.solution.iterations = sol.iterations;
                 self.skull_nodes.clear();
                 self.skull_nodes.extend(self.active.iter().map(|a| a.node));
                 return Ok(());
             }
         }
-        Err(SolveError::NotConverged { iterations: self.max_rounds, residual: f64::NAN })
+        Err(SolveError::NotConverged {
+            iterations: self.max_rounds,
+            residual: f64::NAN,
+        })
     }
 }
 
