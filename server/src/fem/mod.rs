@@ -7,6 +7,22 @@
 //! DOFs for linear elasticity. The force of the tissue on an instrument is minus
 //! the sum of the reactions at the nodes it displaces.
 
+pub mod assembly;
+pub mod compliance;
+pub mod constraint;
+pub mod corotational;
+pub mod direct;
+pub mod element;
+pub mod factor;
+pub mod model;
+pub mod neo_hookean;
+pub mod reactions;
+pub mod roi;
+pub mod skull;
+
+pub use constraint::{Constraint, ConstraintKind};
+pub use model::AxisSupport;
+
 use nalgebra::{DMatrix, Vector3};
 
 /// Isotropic elastic material.
@@ -67,6 +83,9 @@ pub enum SolveError {
     /// An element inverted (non-positive volume in the deformed state).
     #[error("element {element} inverted (J = {jacobian:e})")]
     Inverted { element: usize, jacobian: f64 },
+    /// The model cannot be built (material out of range, degenerate element).
+    #[error("invalid model: {0}")]
+    InvalidModel(String),
 }
 
 /// The local model of the last deformation step, used by the force loop to
@@ -97,4 +116,138 @@ pub trait DeformationSolver: Send {
     fn solve(&mut self, prescribed: &[Prescribed]) -> Result<&Solution, SolveError>;
     /// The local model of the last successful step, if the strategy has one.
     fn local_model(&self) -> Option<&LocalModel>;
+    /// Solves under general constraints (full, normal-only, per-axis), see
+    /// [`Constraint`]. Reactions come in the order of `constraints`. The
+    /// default handles full constraints only, through [`Self::solve`].
+    fn solve_constraints(&mut self, constraints: &[Constraint]) -> Result<&Solution, SolveError> {
+        let mut prescribed = Vec::with_capacity(constraints.len());
+        for c in constraints {
+            match c.kind {
+                ConstraintKind::Full(displacement) => prescribed.push(Prescribed {
+                    node: c.node,
+                    displacement,
+                }),
+                _ => {
+                    return Err(SolveError::BadConstraint {
+                        node: c.node,
+                        reason: format!("strategy {} takes full constraints only", self.name()),
+                    });
+                }
+            }
+        }
+        self.solve(&prescribed)
+    }
+    /// Reactions at the fixed nodes of the last successful step (N, the force
+    /// the support applies to the tissue), in the order of the fixed list;
+    /// empty where the strategy does not compute them.
+    fn support_reactions(&self) -> &[Vector3<f64>] {
+        &[]
+    }
+    /// The last successful solution (all zero before the first step), if kept.
+    fn last_solution(&self) -> Option<&Solution> {
+        None
+    }
+}
+
+/// The solver strategies, named as in scene files.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum Strategy {
+    /// Eliminate and factor every step (exact reference).
+    Direct,
+    /// Factor once, condense onto the contact DOFs (exact, fast; default).
+    #[default]
+    Compliance,
+    /// Corotational linear elasticity (large rotation, small strain).
+    Corotational,
+    /// Compressible neo-Hookean, Newton (accuracy reference).
+    NeoHookean,
+}
+
+impl Strategy {
+    /// All strategies.
+    pub const ALL: [Strategy; 4] = [
+        Self::Direct,
+        Self::Compliance,
+        Self::Corotational,
+        Self::NeoHookean,
+    ];
+
+    /// The scene-file name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Direct => "direct",
+            Self::Compliance => "compliance",
+            Self::Corotational => "corotational",
+            Self::NeoHookean => "neo-hookean",
+        }
+    }
+}
+
+impl std::str::FromStr for Strategy {
+    type Err = SolveError;
+    fn from_str(s: &str) -> Result<Self, SolveError> {
+        Self::ALL
+            .into_iter()
+            .find(|k| k.name() == s)
+            .ok_or_else(|| {
+                SolveError::InvalidModel(format!(
+                    "unknown strategy {s:?} (direct, compliance, corotational, neo-hookean)"
+                ))
+            })
+    }
+}
+
+/// Options of [`build_solver`].
+#[derive(Debug, Clone, Default)]
+pub struct SolverOptions {
+    /// Which nodes `compliance` recovers (default: all).
+    pub recover: compliance::Recover,
+    /// Per-axis supports (rollers) in addition to the fixed nodes.
+    pub axis_supports: Vec<AxisSupport>,
+    /// Tolerances of `corotational` and `neo-hookean`.
+    pub iterative: corotational::IterativeOptions,
+    /// The skull spheres, when the scene asks for them (wraps the strategy
+    /// in an active set over the surface nodes).
+    pub skull: Option<skull::Skull>,
+}
+
+/// Builds a deformation solver for `mesh` (positions in m) with `material`,
+/// nodes `fixed` held in place, and the chosen `strategy`. Factorizations a
+/// strategy needs once per scene happen here.
+pub fn build_solver(
+    strategy: Strategy,
+    mesh: &crate::mesh::TetMesh,
+    material: Material,
+    fixed: &[u32],
+    options: &SolverOptions,
+) -> Result<Box<dyn DeformationSolver>, SolveError> {
+    let model = model::Model::new(mesh, material, fixed, &options.axis_supports)?;
+    let solver: Box<dyn DeformationSolver> = match strategy {
+        Strategy::Direct => Box::new(direct::Direct::new(model)?),
+        Strategy::Compliance => {
+            let recover = if options.skull.is_some() && options.recover != compliance::Recover::All
+            {
+                compliance::Recover::Surface
+            } else {
+                options.recover.clone()
+            };
+            Box::new(compliance::Compliance::new(model, recover)?)
+        }
+        Strategy::Corotational => {
+            Box::new(corotational::Corotational::new(model, options.iterative)?)
+        }
+        Strategy::NeoHookean => Box::new(neo_hookean::NeoHookean::new(model, options.iterative)?),
+    };
+    match options.skull {
+        None => Ok(solver),
+        Some(s) => {
+            let candidates = mesh.boundary().to_volume;
+            Ok(Box::new(skull::SkullSolver::new(
+                solver,
+                s,
+                mesh.nodes.clone(),
+                candidates,
+            )?))
+        }
+    }
 }

@@ -1,0 +1,230 @@
+//! Sparse assembly of the global stiffness: a sparsity pattern computed once per
+//! mesh (lower triangle, compressed sparse columns, the storage faer's sparse
+//! Cholesky reads with `Side::Lower`) and an element -> nonzero scatter map, so
+//! that re-assembling values each step allocates nothing.
+//!
+//! Global DOF of node `n` along axis `i` is `3 n + i`.
+
+use super::element::ElementMatrix;
+use faer::sparse::SymbolicSparseColMatRef;
+use nalgebra::Vector3;
+
+/// The 78 local pairs `(p, q)`, `p <= q`, of a 12 x 12 element matrix.
+pub const LOCAL_PAIRS: [(u8, u8); 78] = {
+    let mut out = [(0u8, 0u8); 78];
+    let mut k = 0;
+    let mut p = 0;
+    while p < 12 {
+        let mut q = p;
+        while q < 12 {
+            out[k] = (p as u8, q as u8);
+            k += 1;
+            q += 1;
+        }
+        p += 1;
+    }
+    out
+};
+
+/// Lower-triangular CSC pattern of the 3n x 3n stiffness of a tet mesh.
+#[derive(Debug, Clone)]
+pub struct Pattern {
+    /// Number of DOFs (3 x nodes).
+    pub n_dofs: usize,
+    /// Column pointers (length `n_dofs + 1`).
+    pub col_ptr: Vec<usize>,
+    /// Row indices, sorted within each column, all `>=` the column.
+    pub row_idx: Vec<usize>,
+    /// Index of the diagonal entry of each column.
+    pub diag: Vec<usize>,
+    /// Per element, the value index of each pair of [`LOCAL_PAIRS`].
+    pub scatter: Vec<[u32; 78]>,
+}
+
+impl Pattern {
+    /// Builds the pattern of a mesh with `n_nodes` nodes and tetrahedra `tets`
+    /// (indices already validated). Every DOF has a diagonal entry.
+    pub fn new(n_nodes: usize, tets: &[[u32; 4]]) -> Self {
+        // Node adjacency (j >= i), sorted and deduplicated.
+        let mut adj: Vec<Vec<u32>> = (0..n_nodes).map(|i| vec![i as u32]).collect();
+        for t in tets {
+            for &a in t {
+                for &b in t {
+                    if b > a {
+                        adj[a as usize].push(b);
+                    }
+                }
+            }
+        }
+        for a in &mut adj {
+            a.sort_unstable();
+            a.dedup();
+        }
+        let n_dofs = 3 * n_nodes;
+        let mut col_ptr = Vec::with_capacity(n_dofs + 1);
+        let mut row_idx = Vec::new();
+        let mut diag = Vec::with_capacity(n_dofs);
+        col_ptr.push(0);
+        for (i, a) in adj.iter().enumerate() {
+            for ci in 0..3 {
+                let c = 3 * i + ci;
+                diag.push(row_idx.len());
+                for &j in a {
+                    for rj in 0..3 {
+                        let r = 3 * j as usize + rj;
+                        if r >= c {
+                            row_idx.push(r);
+                        }
+                    }
+                }
+                col_ptr.push(row_idx.len());
+            }
+        }
+        let mut pattern = Self {
+            n_dofs,
+            col_ptr,
+            row_idx,
+            diag,
+            scatter: Vec::new(),
+        };
+        pattern.scatter = tets
+            .iter()
+            .map(|t| {
+                let mut s = [0u32; 78];
+                for (k, &(p, q)) in LOCAL_PAIRS.iter().enumerate() {
+                    let gp = 3 * t[p as usize / 3] as usize + p as usize % 3;
+                    let gq = 3 * t[q as usize / 3] as usize + q as usize % 3;
+                    s[k] = pattern.index(gp.max(gq), gp.min(gq)) as u32;
+                }
+                s
+            })
+            .collect();
+        pattern
+    }
+
+    /// Value index of entry `(row, col)`, `row >= col`; panics when absent
+    /// (only called on entries the mesh creates).
+    fn index(&self, row: usize, col: usize) -> usize {
+        let (a, b) = (self.col_ptr[col], self.col_ptr[col + 1]);
+        a + self.row_idx[a..b]
+            .binary_search(&row)
+            .expect("entry in the mesh pattern")
+    }
+
+    /// Number of stored nonzeros.
+    pub fn nnz(&self) -> usize {
+        self.row_idx.len()
+    }
+
+    /// The faer view of the symbolic structure.
+    pub fn symbolic(&self) -> SymbolicSparseColMatRef<'_, usize> {
+        SymbolicSparseColMatRef::new_checked(
+            self.n_dofs,
+            self.n_dofs,
+            &self.col_ptr,
+            None,
+            &self.row_idx,
+        )
+    }
+
+    /// Adds element `e`'s matrix into `values` (unconstrained assembly).
+    pub fn add_element(&self, e: usize, k: &ElementMatrix, values: &mut [f64]) {
+        for (s, &(p, q)) in self.scatter[e].iter().zip(LOCAL_PAIRS.iter()) {
+            values[*s as usize] += k[(p as usize, q as usize)];
+        }
+    }
+
+    /// `y = A x` for the symmetric matrix whose lower triangle is `values`.
+    pub fn sym_matvec(&self, values: &[f64], x: &[f64], y: &mut [f64]) {
+        y.fill(0.0);
+        for c in 0..self.n_dofs {
+            let xc = x[c];
+            let mut acc = 0.0;
+            for k in self.col_ptr[c]..self.col_ptr[c + 1] {
+                let r = self.row_idx[k];
+                let v = values[k];
+                y[r] += v * xc;
+                if r != c {
+                    acc += v * x[r];
+                }
+            }
+            y[c] += acc;
+        }
+    }
+}
+
+/// Gathers the 12 local values of element `t` from a global DOF vector.
+#[inline]
+pub fn gather(t: &[u32; 4], x: &[f64]) -> nalgebra::SVector<f64, 12> {
+    let mut out = nalgebra::SVector::<f64, 12>::zeros();
+    for a in 0..4 {
+        let n = 3 * t[a] as usize;
+        out[3 * a] = x[n];
+        out[3 * a + 1] = x[n + 1];
+        out[3 * a + 2] = x[n + 2];
+    }
+    out
+}
+
+/// Adds the 12 local values `v` of element `t` into a global DOF vector.
+#[inline]
+pub fn scatter_add(t: &[u32; 4], v: &nalgebra::SVector<f64, 12>, y: &mut [f64]) {
+    for a in 0..4 {
+        let n = 3 * t[a] as usize;
+        y[n] += v[3 * a];
+        y[n + 1] += v[3 * a + 1];
+        y[n + 2] += v[3 * a + 2];
+    }
+}
+
+/// `y = sum_e K_e x_e` over the element matrices (the global product without
+/// the assembled matrix).
+pub fn element_matvec(tets: &[[u32; 4]], kel: &[ElementMatrix], x: &[f64], y: &mut [f64]) {
+    y.fill(0.0);
+    for (t, k) in tets.iter().zip(kel) {
+        let xe = gather(t, x);
+        scatter_add(t, &(k * xe), y);
+    }
+}
+
+/// Node vector of a DOF vector.
+#[inline]
+pub fn node_vec(x: &[f64], n: usize) -> Vector3<f64> {
+    Vector3::new(x[3 * n], x[3 * n + 1], x[3 * n + 2])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fem::element::TetGeometry;
+    use crate::mesh::blocks::cube;
+
+    #[test]
+    fn assembled_matvec_equals_element_matvec() {
+        let mesh = cube(0.01, 3);
+        let pattern = Pattern::new(mesh.nodes.len(), &mesh.tets);
+        let kel: Vec<_> = mesh
+            .tets
+            .iter()
+            .map(|t| {
+                TetGeometry::new(t.map(|i| mesh.nodes[i as usize]))
+                    .unwrap()
+                    .stiffness(3e3, 1e3)
+            })
+            .collect();
+        let mut values = vec![0.0; pattern.nnz()];
+        for (e, k) in kel.iter().enumerate() {
+            pattern.add_element(e, k, &mut values);
+        }
+        let x: Vec<f64> = (0..pattern.n_dofs)
+            .map(|i| ((i * 37 % 11) as f64 - 5.0) * 1e-3)
+            .collect();
+        let (mut y1, mut y2) = (vec![0.0; x.len()], vec![0.0; x.len()]);
+        pattern.sym_matvec(&values, &x, &mut y1);
+        element_matvec(&mesh.tets, &kel, &x, &mut y2);
+        let scale = y2.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        for (a, b) in y1.iter().zip(&y2) {
+            assert!((a - b).abs() < 1e-12 * scale);
+        }
+    }
+}

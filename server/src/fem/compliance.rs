@@ -1,0 +1,509 @@
+//! Strategy `compliance`: factor the stiffness with the fixed supports once,
+//! then per step condense onto the contacted DOFs.
+//!
+//! With `K0` the supported stiffness, the step's constraint rows `G u = g`
+//! (see [`super::constraint`]) and multipliers `lambda` (N, the forces the
+//! constraints apply), equilibrium is `K0 u = G^T lambda`, so
+//! `u = K0^-1 G^T lambda` and `(G K0^-1 G^T) lambda = g`. The columns of
+//! `K0^-1` for a contacted node (3 per node) are solved once, when the node
+//! first enters contact, and cached (only their rows at the recovered nodes);
+//! a step then builds the small dense compliance block `C = G K0^-1 G^T`,
+//! factors it (dense Cholesky), solves for `lambda`, and recovers
+//! `u = sum_j K0^-1[:, j] r_j` from the node reactions `r_j`. Exact for linear
+//! elasticity. Apart from growing the cache (and the block workspaces when a
+//! step has more contact rows than any before), a step allocates nothing.
+
+use super::assembly::node_vec;
+use super::constraint::{Constraint, StepRows};
+use super::factor::SparseLlt;
+use super::model::Model;
+use super::{DeformationSolver, LocalModel, Prescribed, Solution, SolveError};
+use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::linalg::cholesky::llt;
+use faer::{Mat, MatMut, Par};
+use nalgebra::{DMatrix, Vector3};
+
+const NONE: u32 = u32::MAX;
+
+/// Which nodes' displacements a `compliance` step recovers.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub enum Recover {
+    /// Every node (for frames of the whole volume, and support reactions).
+    #[default]
+    All,
+    /// The boundary surface nodes only (what the collision stage and the
+    /// watchers see); cached columns are shorter in proportion.
+    Surface,
+    /// An explicit node list.
+    Nodes(Vec<u32>),
+}
+
+/// The `compliance` strategy.
+pub struct Compliance {
+    model: Model,
+    factor: SparseLlt,
+    rec_nodes: Vec<u32>,
+    rec_of: Vec<u32>,
+    cache_slot: Vec<u32>,
+    cols: Vec<f64>,
+    n_slots: usize,
+    rows: StepRows,
+    cmat: Mat<f64>,
+    chol_buf: MemBuffer,
+    lambda: Vec<f64>,
+    tmp_rows: Vec<f64>,
+    node_reaction: Vec<Vector3<f64>>,
+    u_rec: Vec<f64>,
+    solution: Solution,
+    local: LocalModel,
+    support_reactions: Vec<Vector3<f64>>,
+    support_elems: Vec<usize>,
+    fixed_index: Vec<u32>,
+    prepared: bool,
+}
+
+impl std::fmt::Debug for Compliance {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Compliance")
+            .field("recovered_nodes", &self.rec_nodes.len())
+            .field("cached_nodes", &self.n_slots)
+            .finish()
+    }
+}
+
+impl Compliance {
+    /// Factors the supported stiffness (once per scene).
+    pub fn new(model: Model, recover: Recover) -> Result<Self, SolveError> {
+        let n_nodes = model.n_nodes();
+        let mut values = vec![0.0; model.pattern.nnz()];
+        let frame = super::constraint::Frame::new(model.support.clone());
+        let mut rhs = vec![0.0; model.pattern.n_dofs];
+        let lift = vec![0.0; model.pattern.n_dofs];
+        for (e, t) in model.tets.iter().enumerate() {
+            frame.scatter(
+                &model.pattern,
+                e,
+                t,
+                &model.kel[e],
+                &lift,
+                &mut values,
+                &mut rhs,
+            );
+        }
+        frame.finish(&model.pattern, &lift, &mut values, &mut rhs);
+        let mut factor = SparseLlt::new(&model.pattern)?;
+        factor.factorize(&model.pattern, &values).map_err(|e| {
+            SolveError::Factorization(format!(
+                "{e}; the fixed supports must prevent every rigid motion for this strategy"
+            ))
+        })?;
+        let rec_nodes: Vec<u32> = match recover {
+            Recover::All => (0..n_nodes as u32).collect(),
+            Recover::Surface => {
+                let mesh = crate::mesh::TetMesh {
+                    nodes: model.rest.clone(),
+                    tets: model.tets.clone(),
+                };
+                let mut v = mesh.boundary().to_volume;
+                v.sort_unstable();
+                v
+            }
+            Recover::Nodes(mut v) => {
+                v.sort_unstable();
+                v.dedup();
+                if let Some(&n) = v.iter().find(|&&n| n as usize >= n_nodes) {
+                    return Err(SolveError::BadConstraint {
+                        node: n,
+                        reason: "recovered node out of range".into(),
+                    });
+                }
+                v
+            }
+        };
+        let mut rec_of = vec![NONE; n_nodes];
+        for (i, &n) in rec_nodes.iter().enumerate() {
+            rec_of[n as usize] = i as u32;
+        }
+        let mut fixed_index = vec![NONE; n_nodes];
+        for (i, &n) in model.fixed.iter().enumerate() {
+            fixed_index[n as usize] = i as u32;
+        }
+        let support_elems = model
+            .tets
+            .iter()
+            .enumerate()
+            .filter(|(_, t)| t.iter().any(|&n| fixed_index[n as usize] != NONE))
+            .map(|(e, _)| e)
+            .collect();
+        Ok(Self {
+            rows: StepRows::new(n_nodes),
+            cache_slot: vec![NONE; n_nodes],
+            cols: Vec::new(),
+            n_slots: 0,
+            cmat: Mat::zeros(0, 0),
+            chol_buf: MemBuffer::new(llt::factor::cholesky_in_place_scratch::<f64>(
+                0,
+                Par::Seq,
+                Default::default(),
+            )),
+            lambda: Vec::new(),
+            tmp_rows: Vec::new(),
+            node_reaction: Vec::new(),
+            u_rec: vec![0.0; 3 * rec_nodes.len()],
+            solution: Solution {
+                displacements: vec![Vector3::zeros(); n_nodes],
+                ..Default::default()
+            },
+            local: LocalModel {
+                nodes: Vec::new(),
+                compliance: DMatrix::zeros(0, 0),
+                displacements: Vec::new(),
+                reactions: Vec::new(),
+            },
+            support_reactions: Vec::new(),
+            support_elems,
+            fixed_index,
+            prepared: false,
+            rec_nodes,
+            rec_of,
+            factor,
+            model,
+        })
+    }
+
+    /// The model.
+    pub fn model(&self) -> &Model {
+        &self.model
+    }
+
+    /// Number of nodes whose columns of `K0^-1` are cached.
+    pub fn cached_nodes(&self) -> usize {
+        self.n_slots
+    }
+
+    /// Drops the cached columns (memory: `9 x recovered nodes x 8` bytes per
+    /// cached node).
+    pub fn clear_cache(&mut self) {
+        for n in self.cache_slot.iter_mut() {
+            *n = NONE;
+        }
+        self.cols = Vec::new();
+        self.n_slots = 0;
+    }
+
+    /// Nonzeros of the Cholesky factor of `K0`.
+    pub fn factor_nnz(&self) -> usize {
+        self.factor.factor_nnz()
+    }
+
+    fn nrec3(&self) -> usize {
+        3 * self.rec_nodes.len()
+    }
+
+    /// Block `(K0^-1)[node i, node j]` (3 x 3) from the cache; `i` recovered,
+    /// `j` cached.
+    #[inline]
+    fn block(&self, i: u32, j: u32) -> nalgebra::Matrix3<f64> {
+        let n3 = self.nrec3();
+        let ri = 3 * self.rec_of[i as usize] as usize;
+        let s = self.cache_slot[j as usize] as usize;
+        let mut b = nalgebra::Matrix3::zeros();
+        for a in 0..3 {
+            let col = &self.cols[(3 * s + a) * n3..(3 * s + a + 1) * n3];
+            b[(0, a)] = col[ri];
+            b[(1, a)] = col[ri + 1];
+            b[(2, a)] = col[ri + 2];
+        }
+        b
+    }
+
+    /// Solves for and caches the columns of the step nodes not yet cached.
+    fn fill_cache(&mut self) {
+        let missing: Vec<u32> = self
+            .rows
+            .nodes
+            .iter()
+            .copied()
+            .filter(|&n| self.cache_slot[n as usize] == NONE)
+            .collect();
+        if missing.is_empty() {
+            return;
+        }
+        let n_dofs = self.model.pattern.n_dofs;
+        let n3 = self.nrec3();
+        // In batches, to bound the dense right-hand-side block.
+        for chunk in missing.chunks(64) {
+            let ncols = 3 * chunk.len();
+            let mut block = vec![0.0; n_dofs * ncols];
+            for (k, &n) in chunk.iter().enumerate() {
+                for a in 0..3 {
+                    block[(3 * k + a) * n_dofs + 3 * n as usize + a] = 1.0;
+                }
+            }
+            self.factor.solve_many(&mut block, ncols);
+            self.cols.reserve(ncols * n3);
+            for (k, &n) in chunk.iter().enumerate() {
+                for a in 0..3 {
+                    let col = &block[(3 * k + a) * n_dofs..(3 * k + a + 1) * n_dofs];
+                    for &r in &self.rec_nodes {
+                        let r = 3 * r as usize;
+                        self.cols.extend_from_slice(&col[r..r + 3]);
+                    }
+                }
+                self.cache_slot[n as usize] = self.n_slots as u32;
+                self.n_slots += 1;
+            }
+        }
+    }
+
+    /// Validates the step, caches missing columns, builds and factors the
+    /// compliance block of the step's rows.
+    fn prepare<C: Into<Constraint> + Copy>(&mut self, cons: &[C]) -> Result<(), SolveError> {
+        self.prepared = false;
+        self.rows.set(cons, &self.model.support)?;
+        if let Some(&n) = self
+            .rows
+            .nodes
+            .iter()
+            .find(|&&n| self.rec_of[n as usize] == NONE)
+        {
+            return Err(SolveError::BadConstraint {
+                node: n,
+                reason: "the node is not among the recovered nodes of this compliance solver"
+                    .into(),
+            });
+        }
+        self.fill_cache();
+        let k = self.rows.rows.len();
+        if k > self.cmat.nrows() {
+            let cap = k.max(2 * self.cmat.nrows());
+            self.cmat = Mat::zeros(cap, cap);
+            self.chol_buf = MemBuffer::new(llt::factor::cholesky_in_place_scratch::<f64>(
+                cap,
+                Par::Seq,
+                Default::default(),
+            ));
+            self.lambda.resize(cap, 0.0);
+            self.tmp_rows.resize(cap, 0.0);
+        }
+        // C[r, s] = d_r . (K0^-1)[node_r, node_s] d_s, per node pair.
+        let ns = self.rows.nodes.len();
+        for si in 0..ns {
+            for sj in 0..=si {
+                let b = self.block(self.rows.nodes[si], self.rows.nodes[sj]);
+                for r in self.rows.start[si]..self.rows.start[si + 1] {
+                    let dr = self.rows.rows[r].dir;
+                    let bt = b.transpose() * dr;
+                    for s in self.rows.start[sj]..self.rows.start[sj + 1].min(r + 1) {
+                        let v = bt.dot(&self.rows.rows[s].dir);
+                        self.cmat[(r, s)] = v;
+                    }
+                }
+            }
+        }
+        let cm = self.cmat.as_mut().submatrix_mut(0, 0, k, k);
+        llt::factor::cholesky_in_place(
+            cm,
+            Default::default(),
+            Par::Seq,
+            MemStack::new(&mut self.chol_buf),
+            Default::default(),
+        )
+        .map_err(|e| {
+            SolveError::Factorization(format!("compliance block: {e:?} (redundant constraints?)"))
+        })?;
+        self.prepared = true;
+        Ok(())
+    }
+
+    /// Solves `C x = b` in place on the first `k` entries with the factored block.
+    fn block_solve(cmat: &Mat<f64>, buf: &mut MemBuffer, b: &mut [f64]) {
+        let k = b.len();
+        llt::solve::solve_in_place(
+            cmat.as_ref().submatrix(0, 0, k, k),
+            MatMut::from_column_major_slice_mut(b, k, 1),
+            Par::Seq,
+            MemStack::new(buf),
+        );
+    }
+
+    /// Adds `sign * sum_j K0^-1[:, j] r_j` over the step nodes to `out`
+    /// (recovered rows, length `3 x recovered`).
+    fn combine(&self, r: &[Vector3<f64>], sign: f64, out: &mut [f64]) {
+        let n3 = self.nrec3();
+        for (k, &n) in self.rows.nodes.iter().enumerate() {
+            let s = self.cache_slot[n as usize] as usize;
+            for a in 0..3 {
+                let c = sign * r[k][a];
+                if c == 0.0 {
+                    continue;
+                }
+                let col = &self.cols[(3 * s + a) * n3..(3 * s + a + 1) * n3];
+                for (o, v) in out.iter_mut().zip(col) {
+                    *o += c * v;
+                }
+            }
+        }
+    }
+
+    fn finish_step(&mut self) -> Result<&Solution, SolveError> {
+        let k = self.rows.rows.len();
+        for (l, r) in self.lambda[..k].iter_mut().zip(&self.rows.rows) {
+            *l = r.value;
+        }
+        Self::block_solve(&self.cmat, &mut self.chol_buf, &mut self.lambda[..k]);
+        if !self.lambda[..k].iter().all(|v| v.is_finite()) {
+            return Err(SolveError::NonFinite("contact multipliers".into()));
+        }
+        let ns = self.rows.nodes.len();
+        self.node_reaction.clear();
+        self.node_reaction.resize(ns, Vector3::zeros());
+        for (r, l) in self.rows.rows.iter().zip(&self.lambda[..k]) {
+            self.node_reaction[self.rows.slot[r.node as usize] as usize] += r.dir * *l;
+        }
+        let mut u = std::mem::take(&mut self.u_rec);
+        u.fill(0.0);
+        self.combine(&self.node_reaction, 1.0, &mut u);
+        self.u_rec = u;
+        // Commit.
+        for (i, &n) in self.rec_nodes.iter().enumerate() {
+            self.solution.displacements[n as usize] = node_vec(&self.u_rec, i);
+        }
+        self.rows
+            .reactions_from_multipliers(&self.lambda[..k], &mut self.solution.reactions);
+        self.solution.iterations = 1;
+        // Local model: full 3m x 3m compliance of the contact nodes.
+        let mut data: Vec<f64> =
+            std::mem::replace(&mut self.local.compliance, DMatrix::zeros(0, 0))
+                .data
+                .into();
+        data.clear();
+        data.resize(9 * ns * ns, 0.0);
+        let mut c = DMatrix::from_vec(3 * ns, 3 * ns, data);
+        for si in 0..ns {
+            for sj in 0..ns {
+                let b = self.block(self.rows.nodes[si], self.rows.nodes[sj]);
+                c.fixed_view_mut::<3, 3>(3 * si, 3 * sj).copy_from(&b);
+            }
+        }
+        self.local.compliance = c;
+        self.local.nodes.clear();
+        self.local.nodes.extend_from_slice(&self.rows.nodes);
+        self.local.displacements.clear();
+        self.local.displacements.extend(
+            self.rows
+                .nodes
+                .iter()
+                .map(|&n| self.solution.displacements[n as usize]),
+        );
+        self.local.reactions.clear();
+        self.local.reactions.extend_from_slice(&self.node_reaction);
+        // Support reactions need every node's displacement.
+        self.support_reactions.clear();
+        if self.rec_nodes.len() == self.model.n_nodes() {
+            self.support_reactions
+                .resize(self.model.fixed.len(), Vector3::zeros());
+            for &e in &self.support_elems {
+                let t = &self.model.tets[e];
+                let mut ue = nalgebra::SVector::<f64, 12>::zeros();
+                for a in 0..4 {
+                    ue.fixed_rows_mut::<3>(3 * a)
+                        .copy_from(&self.solution.displacements[t[a] as usize]);
+                }
+                let fe = self.model.kel[e] * ue;
+                for a in 0..4 {
+                    let fi = self.fixed_index[t[a] as usize];
+                    if fi != NONE {
+                        self.support_reactions[fi as usize] += fe.fixed_rows::<3>(3 * a);
+                    }
+                }
+            }
+        }
+        Ok(&self.solution)
+    }
+
+    /// Prepares a step (for a caller that applies the constrained inverse
+    /// repeatedly, see [`Compliance::constrained_solve`]).
+    pub(crate) fn prepare_constraints<C: Into<Constraint> + Copy>(
+        &mut self,
+        cons: &[C],
+    ) -> Result<(), SolveError> {
+        self.prepare(cons)
+    }
+
+    /// Rows of the prepared step.
+    pub(crate) fn step_rows(&self) -> &StepRows {
+        &self.rows
+    }
+
+    /// Applies the inverse of the supported stiffness restricted to the
+    /// subspace where the prepared rows vanish: `z = K0^-1 b - K0^-1 G^T C^-1
+    /// G K0^-1 b`, in place on a full DOF vector (requires [`Recover::All`]).
+    pub(crate) fn constrained_solve(&mut self, b: &mut [f64]) {
+        debug_assert!(self.prepared && self.rec_nodes.len() == self.model.n_nodes());
+        self.factor.solve(b);
+        let k = self.rows.rows.len();
+        for (t, r) in self.tmp_rows[..k].iter_mut().zip(&self.rows.rows) {
+            *t = r.dir.dot(&node_vec(b, r.node as usize));
+        }
+        Self::block_solve(&self.cmat, &mut self.chol_buf, &mut self.tmp_rows[..k]);
+        let ns = self.rows.nodes.len();
+        self.node_reaction.clear();
+        self.node_reaction.resize(ns, Vector3::zeros());
+        for (r, l) in self.rows.rows.iter().zip(&self.tmp_rows[..k]) {
+            self.node_reaction[self.rows.slot[r.node as usize] as usize] += r.dir * *l;
+        }
+        let nr = std::mem::take(&mut self.node_reaction);
+        self.combine(&nr, -1.0, b);
+        self.node_reaction = nr;
+    }
+
+    /// Adds to `u` (full DOF vector) the linear response that closes the gap
+    /// of the prepared rows: `K0^-1 G^T C^-1 (g - G u)` (requires
+    /// [`Recover::All`]).
+    pub(crate) fn lift(&mut self, u: &mut [f64]) {
+        debug_assert!(self.prepared && self.rec_nodes.len() == self.model.n_nodes());
+        let k = self.rows.rows.len();
+        for (t, r) in self.tmp_rows[..k].iter_mut().zip(&self.rows.rows) {
+            *t = r.value - r.dir.dot(&node_vec(u, r.node as usize));
+        }
+        Self::block_solve(&self.cmat, &mut self.chol_buf, &mut self.tmp_rows[..k]);
+        let ns = self.rows.nodes.len();
+        self.node_reaction.clear();
+        self.node_reaction.resize(ns, Vector3::zeros());
+        for (r, l) in self.rows.rows.iter().zip(&self.tmp_rows[..k]) {
+            self.node_reaction[self.rows.slot[r.node as usize] as usize] += r.dir * *l;
+        }
+        let nr = std::mem::take(&mut self.node_reaction);
+        self.combine(&nr, 1.0, u);
+        self.node_reaction = nr;
+    }
+}
+
+impl DeformationSolver for Compliance {
+    fn name(&self) -> &'static str {
+        "compliance"
+    }
+
+    fn solve(&mut self, prescribed: &[Prescribed]) -> Result<&Solution, SolveError> {
+        self.prepare(prescribed)?;
+        self.finish_step()
+    }
+
+    fn solve_constraints(&mut self, constraints: &[Constraint]) -> Result<&Solution, SolveError> {
+        self.prepare(constraints)?;
+        self.finish_step()
+    }
+
+    fn local_model(&self) -> Option<&LocalModel> {
+        Some(&self.local)
+    }
+
+    fn support_reactions(&self) -> &[Vector3<f64>] {
+        &self.support_reactions
+    }
+
+    fn last_solution(&self) -> Option<&Solution> {
+        Some(&self.solution)
+    }
+}

@@ -1,0 +1,137 @@
+//! Strategy `direct`: eliminate the constrained DOFs and factor, every step.
+//! The exact reference for linear elasticity.
+//!
+//! Elimination keeps the sparsity pattern: a constrained DOF keeps only its
+//! diagonal (`k_dd x_d = k_dd g_d`) and its coupling moves to the right-hand
+//! side (`-K_fc g_c`), so the symbolic factorization is computed once and
+//! each step is a numeric re-assembly, one numeric factorization and one
+//! solve. Normal-only constraints rotate the node's DOFs into a basis whose
+//! first axis is the normal (`K' = T^T K T`, element by element).
+
+use super::assembly::element_matvec;
+use super::constraint::{Constraint, Frame, StepRows};
+use super::factor::SparseLlt;
+use super::model::Model;
+use super::{DeformationSolver, LocalModel, Prescribed, Solution, SolveError};
+use nalgebra::Vector3;
+
+/// The `direct` strategy.
+#[derive(Debug)]
+pub struct Direct {
+    model: Model,
+    rows: StepRows,
+    frame: Frame,
+    values: Vec<f64>,
+    rhs: Vec<f64>,
+    ku: Vec<f64>,
+    factor: SparseLlt,
+    solution: Solution,
+    support_reactions: Vec<Vector3<f64>>,
+}
+
+impl Direct {
+    /// Builds the strategy (symbolic analysis of the pattern).
+    pub fn new(model: Model) -> Result<Self, SolveError> {
+        let n_dofs = model.pattern.n_dofs;
+        let factor = SparseLlt::new(&model.pattern)?;
+        Ok(Self {
+            rows: StepRows::new(model.n_nodes()),
+            frame: Frame::new(model.support.clone()),
+            values: vec![0.0; model.pattern.nnz()],
+            rhs: vec![0.0; n_dofs],
+            ku: vec![0.0; n_dofs],
+            factor,
+            solution: Solution {
+                displacements: vec![Vector3::zeros(); model.n_nodes()],
+                ..Default::default()
+            },
+            support_reactions: Vec::new(),
+            model,
+        })
+    }
+
+    /// The model.
+    pub fn model(&self) -> &Model {
+        &self.model
+    }
+
+    fn step<C: Into<Constraint> + Copy>(&mut self, cons: &[C]) -> Result<&Solution, SolveError> {
+        self.rows.set(cons, &self.model.support)?;
+        self.frame.set(&self.rows);
+        let m = &self.model;
+        self.values.fill(0.0);
+        self.rhs.fill(0.0);
+        let any_rotated = self
+            .rows
+            .nodes
+            .iter()
+            .any(|&n| self.frame.rotated[n as usize]);
+        for (e, t) in m.tets.iter().enumerate() {
+            let mut k = m.kel[e];
+            if any_rotated {
+                self.frame.rotate_element(t, &mut k);
+            }
+            self.frame.scatter(
+                &m.pattern,
+                e,
+                t,
+                &k,
+                &self.frame.value,
+                &mut self.values,
+                &mut self.rhs,
+            );
+        }
+        self.frame.finish(
+            &m.pattern,
+            &self.frame.value,
+            &mut self.values,
+            &mut self.rhs,
+        );
+        self.factor.factorize(&m.pattern, &self.values)?;
+        self.factor.solve(&mut self.rhs);
+        self.frame.to_global_basis(&mut self.rhs);
+        if !self.rhs.iter().all(|v| v.is_finite()) {
+            return Err(SolveError::NonFinite("displacement solution".into()));
+        }
+        element_matvec(&m.tets, &m.kel, &self.rhs, &mut self.ku);
+        for (i, d) in self.solution.displacements.iter_mut().enumerate() {
+            *d = Vector3::new(self.rhs[3 * i], self.rhs[3 * i + 1], self.rhs[3 * i + 2]);
+        }
+        self.rows
+            .reactions_from_forces(&self.ku, &mut self.solution.reactions);
+        self.support_reactions.clear();
+        for &n in &m.fixed {
+            let n = 3 * n as usize;
+            self.support_reactions
+                .push(Vector3::new(self.ku[n], self.ku[n + 1], self.ku[n + 2]));
+        }
+        self.solution.iterations = 1;
+        Ok(&self.solution)
+    }
+}
+
+impl DeformationSolver for Direct {
+    fn name(&self) -> &'static str {
+        "direct"
+    }
+
+    fn solve(&mut self, prescribed: &[Prescribed]) -> Result<&Solution, SolveError> {
+        self.step(prescribed)
+    }
+
+    fn solve_constraints(&mut self, constraints: &[Constraint]) -> Result<&Solution, SolveError> {
+        self.step(constraints)
+    }
+
+    fn local_model(&self) -> Option<&LocalModel> {
+        None
+    }
+
+    fn support_reactions(&self) -> &[Vector3<f64>] {
+        &self.support_reactions
+    }
+
+    fn last_solution(&self) -> Option<&Solution> {
+        Some(&self.solution)
+    }
+}

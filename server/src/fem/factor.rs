@@ -1,0 +1,114 @@
+//! Sparse Cholesky `A = L L^T` of a symmetric positive definite matrix given by
+//! its lower triangle on a [`Pattern`], with the symbolic analysis (AMD
+//! ordering, supernodes) done once and workspaces kept, so that a numeric
+//! re-factorization or a solve allocates nothing. A thin layer over
+//! `faer::sparse::linalg::cholesky`.
+
+use super::SolveError;
+use super::assembly::Pattern;
+use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::linalg::cholesky::llt::factor::LltRegularization;
+use faer::sparse::SparseColMatRef;
+use faer::sparse::linalg::cholesky::{LltRef, SymbolicCholesky, factorize_symbolic_cholesky};
+use faer::{Conj, MatMut, Par, Side};
+
+/// A reusable sparse Cholesky factorization.
+pub struct SparseLlt {
+    symbolic: SymbolicCholesky<usize>,
+    l_values: Vec<f64>,
+    factor_buf: MemBuffer,
+    solve_buf: MemBuffer,
+    factored: bool,
+}
+
+impl std::fmt::Debug for SparseLlt {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SparseLlt")
+            .field("n", &self.symbolic.nrows())
+            .field("l_nnz", &self.l_values.len())
+            .finish()
+    }
+}
+
+impl SparseLlt {
+    /// Symbolic analysis of `pattern`.
+    pub fn new(pattern: &Pattern) -> Result<Self, SolveError> {
+        let symbolic = factorize_symbolic_cholesky(
+            pattern.symbolic(),
+            Side::Lower,
+            Default::default(),
+            Default::default(),
+        )
+        .map_err(|e| SolveError::Factorization(format!("symbolic analysis: {e:?}")))?;
+        let factor_buf = MemBuffer::new(
+            symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()),
+        );
+        let solve_buf = MemBuffer::new(symbolic.solve_in_place_scratch::<f64>(1, Par::Seq));
+        let l_values = vec![0.0; symbolic.len_val()];
+        Ok(Self {
+            symbolic,
+            l_values,
+            factor_buf,
+            solve_buf,
+            factored: false,
+        })
+    }
+
+    /// Nonzeros of the factor L.
+    pub fn factor_nnz(&self) -> usize {
+        self.l_values.len()
+    }
+
+    /// Numeric factorization of the matrix with lower triangle `values` on
+    /// `pattern` (the pattern given to [`SparseLlt::new`]).
+    pub fn factorize(&mut self, pattern: &Pattern, values: &[f64]) -> Result<(), SolveError> {
+        self.factored = false;
+        if !values.iter().all(|v| v.is_finite()) {
+            return Err(SolveError::NonFinite("stiffness matrix entry".into()));
+        }
+        let a = SparseColMatRef::new(pattern.symbolic(), values);
+        self.symbolic
+            .factorize_numeric_llt(
+                &mut self.l_values,
+                a,
+                Side::Lower,
+                LltRegularization::default(),
+                Par::Seq,
+                MemStack::new(&mut self.factor_buf),
+                Default::default(),
+            )
+            .map_err(|e| {
+                SolveError::Factorization(format!("{e:?} (matrix not positive definite)"))
+            })?;
+        self.factored = true;
+        Ok(())
+    }
+
+    /// Solves `A x = b` in place for one right-hand side (no allocation).
+    pub fn solve(&mut self, rhs: &mut [f64]) {
+        debug_assert!(self.factored);
+        let n = rhs.len();
+        let mat = MatMut::from_column_major_slice_mut(rhs, n, 1);
+        LltRef::new(&self.symbolic, &self.l_values).solve_in_place_with_conj(
+            Conj::No,
+            mat,
+            Par::Seq,
+            MemStack::new(&mut self.solve_buf),
+        );
+    }
+
+    /// Solves `A X = B` in place for `ncols` right-hand sides stored column
+    /// major in `rhs` (allocates a workspace for the block).
+    pub fn solve_many(&self, rhs: &mut [f64], ncols: usize) {
+        debug_assert!(self.factored);
+        let n = self.symbolic.nrows();
+        let mat = MatMut::from_column_major_slice_mut(rhs, n, ncols);
+        let mut buf = MemBuffer::new(self.symbolic.solve_in_place_scratch::<f64>(ncols, Par::Seq));
+        LltRef::new(&self.symbolic, &self.l_values).solve_in_place_with_conj(
+            Conj::No,
+            mat,
+            Par::Seq,
+            MemStack::new(&mut buf),
+        );
+    }
+}

@@ -1,0 +1,126 @@
+//! The discretised model shared by every strategy: rest geometry, element
+//! stiffnesses, the sparsity pattern and the fixed supports.
+
+use super::assembly::Pattern;
+use super::element::{ElementMatrix, TetGeometry};
+use super::{Material, SolveError};
+use crate::mesh::TetMesh;
+use nalgebra::Point3;
+
+/// A per-axis support: DOF `axis` (0, 1, 2) of `node` held at zero (a roller
+/// when alone, part of a fixed node when all three are held).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct AxisSupport {
+    /// Volume node.
+    pub node: u32,
+    /// Axis 0, 1, 2 = x, y, z.
+    pub axis: u8,
+}
+
+/// Rest-state model of a mesh under fixed supports.
+#[derive(Debug, Clone)]
+pub struct Model {
+    /// Tetrahedra (node indices).
+    pub tets: Vec<[u32; 4]>,
+    /// Rest positions, m.
+    pub rest: Vec<Point3<f64>>,
+    /// Rest geometry per element.
+    pub geoms: Vec<TetGeometry>,
+    /// Linear element stiffness per element, N/m.
+    pub kel: Vec<ElementMatrix>,
+    /// Lamé parameters, Pa.
+    pub lambda: f64,
+    /// Shear modulus, Pa.
+    pub mu: f64,
+    /// Sparsity pattern of the global stiffness.
+    pub pattern: Pattern,
+    /// Held DOFs (supports), per DOF.
+    pub support: Vec<bool>,
+    /// Fully fixed nodes in the order given (support reactions use it).
+    pub fixed: Vec<u32>,
+}
+
+impl Model {
+    /// Builds the model. `fixed` nodes are held in all three DOFs, `axis`
+    /// supports in one; nodes in no element are held too (they carry no
+    /// stiffness). Fails on a bad material, a fixed index out of range or a
+    /// degenerate element (named by index).
+    pub fn new(
+        mesh: &TetMesh,
+        material: Material,
+        fixed: &[u32],
+        axis: &[AxisSupport],
+    ) -> Result<Self, SolveError> {
+        let (e, nu) = (material.youngs_modulus_pa, material.poisson_ratio);
+        if !(e.is_finite() && e > 0.0) {
+            return Err(SolveError::InvalidModel(format!(
+                "Young's modulus {e} Pa is not positive"
+            )));
+        }
+        if !(nu.is_finite() && (0.0..0.5).contains(&nu)) {
+            return Err(SolveError::InvalidModel(format!(
+                "Poisson ratio {nu} is not in [0, 0.5)"
+            )));
+        }
+        let (lambda, mu) = material.lame();
+        let n_nodes = mesh.nodes.len();
+        let mut geoms = Vec::with_capacity(mesh.tets.len());
+        let mut used = vec![false; n_nodes];
+        for (i, t) in mesh.tets.iter().enumerate() {
+            if let Some(&n) = t.iter().find(|&&n| n as usize >= n_nodes) {
+                return Err(SolveError::InvalidModel(format!(
+                    "element {i} refers to node {n} of {n_nodes}"
+                )));
+            }
+            let g = TetGeometry::new(t.map(|n| mesh.nodes[n as usize])).ok_or_else(|| {
+                SolveError::InvalidModel(format!("element {i} is degenerate or inverted at rest"))
+            })?;
+            geoms.push(g);
+            for &n in t {
+                used[n as usize] = true;
+            }
+        }
+        let mut support = vec![false; 3 * n_nodes];
+        for &n in fixed {
+            if n as usize >= n_nodes {
+                return Err(SolveError::BadConstraint {
+                    node: n,
+                    reason: "fixed node out of range".into(),
+                });
+            }
+            support[3 * n as usize..3 * n as usize + 3].fill(true);
+        }
+        for s in axis {
+            if s.node as usize >= n_nodes || s.axis > 2 {
+                return Err(SolveError::BadConstraint {
+                    node: s.node,
+                    reason: format!("bad axis support (axis {})", s.axis),
+                });
+            }
+            support[3 * s.node as usize + s.axis as usize] = true;
+        }
+        for (n, u) in used.iter().enumerate() {
+            if !u {
+                support[3 * n..3 * n + 3].fill(true);
+            }
+        }
+        let kel = geoms.iter().map(|g| g.stiffness(lambda, mu)).collect();
+        let pattern = Pattern::new(n_nodes, &mesh.tets);
+        Ok(Self {
+            tets: mesh.tets.clone(),
+            rest: mesh.nodes.clone(),
+            geoms,
+            kel,
+            lambda,
+            mu,
+            pattern,
+            support,
+            fixed: fixed.to_vec(),
+        })
+    }
+
+    /// Number of nodes.
+    pub fn n_nodes(&self) -> usize {
+        self.rest.len()
+    }
+}
