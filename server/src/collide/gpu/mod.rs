@@ -26,7 +26,7 @@
 //!    candidate. It also gives an interval `[t_lo, t_hi]` holding the exact `t`
 //!    (error of `T / det` propagated from the same bounds), or the whole line
 //!    when the determinant is within its error of zero.
-//! 2. **Per-side lists.** For each side the kernel keeps the `K = 4` candidates
+//! 2. **Per-side lists.** For each side the kernel keeps the `K = 8` candidates
 //!    with the smallest lower bound of the side's key (`-t` behind, `t` in front)
 //!    and a threshold `theta`: every exact hit of that side missing from the list
 //!    has key `>= theta` (`theta = +inf` when no candidate was dropped). The

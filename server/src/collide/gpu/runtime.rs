@@ -12,7 +12,7 @@ use super::exact::{self, RayFrame};
 use crate::collide::{Hit, NodeHits};
 
 /// Candidates kept per ray and side (the kernels' `K`).
-pub(crate) const K: usize = 4;
+pub(crate) const K: usize = 8;
 /// u32 words per ray in the output: per side `K` ids, `K` key bounds, threshold.
 pub(crate) const OUT_WORDS: usize = 2 * (2 * K + 1);
 const NO_TRI: u32 = u32::MAX;

@@ -10,9 +10,9 @@ const WG: u32 = 64u;
 @group(0) @binding(3) var<storage, read> rays: array<Ray>;
 @group(0) @binding(4) var<storage, read_write> out_words: array<u32>;
 
-var<workgroup> sh_key: array<f32, 512>;
-var<workgroup> sh_tri: array<u32, 512>;
-var<workgroup> sh_dropped: array<u32, 128>;
+var<workgroup> sh_key: array<f32, 2u * WG * K>;
+var<workgroup> sh_tri: array<u32, 2u * WG * K>;
+var<workgroup> sh_dropped: array<u32, 2u * WG>;
 
 @compute @workgroup_size(64)
 fn cast_brute(

@@ -101,13 +101,12 @@ fn cast_bvh(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
         if span.x > span.y {
             continue;
         }
-        // Every exact hit inside the box has t in span: skip a side whose list
-        // is full and whose best possible key is no better than its threshold.
-        let skip_front = span.y <= 0.0 || (front.tri[K - 1u] != NO_TRI && span.x >= front.key[K - 1u]);
-        let skip_behind = span.x > 0.0 || (behind.tri[K - 1u] != NO_TRI && -span.y >= behind.key[K - 1u]);
+        // Every exact hit inside the box has t in span. A side needs the box
+        // only if the box can hold a hit no worse than a sure hit found already
+        // (hits strictly worse than a sure hit are never the answer).
+        let skip_front = span.y <= 0.0 || span.x > front.ub;
+        let skip_behind = span.x > 0.0 || -span.y > behind.ub;
         if skip_front && skip_behind {
-            if span.y > 0.0 { front.dropped = true; }
-            if span.x <= 0.0 { behind.dropped = true; }
             continue;
         }
         if n.b == 0u {

@@ -6,9 +6,9 @@ const EPS: f32 = 1.1920929e-7;
 const KEY_EMPTY: f32 = 3.0e38;
 const KEY_UNKNOWN: f32 = -3.0e38;
 const NO_TRI: u32 = 0xffffffffu;
-const K: u32 = 4u;
+const K: u32 = 8u;
 // u32 words written per ray: per side K triangle ids, K key bounds, threshold.
-const OUT_WORDS: u32 = 18u;
+const OUT_WORDS: u32 = 2u * (2u * K + 1u);
 
 struct Params {
     // Number of rays, triangles, and for the BVH the number of nodes.
@@ -33,9 +33,12 @@ struct Ray {
 // The K smallest key lower bounds seen on one side, ascending, and whether a
 // candidate was dropped (or a subtree skipped) so the list is not complete.
 struct TopK {
-    key: array<f32, 4>,
-    tri: array<u32, 4>,
+    key: array<f32, K>,
+    tri: array<u32, K>,
     dropped: bool,
+    // Smallest key upper bound of a candidate that is surely an exact hit: the
+    // nearest exact hit on this side has a key <= ub.
+    ub: f32,
 }
 
 fn topk_empty() -> TopK {
@@ -45,6 +48,7 @@ fn topk_empty() -> TopK {
         r.tri[i] = NO_TRI;
     }
     r.dropped = false;
+    r.ub = KEY_EMPTY;
     return r;
 }
 
@@ -128,13 +132,22 @@ fn edge_tol(p: vec3<f32>, q: vec3<f32>, m: f32) -> f32 {
     return 2.0 * (m * s + 2.0 * EPS * (abs(q.x * p.y) + abs(q.y * p.x)));
 }
 
-// Conservative test: returns (maybe_hit, t_lo, t_hi). Every triangle the exact
-// line meets (closed triangle, non-zero determinant) gives maybe_hit with the
-// exact t inside [t_lo, t_hi]; t_lo = -inf, t_hi = +inf when t is ill-conditioned.
-fn tri_filter(f: RayFrame, pa: vec3<f32>, pb: vec3<f32>, pc: vec3<f32>, m: f32) -> vec3<f32> {
+// Conservative test: returns (maybe_hit, t_lo, t_hi, sure). Every triangle the
+// exact line meets (closed triangle, non-zero determinant) gives maybe_hit = 1
+// with the exact t inside [t_lo, t_hi]; t_lo = -inf, t_hi = +inf when t is
+// ill-conditioned. sure = 1 when the exact line passes strictly inside (every
+// edge function beyond its error), so the f64 test reports the hit.
+fn tri_filter(f: RayFrame, pa: vec3<f32>, pb: vec3<f32>, pc: vec3<f32>, m: f32) -> vec4<f32> {
     let a = shear(f, pa);
     let b = shear(f, pb);
     let c = shear(f, pc);
+    // The line meets the closed triangle only if (0, 0) is in the box of the
+    // projected vertices; this also rejects degenerate triangles away from it.
+    let lo = min(a.xy, min(b.xy, c.xy));
+    let hi = max(a.xy, max(b.xy, c.xy));
+    if any(lo > vec2<f32>(m)) || any(hi < vec2<f32>(-m)) {
+        return vec4<f32>(0.0);
+    }
     let u = c.x * b.y - c.y * b.x;
     let v = a.x * c.y - a.y * c.x;
     let w = b.x * a.y - b.y * a.x;
@@ -144,12 +157,12 @@ fn tri_filter(f: RayFrame, pa: vec3<f32>, pb: vec3<f32>, pc: vec3<f32>, m: f32) 
     let pos = u >= -tu && v >= -tv && w >= -tw;
     let neg = u <= tu && v <= tv && w <= tw;
     if !(pos || neg) {
-        return vec3<f32>(0.0, 0.0, 0.0);
+        return vec4<f32>(0.0);
     }
     let det = u + v + w;
     let det_err = tu + tv + tw + 2.0 * EPS * (abs(u) + abs(v) + abs(w));
     if abs(det) <= 2.0 * det_err {
-        return vec3<f32>(1.0, -KEY_EMPTY, KEY_EMPTY);
+        return vec4<f32>(1.0, -KEY_EMPTY, KEY_EMPTY, 0.0);
     }
     let tt = u * a.z + v * b.z + w * c.z;
     let t_err_num = tu * (abs(a.z) + m) + tv * (abs(b.z) + m) + tw * (abs(c.z) + m)
@@ -157,23 +170,28 @@ fn tri_filter(f: RayFrame, pa: vec3<f32>, pb: vec3<f32>, pc: vec3<f32>, m: f32) 
         + 2.0 * EPS * (abs(u * a.z) + abs(v * b.z) + abs(w * c.z));
     let t = tt / det;
     let t_err = 2.0 * (t_err_num + abs(t) * det_err) / (abs(det) - det_err) + 4.0 * EPS * abs(t);
-    return vec3<f32>(1.0, t - t_err, t + t_err);
+    let sure = (u > tu && v > tv && w > tw) || (u < -tu && v < -tv && w < -tw);
+    return vec4<f32>(1.0, t - t_err, t + t_err, select(0.0, 1.0, sure));
 }
 
 // Adds a filtered candidate to the lists of the sides it may lie on. Keys are
 // lower bounds of |t| on each side: behind (t <= 0) and in front (t > 0).
-fn add_candidate(behind: ptr<function, TopK>, front: ptr<function, TopK>, r: vec3<f32>, tri: u32) {
+fn add_candidate(behind: ptr<function, TopK>, front: ptr<function, TopK>, r: vec4<f32>, tri: u32) {
     if r.x == 0.0 {
         return;
     }
+    let sure = r.w != 0.0;
     if r.y <= 0.0 {
         var kb = -r.z;
         if r.y <= -KEY_EMPTY { kb = KEY_UNKNOWN; }
         topk_insert(behind, kb, tri);
+        // Surely behind only when the whole interval is.
+        if sure && r.z <= 0.0 { (*behind).ub = min((*behind).ub, -r.y); }
     }
     if r.z > 0.0 {
         var kf = r.y;
         if r.y <= -KEY_EMPTY { kf = KEY_UNKNOWN; }
         topk_insert(front, kf, tri);
+        if sure && r.y > 0.0 { (*front).ub = min((*front).ub, r.z); }
     }
 }
