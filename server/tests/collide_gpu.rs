@@ -8,7 +8,9 @@
 
 use std::time::Instant;
 
-use fissure_server::collide::gpu::{self, GpuBruteForce, GpuBvh, GpuError, GpuMethod, RefitMode, exact};
+use fissure_server::collide::gpu::{
+    self, GpuBruteForce, GpuBvh, GpuError, GpuMethod, RefitMode, exact,
+};
 use fissure_server::collide::{NodeHits, RayBackend};
 use nalgebra::{Point3, Vector3};
 
@@ -29,7 +31,11 @@ impl Rng {
     }
     fn unit(&mut self) -> Vector3<f64> {
         loop {
-            let v = Vector3::new(self.range(-1.0, 1.0), self.range(-1.0, 1.0), self.range(-1.0, 1.0));
+            let v = Vector3::new(
+                self.range(-1.0, 1.0),
+                self.range(-1.0, 1.0),
+                self.range(-1.0, 1.0),
+            );
             let n = v.norm();
             if n > 0.1 && n < 1.0 {
                 return v / n;
@@ -44,7 +50,9 @@ fn or_skip<T>(made: Result<T, GpuError>) -> Option<T> {
         Ok(b) => Some(b),
         Err(GpuError::NoAdapter(reason)) => {
             if std::env::var_os("CI").is_some() {
-                panic!("CI is set but no GPU adapter was found ({reason}); install mesa-vulkan-drivers (lavapipe)");
+                panic!(
+                    "CI is set but no GPU adapter was found ({reason}); install mesa-vulkan-drivers (lavapipe)"
+                );
             }
             eprintln!("skipped: no GPU adapter ({reason})");
             None
@@ -66,7 +74,11 @@ impl Gpus {
     }
     /// Ray sides the host had to settle by brute force, per backend.
     fn fallbacks(&self) -> [u64; 3] {
-        [self.brute.fallbacks(), self.bvh.fallbacks(), self.bvh_cpu.fallbacks()]
+        [
+            self.brute.fallbacks(),
+            self.bvh.fallbacks(),
+            self.bvh_cpu.fallbacks(),
+        ]
     }
 }
 
@@ -76,7 +88,11 @@ fn backends(triangles: &[[u32; 3]], positions: &[Point3<f64>]) -> Option<Gpus> {
     let bvh = or_skip(GpuBvh::try_new(triangles, positions))?;
     let mut bvh_cpu = or_skip(GpuBvh::try_new(triangles, positions))?;
     bvh_cpu.set_refit_mode(RefitMode::Cpu);
-    Some(Gpus { brute, bvh, bvh_cpu })
+    Some(Gpus {
+        brute,
+        bvh,
+        bvh_cpu,
+    })
 }
 
 fn assert_same(got: &[NodeHits], want: &[NodeHits], what: &str) {
@@ -86,9 +102,14 @@ fn assert_same(got: &[NodeHits], want: &[NodeHits], what: &str) {
             match (a, b) {
                 (None, None) => {}
                 (Some(a), Some(b)) => {
-                    assert_eq!(a.triangle, b.triangle, "{what}: ray {i} {side}: triangle {a:?} vs reference {b:?}");
+                    assert_eq!(
+                        a.triangle, b.triangle,
+                        "{what}: ray {i} {side}: triangle {a:?} vs reference {b:?}"
+                    );
                     assert!(
-                        (a.t - b.t).abs() <= 1e-9 && (a.u - b.u).abs() <= 1e-9 && (a.v - b.v).abs() <= 1e-9,
+                        (a.t - b.t).abs() <= 1e-9
+                            && (a.u - b.u).abs() <= 1e-9
+                            && (a.v - b.v).abs() <= 1e-9,
                         "{what}: ray {i} {side}: {a:?} vs reference {b:?}"
                     );
                 }
@@ -112,7 +133,11 @@ fn check(
     let mut got = Vec::new();
     for b in backends.all() {
         b.cast(origins, dirs, &mut got);
-        assert_same(&got, &want, &format!("{what} [{}/{}]", b.backend(), b.method()));
+        assert_same(
+            &got,
+            &want,
+            &format!("{what} [{}/{}]", b.backend(), b.method()),
+        );
     }
     want
 }
@@ -122,8 +147,9 @@ fn check(
 /// index `i + (n + 1) j`. Coordinates are exact in binary.
 fn grid(n: usize) -> (Vec<[u32; 3]>, Vec<Point3<f64>>) {
     let h = 0.125;
-    let positions: Vec<Point3<f64>> =
-        (0..=n).flat_map(|j| (0..=n).map(move |i| Point3::new(i as f64 * h, j as f64 * h, 0.0))).collect();
+    let positions: Vec<Point3<f64>> = (0..=n)
+        .flat_map(|j| (0..=n).map(move |i| Point3::new(i as f64 * h, j as f64 * h, 0.0)))
+        .collect();
     let id = |i: usize, j: usize| (i + (n + 1) * j) as u32;
     let mut triangles = Vec::new();
     for j in 0..n {
@@ -143,14 +169,20 @@ fn grid(n: usize) -> (Vec<[u32; 3]>, Vec<Point3<f64>>) {
 
 /// A closed UV sphere of radius `r` about `c`: `slices * 2 * (stacks - 1)`
 /// triangles, outward counter-clockwise.
-fn sphere(c: Point3<f64>, r: f64, slices: usize, stacks: usize) -> (Vec<[u32; 3]>, Vec<Point3<f64>>) {
+fn sphere(
+    c: Point3<f64>,
+    r: f64,
+    slices: usize,
+    stacks: usize,
+) -> (Vec<[u32; 3]>, Vec<Point3<f64>>) {
     use std::f64::consts::{PI, TAU};
     let mut positions = vec![c + Vector3::new(0.0, 0.0, r)];
     for k in 1..stacks {
         let th = PI * k as f64 / stacks as f64;
         for s in 0..slices {
             let ph = TAU * s as f64 / slices as f64;
-            positions.push(c + r * Vector3::new(th.sin() * ph.cos(), th.sin() * ph.sin(), th.cos()));
+            positions
+                .push(c + r * Vector3::new(th.sin() * ph.cos(), th.sin() * ph.sin(), th.cos()));
         }
     }
     positions.push(c + Vector3::new(0.0, 0.0, -r));
@@ -163,7 +195,12 @@ fn sphere(c: Point3<f64>, r: f64, slices: usize, stacks: usize) -> (Vec<[u32; 3]
     }
     for k in 1..stacks - 1 {
         for s in 0..slices {
-            let (a, b, c, d) = (ring(k, s), ring(k + 1, s), ring(k + 1, s + 1), ring(k, s + 1));
+            let (a, b, c, d) = (
+                ring(k, s),
+                ring(k + 1, s),
+                ring(k + 1, s + 1),
+                ring(k, s + 1),
+            );
             triangles.push([a, b, c]);
             triangles.push([a, c, d]);
         }
@@ -175,7 +212,12 @@ fn sphere(c: Point3<f64>, r: f64, slices: usize, stacks: usize) -> (Vec<[u32; 3]
 fn errors_name_the_bad_input() {
     let positions = vec![Point3::origin(); 3];
     match gpu::try_new_brute(&[[0, 1, 7]], &positions) {
-        Err(GpuError::IndexOutOfRange { triangle: 0, corner: 2, index: 7, vertices: 3 }) => {}
+        Err(GpuError::IndexOutOfRange {
+            triangle: 0,
+            corner: 2,
+            index: 7,
+            vertices: 3,
+        }) => {}
         other => panic!("expected IndexOutOfRange, got {:?}", other.err()),
     }
     let mut bad = positions.clone();
@@ -217,7 +259,12 @@ fn backend_or_cpu_falls_back_on_bad_surface() {
         GpuMethod::Bvh,
         &triangles,
         &positions,
-        Box::new(move || Box::new(HostBrute { triangles: t, positions: p })),
+        Box::new(move || {
+            Box::new(HostBrute {
+                triangles: t,
+                positions: p,
+            })
+        }),
     );
     assert_eq!(b.backend(), "cpu");
 }
@@ -237,8 +284,14 @@ fn grid_vertices_edges_parallel_and_degenerate() {
         Point3::new(0.9, 0.9, 0.2),
         Point3::new(0.4, 0.7, -0.3),
     ]);
-    triangles.extend([[base, base, base + 1], [base, base + 1, base + 2], [base + 3, base + 3, base + 3]]);
-    let Some(mut backends) = backends(&triangles, &positions) else { return };
+    triangles.extend([
+        [base, base, base + 1],
+        [base, base + 1, base + 2],
+        [base + 3, base + 3, base + 3],
+    ]);
+    let Some(mut backends) = backends(&triangles, &positions) else {
+        return;
+    };
 
     let mut origins = Vec::new();
     let mut dirs = Vec::new();
@@ -277,17 +330,32 @@ fn grid_vertices_edges_parallel_and_degenerate() {
         origins.push(Point3::new(0.2, y, 0.1));
         dirs.push(Vector3::new(1.0, 1.0, 0.0).normalize());
     }
-    let want = check(&mut backends, &triangles, &positions, &origins, &dirs, "grid");
+    let want = check(
+        &mut backends,
+        &triangles,
+        &positions,
+        &origins,
+        &dirs,
+        "grid",
+    );
     // Only the 20 lines lying in the grid's plane (every grid triangle along them
     // is a candidate of unknown t, 2 sides each) and the 15 vertical lines through
     // both a valence-8 grid vertex and the collinear degenerate triangle (9
     // near-equal candidates, one side each) may need the host's brute force.
-    assert!(backends.fallbacks().iter().all(|&f| f <= 40 + 15), "{:?}", backends.fallbacks());
+    assert!(
+        backends.fallbacks().iter().all(|&f| f <= 40 + 15),
+        "{:?}",
+        backends.fallbacks()
+    );
 
     // Every vertical line through the grid's inside meets exactly one grid
     // triangle (watertight, no double hits at shared edges and vertices).
     let e = 1e-12;
-    for (k, (o, d)) in origins[..vertical].iter().zip(&dirs[..vertical]).enumerate() {
+    for (k, (o, d)) in origins[..vertical]
+        .iter()
+        .zip(&dirs[..vertical])
+        .enumerate()
+    {
         let inside = o.x > e && o.x < n as f64 * h - e && o.y > e && o.y < n as f64 * h - e;
         if !inside {
             continue;
@@ -299,12 +367,24 @@ fn grid_vertices_edges_parallel_and_degenerate() {
                 exact::intersect(o, d, a, b, c).is_some()
             })
             .count();
-        assert_eq!(hits, 1, "line {k} at ({}, {}) hits {hits} grid triangles", o.x, o.y);
+        assert_eq!(
+            hits, 1,
+            "line {k} at ({}, {}) hits {hits} grid triangles",
+            o.x, o.y
+        );
         let w = want[k];
-        assert_eq!(w.behind.is_some() as u32 + w.front.is_some() as u32, 1, "line {k}: {w:?}");
+        assert_eq!(
+            w.behind.is_some() as u32 + w.front.is_some() as u32,
+            1,
+            "line {k}: {w:?}"
+        );
     }
     // Lines in the grid's plane hit nothing of the grid.
-    for (o, d) in origins[origins.len() - 40..].iter().zip(&dirs[origins.len() - 40..]).step_by(2) {
+    for (o, d) in origins[origins.len() - 40..]
+        .iter()
+        .zip(&dirs[origins.len() - 40..])
+        .step_by(2)
+    {
         assert!(triangles[..plain].iter().all(|t| {
             let [a, b, c] = t.map(|v| &positions[v as usize]);
             exact::intersect(o, d, a, b, c).is_none()
@@ -316,15 +396,35 @@ fn grid_vertices_edges_parallel_and_degenerate() {
 fn coincident_triangles_tie_to_lowest_index() {
     // Twelve copies of one triangle: more exact ties than the kernels keep (8),
     // so the host must settle them; the answer is the lowest index.
-    let positions = vec![Point3::new(0.0, 0.0, 0.0), Point3::new(1.0, 0.0, 0.0), Point3::new(0.0, 1.0, 0.0)];
+    let positions = vec![
+        Point3::new(0.0, 0.0, 0.0),
+        Point3::new(1.0, 0.0, 0.0),
+        Point3::new(0.0, 1.0, 0.0),
+    ];
     let triangles = vec![[0u32, 1, 2]; 12];
-    let Some(mut backends) = backends(&triangles, &positions) else { return };
+    let Some(mut backends) = backends(&triangles, &positions) else {
+        return;
+    };
     let origins = vec![Point3::new(0.25, 0.25, 1.0), Point3::new(0.25, 0.25, -1.0)];
-    let dirs = vec![Vector3::new(0.0, 0.0, -1.0), Vector3::new(0.1, 0.0, 1.0).normalize()];
-    let want = check(&mut backends, &triangles, &positions, &origins, &dirs, "coincident");
+    let dirs = vec![
+        Vector3::new(0.0, 0.0, -1.0),
+        Vector3::new(0.1, 0.0, 1.0).normalize(),
+    ];
+    let want = check(
+        &mut backends,
+        &triangles,
+        &positions,
+        &origins,
+        &dirs,
+        "coincident",
+    );
     assert_eq!(want[0].front.map(|h| h.triangle), Some(0));
     // More ties than candidate slots: the host settles each front side.
-    assert!(backends.fallbacks().iter().all(|&f| f >= 2), "{:?}", backends.fallbacks());
+    assert!(
+        backends.fallbacks().iter().all(|&f| f >= 2),
+        "{:?}",
+        backends.fallbacks()
+    );
     assert_eq!(want[1].front.map(|h| h.triangle), Some(0));
 }
 
@@ -334,20 +434,47 @@ fn random_soup_matches_reference() {
     let mut positions = Vec::new();
     let mut triangles = Vec::new();
     for t in 0..600u32 {
-        let c = Point3::new(rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0));
+        let c = Point3::new(
+            rng.range(-1.0, 1.0),
+            rng.range(-1.0, 1.0),
+            rng.range(-1.0, 1.0),
+        );
         for _ in 0..3 {
             positions.push(c + rng.unit() * rng.range(0.01, 0.3));
         }
         triangles.push([3 * t, 3 * t + 1, 3 * t + 2]);
     }
-    let Some(mut backends) = backends(&triangles, &positions) else { return };
-    let origins: Vec<Point3<f64>> =
-        (0..400).map(|_| Point3::new(rng.range(-1.5, 1.5), rng.range(-1.5, 1.5), rng.range(-1.5, 1.5))).collect();
+    let Some(mut backends) = backends(&triangles, &positions) else {
+        return;
+    };
+    let origins: Vec<Point3<f64>> = (0..400)
+        .map(|_| {
+            Point3::new(
+                rng.range(-1.5, 1.5),
+                rng.range(-1.5, 1.5),
+                rng.range(-1.5, 1.5),
+            )
+        })
+        .collect();
     let dirs: Vec<Vector3<f64>> = (0..400).map(|_| rng.unit()).collect();
-    let want = check(&mut backends, &triangles, &positions, &origins, &dirs, "soup");
-    let found = want.iter().filter(|h| h.behind.is_some() || h.front.is_some()).count();
+    let want = check(
+        &mut backends,
+        &triangles,
+        &positions,
+        &origins,
+        &dirs,
+        "soup",
+    );
+    let found = want
+        .iter()
+        .filter(|h| h.behind.is_some() || h.front.is_some())
+        .count();
     assert!(found > 100, "the scene should produce hits ({found})");
-    assert_eq!(backends.fallbacks(), [0; 3], "the GPU candidates settle generic rays");
+    assert_eq!(
+        backends.fallbacks(),
+        [0; 3],
+        "the GPU candidates settle generic rays"
+    );
 }
 
 /// Two spatula faces per instrument: `per_face` paired source nodes on a grid of
@@ -380,11 +507,29 @@ fn spatula_rays(
 fn deforming_sphere_over_steps_matches_reference() {
     let c = Point3::new(0.01, -0.02, 0.03);
     let (triangles, rest) = sphere(c, 0.07, 40, 21);
-    let Some(mut backends) = backends(&triangles, &rest) else { return };
+    let Some(mut backends) = backends(&triangles, &rest) else {
+        return;
+    };
     let mut origins = Vec::new();
     let mut dirs = Vec::new();
-    spatula_rays(c + Vector3::new(0.065, 0.0, 0.0), Vector3::new(0.0, 1.0, 0.2), (10, 6), (0.04, 0.02), 0.002, &mut origins, &mut dirs);
-    spatula_rays(c + Vector3::new(-0.06, 0.02, 0.0), Vector3::new(0.1, 0.0, 1.0), (8, 8), (0.03, 0.03), 0.002, &mut origins, &mut dirs);
+    spatula_rays(
+        c + Vector3::new(0.065, 0.0, 0.0),
+        Vector3::new(0.0, 1.0, 0.2),
+        (10, 6),
+        (0.04, 0.02),
+        0.002,
+        &mut origins,
+        &mut dirs,
+    );
+    spatula_rays(
+        c + Vector3::new(-0.06, 0.02, 0.0),
+        Vector3::new(0.1, 0.0, 1.0),
+        (8, 8),
+        (0.03, 0.03),
+        0.002,
+        &mut origins,
+        &mut dirs,
+    );
     // Lines through the rest surface's vertices, shared by 6 (40 at the poles)
     // triangles.
     let mut vertex_origins = Vec::new();
@@ -403,34 +548,79 @@ fn deforming_sphere_over_steps_matches_reference() {
             .map(|p| {
                 let q = p - c;
                 let dent = (-((q - Vector3::new(0.065, 0.0, 0.0)).norm_squared()) / 4e-4).exp();
-                let jitter = Vector3::new(rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0)) * 2e-4 * s;
-                c + q.component_mul(&Vector3::new(1.0 + 0.05 * s, 1.0, 1.0 - 0.03 * s)) - q * (0.2 * s * dent) + jitter
+                let jitter = Vector3::new(
+                    rng.range(-1.0, 1.0),
+                    rng.range(-1.0, 1.0),
+                    rng.range(-1.0, 1.0),
+                ) * 2e-4
+                    * s;
+                c + q.component_mul(&Vector3::new(1.0 + 0.05 * s, 1.0, 1.0 - 0.03 * s))
+                    - q * (0.2 * s * dent)
+                    + jitter
             })
             .collect();
         for b in backends.all() {
             b.update_positions(&positions);
         }
-        check(&mut backends, &triangles, &positions, &origins, &dirs, &format!("sphere step {step}"));
-        assert_eq!(backends.fallbacks(), [0; 3], "the GPU candidates settle the spatula rays");
+        check(
+            &mut backends,
+            &triangles,
+            &positions,
+            &origins,
+            &dirs,
+            &format!("sphere step {step}"),
+        );
+        assert_eq!(
+            backends.fallbacks(),
+            [0; 3],
+            "the GPU candidates settle the spatula rays"
+        );
     }
     for b in backends.all() {
         b.update_positions(&rest);
     }
-    check(&mut backends, &triangles, &rest, &vertex_origins, &vertex_dirs, "sphere vertices");
+    check(
+        &mut backends,
+        &triangles,
+        &rest,
+        &vertex_origins,
+        &vertex_dirs,
+        "sphere vertices",
+    );
     // Only the pole's 40-triangle fan exceeds the 8 candidates kept per side.
-    assert!(backends.fallbacks().iter().all(|&f| f <= 2), "{:?}", backends.fallbacks());
+    assert!(
+        backends.fallbacks().iter().all(|&f| f <= 2),
+        "{:?}",
+        backends.fallbacks()
+    );
 }
 
 #[test]
 fn ray_count_grows_and_shrinks() {
     let (triangles, positions) = sphere(Point3::origin(), 1.0, 12, 7);
-    let Some(mut backends) = backends(&triangles, &positions) else { return };
+    let Some(mut backends) = backends(&triangles, &positions) else {
+        return;
+    };
     let mut rng = Rng(11);
     for n in [1usize, 70, 300, 5, 0] {
-        let origins: Vec<Point3<f64>> =
-            (0..n).map(|_| Point3::new(rng.range(-2.0, 2.0), rng.range(-2.0, 2.0), rng.range(-2.0, 2.0))).collect();
+        let origins: Vec<Point3<f64>> = (0..n)
+            .map(|_| {
+                Point3::new(
+                    rng.range(-2.0, 2.0),
+                    rng.range(-2.0, 2.0),
+                    rng.range(-2.0, 2.0),
+                )
+            })
+            .collect();
         let dirs: Vec<Vector3<f64>> = (0..n).map(|_| rng.unit()).collect();
-        check(&mut backends, &triangles, &positions, &origins, &dirs, &format!("{n} rays"));
+        check(
+            &mut backends,
+            &triangles,
+            &positions,
+            &origins,
+            &dirs,
+            &format!("{n} rays"),
+        );
     }
 }
 
@@ -443,20 +633,39 @@ fn timing_at_paper_size() {
     let c = Point3::origin();
     let (triangles, rest) = sphere(c, 0.07, 130, 62);
     assert_eq!(triangles.len(), 15_860);
-    let Some(mut brute) = or_skip(GpuBruteForce::try_new(&triangles, &rest)) else { return };
-    let Some(mut bvh) = or_skip(GpuBvh::try_new(&triangles, &rest)) else { return };
-    println!("adapter: {} ({:?})", bvh.adapter_name(), bvh.adapter_info().backend);
-    let positions: Vec<Point3<f64>> = rest.iter().map(|p| c + (p - c).component_mul(&Vector3::new(1.01, 1.0, 0.99))).collect();
+    let Some(mut brute) = or_skip(GpuBruteForce::try_new(&triangles, &rest)) else {
+        return;
+    };
+    let Some(mut bvh) = or_skip(GpuBvh::try_new(&triangles, &rest)) else {
+        return;
+    };
+    println!(
+        "adapter: {} ({:?})",
+        bvh.adapter_name(),
+        bvh.adapter_info().backend
+    );
+    let positions: Vec<Point3<f64>> = rest
+        .iter()
+        .map(|p| c + (p - c).component_mul(&Vector3::new(1.01, 1.0, 0.99)))
+        .collect();
     for (per_face, size) in [((15, 10), (0.03, 0.02)), ((25, 20), (0.03, 0.024))] {
         let mut origins = Vec::new();
         let mut dirs = Vec::new();
-        spatula_rays(c + Vector3::new(0.068, 0.0, 0.0), Vector3::new(0.0, 1.0, 0.1), per_face, size, 0.002, &mut origins, &mut dirs);
+        spatula_rays(
+            c + Vector3::new(0.068, 0.0, 0.0),
+            Vector3::new(0.0, 1.0, 0.1),
+            per_face,
+            size,
+            0.002,
+            &mut origins,
+            &mut dirs,
+        );
         let mut want = Vec::new();
         let t0 = Instant::now();
         exact::cast_brute(&triangles, &positions, &origins, &dirs, &mut want);
         let host_ms = t0.elapsed().as_secs_f64() * 1e3;
         let mut got = Vec::new();
-        let reps = 5;
+        let reps = 20;
         let mut report = |name: &str, b: &mut dyn RayBackend| {
             b.update_positions(&positions);
             b.cast(&origins, &dirs, &mut got);
@@ -467,14 +676,38 @@ fn timing_at_paper_size() {
                 b.cast(&origins, &dirs, &mut got);
             }
             let ms = t0.elapsed().as_secs_f64() * 1e3 / reps as f64;
-            println!("{:>4} rays  {name:<22} {ms:8.2} ms/query (update + cast)", origins.len());
+            println!(
+                "{:>4} rays  {name:<22} {ms:8.2} ms/query (update + cast)",
+                origins.len()
+            );
         };
         report("gpu brute", &mut brute);
         bvh.set_refit_mode(RefitMode::Gpu);
         report("gpu bvh, gpu refit", &mut bvh);
         bvh.set_refit_mode(RefitMode::Cpu);
         report("gpu bvh, cpu refit", &mut bvh);
-        println!("{:>4} rays  {:<22} {host_ms:8.2} ms/query", origins.len(), "host f64 brute (1 thread)");
-        println!("fallback sides so far: brute {}, bvh {}", brute.fallbacks(), bvh.fallbacks());
+        println!(
+            "{:>4} rays  {:<22} {host_ms:8.2} ms/query",
+            origins.len(),
+            "host f64 brute (1 thread)"
+        );
+        for mode in [RefitMode::Gpu, RefitMode::Cpu] {
+            bvh.set_refit_mode(mode);
+            let t0 = Instant::now();
+            for _ in 0..reps {
+                bvh.update_positions(&positions);
+                bvh.refit_now();
+            }
+            let ms = t0.elapsed().as_secs_f64() * 1e3 / reps as f64;
+            println!(
+                "      refit {mode:?}: {ms:.2} ms (update_positions + refit, {} levels)",
+                bvh.tree().depth()
+            );
+        }
+        println!(
+            "fallback sides so far: brute {}, bvh {}",
+            brute.fallbacks(),
+            bvh.fallbacks()
+        );
     }
 }

@@ -28,15 +28,27 @@ impl GpuBruteForce {
         let dev = Device::new()?;
         let frame = Frame::new(&dev, triangles, positions);
         let tri_words: Vec<[u32; 4]> = triangles.iter().map(|t| [t[0], t[1], t[2], 0]).collect();
-        let tris = dev.storage("triangles", (tri_words.len() * 16) as u64, wgpu::BufferUsages::empty());
+        let tris = dev.storage(
+            "triangles",
+            (tri_words.len() * 16) as u64,
+            wgpu::BufferUsages::empty(),
+        );
         if !tri_words.is_empty() {
-            dev.queue.write_buffer(&tris, 0, bytemuck::cast_slice(&tri_words));
+            dev.queue
+                .write_buffer(&tris, 0, bytemuck::cast_slice(&tri_words));
         }
         let params = dev.uniform("brute params", &Params::default());
         let module = dev.module("brute", include_str!("shaders/brute.wgsl"));
         let pipeline = dev.pipeline(&module, "cast_brute");
         let bind_group = Self::bind(&dev, &pipeline, &params, &frame, &tris);
-        Ok(Self { dev, frame, pipeline, params, tris, bind_group })
+        Ok(Self {
+            dev,
+            frame,
+            pipeline,
+            params,
+            tris,
+            bind_group,
+        })
     }
 
     fn bind(
@@ -46,11 +58,20 @@ impl GpuBruteForce {
         frame: &Frame,
         tris: &wgpu::Buffer,
     ) -> wgpu::BindGroup {
-        let buffers = [params, &frame.positions_buf, tris, &frame.rays_buf, &frame.out_buf];
+        let buffers = [
+            params,
+            &frame.positions_buf,
+            tris,
+            &frame.rays_buf,
+            &frame.out_buf,
+        ];
         let entries: Vec<wgpu::BindGroupEntry<'_>> = buffers
             .iter()
             .enumerate()
-            .map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() })
+            .map(|(i, b)| wgpu::BindGroupEntry {
+                binding: i as u32,
+                resource: b.as_entire_binding(),
+            })
             .collect();
         dev.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("brute"),
@@ -78,7 +99,13 @@ impl GpuBruteForce {
     fn run(&mut self, origins: &[Point3<f64>], dirs: &[Vector3<f64>]) -> Result<(), String> {
         let n = origins.len();
         if self.frame.reserve_rays(&self.dev, n) {
-            self.bind_group = Self::bind(&self.dev, &self.pipeline, &self.params, &self.frame, &self.tris);
+            self.bind_group = Self::bind(
+                &self.dev,
+                &self.pipeline,
+                &self.params,
+                &self.frame,
+                &self.tris,
+            );
         }
         let (m_err, box_pad) = self.frame.upload_rays(&self.dev, origins, dirs);
         let params = Params {
@@ -88,10 +115,20 @@ impl GpuBruteForce {
             box_pad,
             ..Params::default()
         };
-        self.dev.queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
-        let mut encoder = self.dev.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("brute") });
+        self.dev
+            .queue
+            .write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
+        let mut encoder = self
+            .dev
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("brute"),
+            });
         {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("brute"), timestamp_writes: None });
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("brute"),
+                timestamp_writes: None,
+            });
             pass.set_pipeline(&self.pipeline);
             pass.set_bind_group(0, &self.bind_group, &[]);
             let (x, y) = grid(n);

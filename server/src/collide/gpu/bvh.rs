@@ -3,8 +3,8 @@
 use nalgebra::{Point3, Vector3};
 
 use super::GpuError;
-use super::runtime::{Device, Frame, Params, grid, validate};
 use super::lbvh::{Lbvh, LbvhNode};
+use super::runtime::{Device, Frame, Params, grid, validate};
 use crate::collide::{NodeHits, RayBackend};
 
 /// Where [`GpuBvh`] refits its boxes after `update_positions`.
@@ -56,9 +56,14 @@ impl GpuBvh {
                 [v[0], v[1], v[2], t]
             })
             .collect();
-        let tris = dev.storage("bvh triangles", (tri_words.len() * 16) as u64, wgpu::BufferUsages::empty());
+        let tris = dev.storage(
+            "bvh triangles",
+            (tri_words.len() * 16) as u64,
+            wgpu::BufferUsages::empty(),
+        );
         if !tri_words.is_empty() {
-            dev.queue.write_buffer(&tris, 0, bytemuck::cast_slice(&tri_words));
+            dev.queue
+                .write_buffer(&tris, 0, bytemuck::cast_slice(&tri_words));
         }
         let nodes = dev.storage(
             "bvh nodes",
@@ -66,7 +71,8 @@ impl GpuBvh {
             wgpu::BufferUsages::empty(),
         );
         if !bvh.nodes.is_empty() {
-            dev.queue.write_buffer(&nodes, 0, bytemuck::cast_slice(&bvh.nodes));
+            dev.queue
+                .write_buffer(&nodes, 0, bytemuck::cast_slice(&bvh.nodes));
         }
         let params = dev.uniform("bvh params", &Params::default());
         let module = dev.module("bvh", include_str!("shaders/bvh.wgsl"));
@@ -88,10 +94,22 @@ impl GpuBvh {
                     label: Some("refit level"),
                     layout: &refit_pipeline.get_bind_group_layout(0),
                     entries: &[
-                        wgpu::BindGroupEntry { binding: 0, resource: buf.as_entire_binding() },
-                        wgpu::BindGroupEntry { binding: 1, resource: frame.positions_buf.as_entire_binding() },
-                        wgpu::BindGroupEntry { binding: 2, resource: tris.as_entire_binding() },
-                        wgpu::BindGroupEntry { binding: 3, resource: nodes.as_entire_binding() },
+                        wgpu::BindGroupEntry {
+                            binding: 0,
+                            resource: buf.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 1,
+                            resource: frame.positions_buf.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 2,
+                            resource: tris.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 3,
+                            resource: nodes.as_entire_binding(),
+                        },
                     ],
                 });
                 (buf, group)
@@ -123,11 +141,21 @@ impl GpuBvh {
         tris: &wgpu::Buffer,
         nodes: &wgpu::Buffer,
     ) -> wgpu::BindGroup {
-        let buffers = [params, &frame.positions_buf, tris, nodes, &frame.rays_buf, &frame.out_buf];
+        let buffers = [
+            params,
+            &frame.positions_buf,
+            tris,
+            nodes,
+            &frame.rays_buf,
+            &frame.out_buf,
+        ];
         let entries: Vec<wgpu::BindGroupEntry<'_>> = buffers
             .iter()
             .enumerate()
-            .map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() })
+            .map(|(i, b)| wgpu::BindGroupEntry {
+                binding: i as u32,
+                resource: b.as_entire_binding(),
+            })
             .collect();
         dev.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("bvh cast"),
@@ -165,7 +193,12 @@ impl GpuBvh {
     /// Refits now (otherwise done by the next `cast`) and waits for it: lets a
     /// benchmark time the refit alone.
     pub fn refit_now(&mut self) {
-        let mut encoder = self.dev.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("refit") });
+        let mut encoder = self
+            .dev
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("refit"),
+            });
         self.encode_refit(&mut encoder);
         self.dev.queue.submit([encoder.finish()]);
         if let Err(e) = self.dev.device.poll(wgpu::PollType::wait_indefinitely()) {
@@ -188,13 +221,22 @@ impl GpuBvh {
                 }));
                 self.bvh.refit(&self.frame.triangles, &self.pos_f32);
                 if !self.bvh.nodes.is_empty() {
-                    self.dev.queue.write_buffer(&self.nodes, 0, bytemuck::cast_slice(&self.bvh.nodes));
+                    self.dev.queue.write_buffer(
+                        &self.nodes,
+                        0,
+                        bytemuck::cast_slice(&self.bvh.nodes),
+                    );
                 }
             }
             RefitMode::Gpu => {
-                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("refit"), timestamp_writes: None });
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("refit"),
+                    timestamp_writes: None,
+                });
                 pass.set_pipeline(&self.refit_pipeline);
-                for (&(_, count), (_, group)) in self.bvh.levels.iter().zip(&self.refit_groups).rev() {
+                for (&(_, count), (_, group)) in
+                    self.bvh.levels.iter().zip(&self.refit_groups).rev()
+                {
                     pass.set_bind_group(0, group, &[]);
                     let (x, y) = grid((count as usize).div_ceil(64));
                     debug_assert_eq!(y, 1);
@@ -207,7 +249,14 @@ impl GpuBvh {
     fn run(&mut self, origins: &[Point3<f64>], dirs: &[Vector3<f64>]) -> Result<(), String> {
         let n = origins.len();
         if self.frame.reserve_rays(&self.dev, n) {
-            self.cast_group = Self::bind(&self.dev, &self.cast_pipeline, &self.params, &self.frame, &self.tris, &self.nodes);
+            self.cast_group = Self::bind(
+                &self.dev,
+                &self.cast_pipeline,
+                &self.params,
+                &self.frame,
+                &self.tris,
+                &self.nodes,
+            );
         }
         let (m_err, box_pad) = self.frame.upload_rays(&self.dev, origins, dirs);
         let params = Params {
@@ -218,11 +267,19 @@ impl GpuBvh {
             box_pad,
             ..Params::default()
         };
-        self.dev.queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
-        let mut encoder = self.dev.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("bvh") });
+        self.dev
+            .queue
+            .write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
+        let mut encoder = self
+            .dev
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("bvh") });
         self.encode_refit(&mut encoder);
         {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("bvh cast"), timestamp_writes: None });
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("bvh cast"),
+                timestamp_writes: None,
+            });
             pass.set_pipeline(&self.cast_pipeline);
             pass.set_bind_group(0, &self.cast_group, &[]);
             let (x, y) = grid(n.div_ceil(64));

@@ -136,10 +136,16 @@ pub fn intersect(
 
 /// Keeps `hit` in `hits` when it is nearer on its side (ties: lower index).
 pub fn keep_nearest(hits: &mut NodeHits, hit: Hit) {
-    let slot = if hit.t <= 0.0 { &mut hits.behind } else { &mut hits.front };
+    let slot = if hit.t <= 0.0 {
+        &mut hits.behind
+    } else {
+        &mut hits.front
+    };
     let better = match slot {
         None => true,
-        Some(old) => hit.t.abs() < old.t.abs() || (hit.t.abs() == old.t.abs() && hit.triangle < old.triangle),
+        Some(old) => {
+            hit.t.abs() < old.t.abs() || (hit.t.abs() == old.t.abs() && hit.triangle < old.triangle)
+        }
     };
     if better {
         *slot = Some(hit);
@@ -161,7 +167,15 @@ pub fn cast_ray(
     for (i, tri) in triangles.iter().enumerate() {
         let [a, b, c] = tri.map(|k| &positions[k as usize]);
         if let Some((t, u, v)) = intersect_frame(&f, a, b, c) {
-            keep_nearest(&mut hits, Hit { triangle: i as u32, t, u, v });
+            keep_nearest(
+                &mut hits,
+                Hit {
+                    triangle: i as u32,
+                    t,
+                    u,
+                    v,
+                },
+            );
         }
     }
     hits
@@ -176,7 +190,12 @@ pub fn cast_brute(
     out: &mut Vec<NodeHits>,
 ) {
     out.clear();
-    out.extend(origins.iter().zip(dirs).map(|(o, d)| cast_ray(triangles, positions, o, d)));
+    out.extend(
+        origins
+            .iter()
+            .zip(dirs)
+            .map(|(o, d)| cast_ray(triangles, positions, o, d)),
+    );
 }
 
 #[cfg(test)]
@@ -214,10 +233,37 @@ mod tests {
     #[test]
     fn parallel_and_degenerate_give_no_hit() {
         let d = Vector3::new(1.0, 0.0, 0.0);
-        assert!(intersect(&p(-1.0, 0.2, 0.0), &d, &p(0.0, 0.0, 0.0), &p(1.0, 0.0, 0.0), &p(0.0, 1.0, 0.0)).is_none());
+        assert!(
+            intersect(
+                &p(-1.0, 0.2, 0.0),
+                &d,
+                &p(0.0, 0.0, 0.0),
+                &p(1.0, 0.0, 0.0),
+                &p(0.0, 1.0, 0.0)
+            )
+            .is_none()
+        );
         let down = Vector3::new(0.0, 0.0, -1.0);
-        assert!(intersect(&p(0.5, 0.0, 1.0), &down, &p(0.0, 0.0, 0.0), &p(1.0, 0.0, 0.0), &p(2.0, 0.0, 0.0)).is_none());
-        assert!(intersect(&p(0.0, 0.0, 1.0), &down, &p(0.0, 0.0, 0.0), &p(0.0, 0.0, 0.0), &p(0.0, 0.0, 0.0)).is_none());
+        assert!(
+            intersect(
+                &p(0.5, 0.0, 1.0),
+                &down,
+                &p(0.0, 0.0, 0.0),
+                &p(1.0, 0.0, 0.0),
+                &p(2.0, 0.0, 0.0)
+            )
+            .is_none()
+        );
+        assert!(
+            intersect(
+                &p(0.0, 0.0, 1.0),
+                &down,
+                &p(0.0, 0.0, 0.0),
+                &p(0.0, 0.0, 0.0),
+                &p(0.0, 0.0, 0.0)
+            )
+            .is_none()
+        );
     }
 
     #[test]
@@ -232,11 +278,24 @@ mod tests {
         let mut positions = vec![p(0.0, 0.0, 0.0)];
         positions.extend(ring);
         let tris: Vec<[u32; 3]> = (0..6).map(|k| [0, 1 + k, 1 + (k + 1) % 6]).collect();
-        for dir in [Vector3::new(0.0, 0.0, 1.0), Vector3::new(0.0, 0.0, -1.0), Vector3::new(0.3, -0.2, 0.9).normalize()] {
+        for dir in [
+            Vector3::new(0.0, 0.0, 1.0),
+            Vector3::new(0.0, 0.0, -1.0),
+            Vector3::new(0.3, -0.2, 0.9).normalize(),
+        ] {
             let o = p(0.0, 0.0, 0.0) - dir * 2.0;
             let n = tris
                 .iter()
-                .filter(|t| intersect(&o, &dir, &positions[t[0] as usize], &positions[t[1] as usize], &positions[t[2] as usize]).is_some())
+                .filter(|t| {
+                    intersect(
+                        &o,
+                        &dir,
+                        &positions[t[0] as usize],
+                        &positions[t[1] as usize],
+                        &positions[t[2] as usize],
+                    )
+                    .is_some()
+                })
                 .count();
             assert_eq!(n, 1, "vertex, dir {dir:?}");
             // The shared edge between triangle 0 and 1 (towards ring vertex 1).
@@ -244,7 +303,16 @@ mod tests {
             let o = e - dir * 2.0;
             let n = tris
                 .iter()
-                .filter(|t| intersect(&o, &dir, &positions[t[0] as usize], &positions[t[1] as usize], &positions[t[2] as usize]).is_some())
+                .filter(|t| {
+                    intersect(
+                        &o,
+                        &dir,
+                        &positions[t[0] as usize],
+                        &positions[t[1] as usize],
+                        &positions[t[2] as usize],
+                    )
+                    .is_some()
+                })
                 .count();
             assert_eq!(n, 1, "edge, dir {dir:?}");
         }

@@ -60,7 +60,11 @@ impl Lbvh {
         let mut nodes = Vec::new();
         let mut levels = Vec::new();
         if triangles.is_empty() {
-            return Self { nodes, order, levels };
+            return Self {
+                nodes,
+                order,
+                levels,
+            };
         }
         // (node index, first, count) of the current level.
         let mut level = vec![(0usize, 0usize, triangles.len())];
@@ -76,13 +80,23 @@ impl Lbvh {
                 }
                 let range = &mut order[first..first + count];
                 let (lo, hi) = range.iter().fold(
-                    (Point3::from([f64::INFINITY; 3]), Point3::from([f64::NEG_INFINITY; 3])),
-                    |(lo, hi), &t| (lo.inf(&centroids[t as usize]), hi.sup(&centroids[t as usize])),
+                    (
+                        Point3::from([f64::INFINITY; 3]),
+                        Point3::from([f64::NEG_INFINITY; 3]),
+                    ),
+                    |(lo, hi), &t| {
+                        (
+                            lo.inf(&centroids[t as usize]),
+                            hi.sup(&centroids[t as usize]),
+                        )
+                    },
                 );
                 let axis = (hi - lo).imax();
                 let half = count / 2;
                 range.select_nth_unstable_by(half, |&x, &y| {
-                    centroids[x as usize][axis].total_cmp(&centroids[y as usize][axis]).then(x.cmp(&y))
+                    centroids[x as usize][axis]
+                        .total_cmp(&centroids[y as usize][axis])
+                        .then(x.cmp(&y))
                 });
                 let left = nodes.len();
                 nodes.push(LbvhNode::default());
@@ -94,7 +108,11 @@ impl Lbvh {
             }
             level = next;
         }
-        Self { nodes, order, levels }
+        Self {
+            nodes,
+            order,
+            levels,
+        }
     }
 
     /// Recomputes every box from `positions` (f32, centred, `[x, y, z, _]`),
@@ -140,11 +158,21 @@ mod tests {
     #[test]
     fn every_triangle_in_one_leaf_and_boxes_contain_children() {
         let n = 37;
-        let positions: Vec<Point3<f64>> =
-            (0..n + 2).map(|i| Point3::new((i as f64 * 0.37).sin(), (i as f64 * 0.11).cos(), i as f64 * 0.01)).collect();
+        let positions: Vec<Point3<f64>> = (0..n + 2)
+            .map(|i| {
+                Point3::new(
+                    (i as f64 * 0.37).sin(),
+                    (i as f64 * 0.11).cos(),
+                    i as f64 * 0.01,
+                )
+            })
+            .collect();
         let triangles: Vec<[u32; 3]> = (0..n as u32).map(|i| [i, i + 1, i + 2]).collect();
         let mut bvh = Lbvh::build(&triangles, &positions);
-        let f32pos: Vec<[f32; 4]> = positions.iter().map(|p| [p.x as f32, p.y as f32, p.z as f32, 0.0]).collect();
+        let f32pos: Vec<[f32; 4]> = positions
+            .iter()
+            .map(|p| [p.x as f32, p.y as f32, p.z as f32, 0.0])
+            .collect();
         bvh.refit(&triangles, &f32pos);
         let mut seen = vec![0; n];
         for node in &bvh.nodes {
@@ -154,14 +182,19 @@ mod tests {
                     seen[t as usize] += 1;
                     for &v in &triangles[t as usize] {
                         for k in 0..3 {
-                            assert!(node.lo[k] <= f32pos[v as usize][k] && f32pos[v as usize][k] <= node.hi[k]);
+                            assert!(
+                                node.lo[k] <= f32pos[v as usize][k]
+                                    && f32pos[v as usize][k] <= node.hi[k]
+                            );
                         }
                     }
                 }
             } else {
                 for c in [node.a as usize, node.a as usize + 1] {
                     for k in 0..3 {
-                        assert!(node.lo[k] <= bvh.nodes[c].lo[k] && bvh.nodes[c].hi[k] <= node.hi[k]);
+                        assert!(
+                            node.lo[k] <= bvh.nodes[c].lo[k] && bvh.nodes[c].hi[k] <= node.hi[k]
+                        );
                     }
                 }
             }

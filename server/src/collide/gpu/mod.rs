@@ -16,33 +16,45 @@
 //!
 //! 1. **Conservative f32 filter.** The kernel evaluates the watertight test's edge
 //!    functions `e_i` in f32 together with a bound `tol_i` of their error, and
-//!    keeps a triangle as a *candidate* when all `e_i >= -tol_i` or all
-//!    `e_i <= tol_i`. The error bound is built from `m = 32 eps s`, a bound on the
-//!    error of the sheared vertex coordinates (`eps = 2^-23`, `s` the largest
-//!    coordinate of positions and origins after the host subtracts the rest
-//!    surface's centre): for an edge `P -> Q`,
-//!    `tol = 2 (m (|Px|+|Py|+|Qx|+|Qy|+2m) + 2 eps (|Qx Py| + |Qy Px|))`.
-//!    So every triangle the exact line meets (what the f64 test can report) is a
-//!    candidate. It also gives an interval `[t_lo, t_hi]` holding the exact `t`
-//!    (error of `T / det` propagated from the same bounds), or the whole line
-//!    when the determinant is within its error of zero.
+//!    keeps a triangle as a *candidate* when the origin, projected along the
+//!    line, lies within `m` of the box of the projected vertices and all
+//!    `e_i >= -tol_i` or all `e_i <= tol_i`. The bounds come from `m = 32 eps s`,
+//!    a bound on the error of the sheared vertex coordinates (`eps = 2^-23`, `s`
+//!    the largest coordinate of positions and origins after the host subtracts
+//!    the rest surface's centre; a first-order count gives about `14 eps s`): for
+//!    an edge `P -> Q`, `tol = 2 (m (|Px|+|Py|+|Qx|+|Qy|+2m) + 2 eps (|Qx Py| +
+//!    |Qy Px|))`. So every triangle the exact line meets (what the f64 test can
+//!    report) is a candidate. The filter also gives an interval `[t_lo, t_hi]`
+//!    holding the exact `t` (the error of `T / det` propagated from the same
+//!    bounds), or the whole line when the determinant is within its error of
+//!    zero; and marks a candidate *sure* when every `e_i` is beyond its error
+//!    with one sign (the exact line passes strictly inside, so the f64 test
+//!    reports it).
 //! 2. **Per-side lists.** For each side the kernel keeps the `K = 8` candidates
 //!    with the smallest lower bound of the side's key (`-t` behind, `t` in front)
 //!    and a threshold `theta`: every exact hit of that side missing from the list
-//!    has key `>= theta` (`theta = +inf` when no candidate was dropped). The
-//!    all-pairs kernel merges the per-thread lists in shared memory; the BVH
-//!    kernel also skips subtrees whose box interval cannot beat a full list,
-//!    lowering `theta` accordingly.
+//!    has key `>= theta` (`theta = +inf` when no candidate was dropped, else the
+//!    `K`-th key bound). The all-pairs kernel merges the per-thread lists in
+//!    shared memory. The BVH kernel skips, per side, the boxes whose parameter
+//!    interval lies strictly beyond the key upper bound of a sure candidate:
+//!    every hit in such a box is strictly worse than one that is listed or
+//!    dropped, so it is never the answer and `theta` is unaffected.
 //! 3. **f64 decision on the host.** The host evaluates the listed triangles with
 //!    [`exact::intersect`] on the f64 positions and keeps the nearest per side
 //!    (ties in `t`: lower triangle index). The answer is final when the list was
-//!    complete or when its key is `< theta`; otherwise (rare: a line lying in a
-//!    triangle's plane, more than `K` near-ties) that ray's side is answered by
-//!    the f64 brute force [`exact::cast_ray`]. [`GpuBruteForce::fallbacks`]
-//!    counts those.
+//!    complete or when its key is `< theta`; otherwise that ray's side is
+//!    answered by the f64 brute force [`exact::cast_ray`]. This happens only
+//!    when more than `K` candidates tie within the f32 bounds: a line lying in
+//!    the plane of several triangles (unknown `t`), a line through a vertex
+//!    shared by more than `K` triangles, coincident triangles.
+//!    [`GpuBruteForce::fallbacks`] and [`GpuBvh::fallbacks`] count those sides.
 //!
 //! The answers are therefore exactly those of the f64 brute force over the same
-//! test: same triangle ids, and `t, u, v` computed by the same f64 code.
+//! test: same triangle ids, and `t, u, v` computed by the same f64 code. To make
+//! the GPU backends agree with another f64 reference (the CPU pipeline's), that
+//! reference's test must be the one [`exact::intersect_frame`] runs in
+//! `runtime::Frame::decide`; the f32 filter does not depend on the tie rule (it
+//! keeps every triangle the exact line meets, edges and vertices included).
 //!
 //! Boxes of the BVH are padded by `64 eps s` and the slab test widens its
 //! interval by `8 eps (|t0| + |t1|)`, so a box test never drops a triangle the
@@ -58,9 +70,9 @@
 
 mod brute;
 mod bvh;
-mod runtime;
 pub mod exact;
 mod lbvh;
+mod runtime;
 
 pub use brute::GpuBruteForce;
 pub use bvh::{GpuBvh, RefitMode};
@@ -83,7 +95,9 @@ pub enum GpuError {
         reason: String,
     },
     /// A triangle refers to a vertex that does not exist.
-    #[error("triangle {triangle} corner {corner} refers to vertex {index}, but there are {vertices} vertices")]
+    #[error(
+        "triangle {triangle} corner {corner} refers to vertex {index}, but there are {vertices} vertices"
+    )]
     IndexOutOfRange {
         /// Triangle index.
         triangle: usize,

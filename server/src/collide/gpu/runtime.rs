@@ -73,8 +73,15 @@ impl Device {
             memory_hints: wgpu::MemoryHints::Performance,
             trace: wgpu::Trace::Off,
         }))
-        .map_err(|e| GpuError::RequestDevice { adapter: info.name.clone(), reason: e.to_string() })?;
-        Ok(Self { device, queue, info })
+        .map_err(|e| GpuError::RequestDevice {
+            adapter: info.name.clone(),
+            reason: e.to_string(),
+        })?;
+        Ok(Self {
+            device,
+            queue,
+            info,
+        })
     }
 
     pub fn storage(&self, label: &str, size: u64, extra: wgpu::BufferUsages) -> wgpu::Buffer {
@@ -98,41 +105,57 @@ impl Device {
     }
 
     pub fn pipeline(&self, module: &wgpu::ShaderModule, entry: &str) -> wgpu::ComputePipeline {
-        self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some(entry),
-            layout: None,
-            module,
-            entry_point: Some(entry),
-            compilation_options: Default::default(),
-            cache: None,
-        })
+        self.device
+            .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(entry),
+                layout: None,
+                module,
+                entry_point: Some(entry),
+                compilation_options: Default::default(),
+                cache: None,
+            })
     }
 
     pub fn module(&self, label: &str, kernel: &str) -> wgpu::ShaderModule {
         let source = format!("{}\n{}", include_str!("shaders/common.wgsl"), kernel);
-        self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some(label),
-            source: wgpu::ShaderSource::Wgsl(source.into()),
-        })
+        self.device
+            .create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(label),
+                source: wgpu::ShaderSource::Wgsl(source.into()),
+            })
     }
 }
 
 /// Checks the surface: indices in range, positions finite, counts addressable.
 pub(crate) fn validate(triangles: &[[u32; 3]], positions: &[Point3<f64>]) -> Result<(), GpuError> {
     if triangles.len() >= (u32::MAX / 2) as usize {
-        return Err(GpuError::TooLarge { what: "triangle", count: triangles.len() });
+        return Err(GpuError::TooLarge {
+            what: "triangle",
+            count: triangles.len(),
+        });
     }
     if positions.len() >= u32::MAX as usize {
-        return Err(GpuError::TooLarge { what: "vertex", count: positions.len() });
+        return Err(GpuError::TooLarge {
+            what: "vertex",
+            count: positions.len(),
+        });
     }
     for (i, tri) in triangles.iter().enumerate() {
         for (corner, &index) in tri.iter().enumerate() {
             if index as usize >= positions.len() {
-                return Err(GpuError::IndexOutOfRange { triangle: i, corner, index, vertices: positions.len() });
+                return Err(GpuError::IndexOutOfRange {
+                    triangle: i,
+                    corner,
+                    index,
+                    vertices: positions.len(),
+                });
             }
         }
     }
-    if let Some(vertex) = positions.iter().position(|p| !p.coords.iter().all(|c| c.is_finite())) {
+    if let Some(vertex) = positions
+        .iter()
+        .position(|p| !p.coords.iter().all(|c| c.is_finite()))
+    {
         return Err(GpuError::NonFinitePosition { vertex });
     }
     Ok(())
@@ -165,10 +188,17 @@ pub(crate) struct Frame {
 impl Frame {
     pub fn new(dev: &Device, triangles: &[[u32; 3]], positions: &[Point3<f64>]) -> Self {
         let (lo, hi) = positions.iter().fold(
-            (Vector3::repeat(f64::INFINITY), Vector3::repeat(f64::NEG_INFINITY)),
+            (
+                Vector3::repeat(f64::INFINITY),
+                Vector3::repeat(f64::NEG_INFINITY),
+            ),
             |(lo, hi), p| (lo.inf(&p.coords), hi.sup(&p.coords)),
         );
-        let centre = if positions.is_empty() { Vector3::zeros() } else { 0.5 * (lo + hi) };
+        let centre = if positions.is_empty() {
+            Vector3::zeros()
+        } else {
+            0.5 * (lo + hi)
+        };
         let ray_capacity = 64;
         let mut frame = Self {
             triangles: triangles.to_vec(),
@@ -178,9 +208,21 @@ impl Frame {
             pos_f32: Vec::with_capacity(positions.len()),
             rays_f32: Vec::with_capacity(ray_capacity),
             words: Vec::with_capacity(ray_capacity * OUT_WORDS),
-            positions_buf: dev.storage("positions", (positions.len() * 16) as u64, wgpu::BufferUsages::empty()),
-            rays_buf: dev.storage("rays", (ray_capacity * size_of::<GpuRay>()) as u64, wgpu::BufferUsages::empty()),
-            out_buf: dev.storage("candidates", (ray_capacity * OUT_WORDS * 4) as u64, wgpu::BufferUsages::COPY_SRC),
+            positions_buf: dev.storage(
+                "positions",
+                (positions.len() * 16) as u64,
+                wgpu::BufferUsages::empty(),
+            ),
+            rays_buf: dev.storage(
+                "rays",
+                (ray_capacity * size_of::<GpuRay>()) as u64,
+                wgpu::BufferUsages::empty(),
+            ),
+            out_buf: dev.storage(
+                "candidates",
+                (ray_capacity * OUT_WORDS * 4) as u64,
+                wgpu::BufferUsages::COPY_SRC,
+            ),
             readback: readback(dev, ray_capacity),
             ray_capacity,
             map_result: Arc::new(Mutex::new(None)),
@@ -201,8 +243,14 @@ impl Frame {
             );
             return false;
         }
-        if let Some(vertex) = positions.iter().position(|p| !p.coords.iter().all(|c| c.is_finite())) {
-            tracing::error!(vertex, "GPU collide backend: non-finite position, update ignored");
+        if let Some(vertex) = positions
+            .iter()
+            .position(|p| !p.coords.iter().all(|c| c.is_finite()))
+        {
+            tracing::error!(
+                vertex,
+                "GPU collide backend: non-finite position, update ignored"
+            );
             return false;
         }
         self.positions.copy_from_slice(positions);
@@ -220,7 +268,8 @@ impl Frame {
         }
         self.pos_scale = scale;
         if !self.pos_f32.is_empty() {
-            dev.queue.write_buffer(&self.positions_buf, 0, bytemuck::cast_slice(&self.pos_f32));
+            dev.queue
+                .write_buffer(&self.positions_buf, 0, bytemuck::cast_slice(&self.pos_f32));
         }
     }
 
@@ -231,8 +280,16 @@ impl Frame {
             return false;
         }
         let cap = n.next_power_of_two();
-        self.rays_buf = dev.storage("rays", (cap * size_of::<GpuRay>()) as u64, wgpu::BufferUsages::empty());
-        self.out_buf = dev.storage("candidates", (cap * OUT_WORDS * 4) as u64, wgpu::BufferUsages::COPY_SRC);
+        self.rays_buf = dev.storage(
+            "rays",
+            (cap * size_of::<GpuRay>()) as u64,
+            wgpu::BufferUsages::empty(),
+        );
+        self.out_buf = dev.storage(
+            "candidates",
+            (cap * OUT_WORDS * 4) as u64,
+            wgpu::BufferUsages::COPY_SRC,
+        );
         self.readback = readback(dev, cap);
         self.ray_capacity = cap;
         true
@@ -240,7 +297,12 @@ impl Frame {
 
     /// Converts and uploads the rays; returns the `Params` error bounds
     /// `(m_err, box_pad)` for this step.
-    pub fn upload_rays(&mut self, dev: &Device, origins: &[Point3<f64>], dirs: &[Vector3<f64>]) -> (f32, f32) {
+    pub fn upload_rays(
+        &mut self,
+        dev: &Device,
+        origins: &[Point3<f64>],
+        dirs: &[Vector3<f64>],
+    ) -> (f32, f32) {
         self.rays_f32.clear();
         let mut scale = self.pos_scale;
         for (o, d) in origins.iter().zip(dirs) {
@@ -254,7 +316,8 @@ impl Frame {
             });
         }
         if !self.rays_f32.is_empty() {
-            dev.queue.write_buffer(&self.rays_buf, 0, bytemuck::cast_slice(&self.rays_f32));
+            dev.queue
+                .write_buffer(&self.rays_buf, 0, bytemuck::cast_slice(&self.rays_f32));
         }
         // Bounds in f32 rounded up: a bound of the sheared-coordinate error and the
         // box padding (see the parent module's doc).
@@ -265,7 +328,13 @@ impl Frame {
 
     /// Appends the copy of the candidates into the readback buffer.
     pub fn encode_readback(&self, encoder: &mut wgpu::CommandEncoder, n: usize) {
-        encoder.copy_buffer_to_buffer(&self.out_buf, 0, &self.readback, 0, (n * OUT_WORDS * 4) as u64);
+        encoder.copy_buffer_to_buffer(
+            &self.out_buf,
+            0,
+            &self.readback,
+            0,
+            (n * OUT_WORDS * 4) as u64,
+        );
     }
 
     /// Maps the readback buffer, waits, and copies the candidates into `words`.
@@ -273,12 +342,15 @@ impl Frame {
         let bytes = (n * OUT_WORDS * 4) as u64;
         *self.map_result.lock().map_err(|e| e.to_string())? = None;
         let slot = Arc::clone(&self.map_result);
-        self.readback.map_async(wgpu::MapMode::Read, 0..bytes, move |r| {
-            if let Ok(mut s) = slot.lock() {
-                *s = Some(r);
-            }
-        });
-        dev.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| e.to_string())?;
+        self.readback
+            .map_async(wgpu::MapMode::Read, 0..bytes, move |r| {
+                if let Ok(mut s) = slot.lock() {
+                    *s = Some(r);
+                }
+            });
+        dev.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| e.to_string())?;
         let result = self.map_result.lock().map_err(|e| e.to_string())?.take();
         match result {
             Some(Ok(())) => {}
@@ -286,7 +358,10 @@ impl Frame {
             None => return Err("readback not mapped after the device poll".into()),
         }
         {
-            let view = self.readback.get_mapped_range(0..bytes).map_err(|e| e.to_string())?;
+            let view = self
+                .readback
+                .get_mapped_range(0..bytes)
+                .map_err(|e| e.to_string())?;
             self.words.clear();
             self.words.extend_from_slice(bytemuck::cast_slice(&view));
         }
@@ -296,7 +371,12 @@ impl Frame {
 
     /// The host's f64 decision over the candidates in `words` (see the parent
     /// module's doc). Writes `out[i]` for every ray.
-    pub fn decide(&mut self, origins: &[Point3<f64>], dirs: &[Vector3<f64>], out: &mut Vec<NodeHits>) {
+    pub fn decide(
+        &mut self,
+        origins: &[Point3<f64>],
+        dirs: &[Vector3<f64>],
+        out: &mut Vec<NodeHits>,
+    ) {
         out.clear();
         let mut fallbacks = 0;
         for (i, (o, d)) in origins.iter().zip(dirs).enumerate() {
@@ -314,19 +394,31 @@ impl Frame {
                     if tri == NO_TRI {
                         continue;
                     }
-                    let [a, b, c] = self.triangles[tri as usize].map(|k| &self.positions[k as usize]);
+                    let [a, b, c] =
+                        self.triangles[tri as usize].map(|k| &self.positions[k as usize]);
                     if let Some((t, u, v)) = exact::intersect_frame(&frame, a, b, c) {
-                        exact::keep_nearest(&mut best, Hit { triangle: tri, t, u, v });
+                        exact::keep_nearest(
+                            &mut best,
+                            Hit {
+                                triangle: tri,
+                                t,
+                                u,
+                                v,
+                            },
+                        );
                     }
                 }
                 let best = if side == 0 { best.behind } else { best.front };
                 let theta = f32::from_bits(s[2 * K]);
-                let settled = theta >= KEY_EMPTY || best.is_some_and(|h| h.t.abs() < f64::from(theta));
+                let settled =
+                    theta >= KEY_EMPTY || best.is_some_and(|h| h.t.abs() < f64::from(theta));
                 let answer = if settled {
                     best
                 } else {
                     fallbacks += 1;
-                    let all = brute.get_or_insert_with(|| exact::cast_ray(&self.triangles, &self.positions, o, d));
+                    let all = brute.get_or_insert_with(|| {
+                        exact::cast_ray(&self.triangles, &self.positions, o, d)
+                    });
                     if side == 0 { all.behind } else { all.front }
                 };
                 if side == 0 {
@@ -341,7 +433,12 @@ impl Frame {
     }
 
     /// Answers every ray with the f64 brute force (used when the device failed).
-    pub fn decide_on_host(&mut self, origins: &[Point3<f64>], dirs: &[Vector3<f64>], out: &mut Vec<NodeHits>) {
+    pub fn decide_on_host(
+        &mut self,
+        origins: &[Point3<f64>],
+        dirs: &[Vector3<f64>],
+        out: &mut Vec<NodeHits>,
+    ) {
         exact::cast_brute(&self.triangles, &self.positions, origins, dirs, out);
         self.fallbacks += 2 * origins.len() as u64;
     }
