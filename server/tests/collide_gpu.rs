@@ -711,3 +711,29 @@ fn timing_at_paper_size() {
         );
     }
 }
+
+#[test]
+fn bad_position_updates_are_ignored() {
+    let (triangles, positions) = sphere(Point3::origin(), 1.0, 10, 6);
+    let Some(mut backends) = backends(&triangles, &positions) else {
+        return;
+    };
+    let mut nan = positions.clone();
+    nan[3].x = f64::NAN;
+    for b in backends.all() {
+        // Too few positions, then a NaN: both leave the surface as it was.
+        b.update_positions(&positions[..5]);
+        b.update_positions(&nan);
+    }
+    let origins = vec![Point3::new(0.1, 0.2, -3.0), Point3::new(0.0, 0.0, 0.0)];
+    let dirs = vec![Vector3::new(0.0, 0.0, 1.0), Vector3::new(0.6, 0.0, 0.8)];
+    let want = check(
+        &mut backends,
+        &triangles,
+        &positions,
+        &origins,
+        &dirs,
+        "after bad updates",
+    );
+    assert!(want.iter().all(|h| h.front.is_some()));
+}
