@@ -40,7 +40,9 @@ async fn pushed_face_force_matches_direct_solve() -> anyhow::Result<()> {
     let force = Vector3::new(f.x, f.y, f.z);
     // Opposes the push (-z): the tissue pushes the spatula up.
     assert!(force.z > 0.0, "force {force:?} does not oppose the push");
-    assert!(force.z > 10.0 * force.xy().norm(), "force {force:?} is not along the push");
+    // Mostly along the push: the contact holds all three components (no slip),
+    // so the Poisson bulge under an off-centre patch adds a smaller lateral part.
+    assert!(force.z > 3.0 * force.xy().norm(), "force {force:?} is not along the push");
     assert!(last.contact_count > 0);
 
     // The enforced displacements of the last step, and an independent direct solve.

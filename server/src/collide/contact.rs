@@ -285,10 +285,15 @@ pub fn detect_many(
     }
     backend.cast(&ws.origins, &ws.dirs, &mut ws.hits);
     if skin > 0.0 {
-        // Back to the true face points; hit parameters are from the shifted
-        // origins (t_true = t + skin), which is what classifies behind/front.
+        // Back to the true face points. The shifted origins classified the hits
+        // (behind: t_true <= skin); report t from the true face point.
         for (o, d) in ws.origins.iter_mut().zip(&ws.dirs) {
             *o -= d * skin;
+        }
+        for h in ws.hits.iter_mut() {
+            for hit in [&mut h.behind, &mut h.front].into_iter().flatten() {
+                hit.t += skin;
+            }
         }
     }
 

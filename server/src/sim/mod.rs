@@ -413,6 +413,7 @@ impl Simulation {
                         break;
                     }
                     if self.stepped {
+                        // Same product as `step_before`.
                         let t_next = (k + 1) as f64 * dt;
                         let ever = inputs.per_instrument.iter().filter(|s| s.ever_claimed).count();
                         let any_active = inputs.per_instrument.iter().any(|s| s.claimed);
@@ -557,6 +558,23 @@ impl Simulation {
     }
 }
 
+/// The last stepped-mode step strictly before time `t` (s): the largest `k >= 0`
+/// with `k * dt < t`, or 0. Computed with the same products `k as f64 * dt`
+/// as the deformation loop's step times, so both sides agree to the bit.
+pub fn step_before(t: f64, dt: f64) -> u64 {
+    if !(t > 0.0) {
+        return 0;
+    }
+    let mut k = (t / dt).ceil().max(1.0) as u64 - 1;
+    while k > 0 && k as f64 * dt >= t {
+        k -= 1;
+    }
+    while (k + 1) as f64 * dt < t {
+        k += 1;
+    }
+    k
+}
+
 impl Drop for Simulation {
     fn drop(&mut self) {
         self.shutdown.store(true, Ordering::SeqCst);
@@ -629,8 +647,7 @@ impl Claim {
                 inputs.per_instrument[self.index].reached_t = pose.t_s;
             }
             sim.inputs_changed.notify_all();
-            let k = ((pose.t_s / dt).ceil() as i64 - 1).max(0) as u64;
-            sim.wait_for_frame(k)
+            sim.wait_for_frame(step_before(pose.t_s, dt))
         } else {
             sim.snapshot()
         };
@@ -705,5 +722,26 @@ impl Drop for Claim {
         }
         self.sim.inputs_changed.notify_all();
         tracing::info!(instrument = %self.name, "instrument released");
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::step_before;
+
+    #[test]
+    fn step_before_is_consistent_with_step_times() {
+        let dt = 0.02;
+        assert_eq!(step_before(0.0, dt), 0);
+        assert_eq!(step_before(0.001, dt), 0);
+        assert_eq!(step_before(0.02, dt), 0);
+        assert_eq!(step_before(0.021, dt), 1);
+        // 0.14 / 0.02 rounds to 7.000000000000001: still step 6.
+        assert_eq!(step_before(0.14, dt), 6);
+        for i in 1..100_000u64 {
+            let t = i as f64 * 1e-3;
+            let k = step_before(t, dt);
+            assert!((k as f64 * dt) < t && ((k + 1) as f64 * dt) >= t, "t = {t}, k = {k}");
+        }
     }
 }
