@@ -272,28 +272,33 @@ impl Sdf for BrainShape {
 pub fn preset_params(name: &str) -> Result<PhantomParams, PhantomError> {
     let fissures = FissureSizes::default();
     let p = match name {
+        // Wide fissures (6.5 mm) so that a 12 mm lattice resolves them.
         "coarse" => PhantomParams {
-            spacing: 0.005,
-            surface_size: 0.01,
-            levels: 2,
+            spacing: 0.012,
+            surface_size: 0.012,
+            levels: 1,
             band: 0.0,
             rate: 1.0,
-            fissures,
+            fissures: FissureSizes {
+                interhemispheric_width: 0.0065,
+                sylvian_width: 0.0065,
+                ..fissures
+            },
         },
         "paper-34k" => PhantomParams {
-            spacing: 0.005,
-            surface_size: 0.0065,
+            spacing: 0.0044,
+            surface_size: 0.0088,
             levels: 2,
-            band: 0.002,
-            rate: 0.5,
+            band: 0.0,
+            rate: 2.0,
             fissures,
         },
         "paper-48k" => PhantomParams {
-            spacing: 0.005,
-            surface_size: 0.0055,
+            spacing: 0.004,
+            surface_size: 0.008,
             levels: 2,
-            band: 0.002,
-            rate: 0.5,
+            band: 0.0,
+            rate: 1.0,
             fissures,
         },
         _ => {
@@ -465,7 +470,7 @@ mod tests {
             preset("huge"),
             Err(PhantomError::UnknownPreset { .. })
         ));
-        let mut p = preset_params("coarse").expect("known");
+        let mut p = preset_params("paper-48k").expect("known");
         p.spacing = 0.008;
         assert!(matches!(
             generate_with(&p),
