@@ -23,8 +23,14 @@ pub fn cuboid(size: [f64; 3], n: [usize; 3]) -> TetMesh {
         }
     }
     // Kuhn triangulation: the six paths from corner 000 to 111 along unit steps.
-    const PATHS: [[usize; 3]; 6] =
-        [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]];
+    const PATHS: [[usize; 3]; 6] = [
+        [0, 1, 2],
+        [0, 2, 1],
+        [1, 0, 2],
+        [1, 2, 0],
+        [2, 0, 1],
+        [2, 1, 0],
+    ];
     let mut tets = Vec::with_capacity(6 * nx * ny * nz);
     for k in 0..nz {
         for j in 0..ny {

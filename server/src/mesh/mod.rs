@@ -9,6 +9,11 @@ pub mod blocks;
 pub mod io;
 pub mod quality;
 pub mod validate;
+pub mod from_surface;
+pub mod phantom;
+pub mod sdf;
+pub mod stuffing;
+pub mod winding;
 
 use nalgebra::{Point3, Vector3};
 use std::collections::HashMap;
@@ -45,12 +50,19 @@ impl TetMesh {
         if tets.is_empty() {
             return Err(MeshError::Empty);
         }
-        if let Some(node) = nodes.iter().position(|p| !p.coords.iter().all(|c| c.is_finite())) {
+        if let Some(node) = nodes
+            .iter()
+            .position(|p| !p.coords.iter().all(|c| c.is_finite()))
+        {
             return Err(MeshError::NonFinite { node });
         }
         for (tet, t) in tets.iter().enumerate() {
             if let Some(&node) = t.iter().find(|&&n| n as usize >= nodes.len()) {
-                return Err(MeshError::NodeOutOfRange { tet, node, nodes: nodes.len() });
+                return Err(MeshError::NodeOutOfRange {
+                    tet,
+                    node,
+                    nodes: nodes.len(),
+                });
             }
         }
         let mesh = Self { nodes, tets };
@@ -92,11 +104,17 @@ impl TetMesh {
                 let tri = [t[f[0]], t[f[1]], t[f[2]]];
                 let mut key = tri;
                 key.sort_unstable();
-                count.entry(key).and_modify(|e| e.0 += 1).or_insert((1, tri));
+                count
+                    .entry(key)
+                    .and_modify(|e| e.0 += 1)
+                    .or_insert((1, tri));
             }
         }
-        let mut faces: Vec<[u32; 3]> =
-            count.into_values().filter(|(n, _)| *n == 1).map(|(_, tri)| tri).collect();
+        let mut faces: Vec<[u32; 3]> = count
+            .into_values()
+            .filter(|(n, _)| *n == 1)
+            .map(|(_, tri)| tri)
+            .collect();
         faces.sort_unstable();
         let mut local = HashMap::new();
         let mut to_volume = Vec::new();
@@ -111,7 +129,10 @@ impl TetMesh {
                 })
             })
             .collect();
-        BoundarySurface { triangles, to_volume }
+        BoundarySurface {
+            triangles,
+            to_volume,
+        }
     }
 }
 

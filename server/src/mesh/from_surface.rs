@@ -1,0 +1,475 @@
+//! Meshing a user's closed triangle surface: validation (closed, manifold,
+//! consistently oriented, free of self-intersections) and isosurface
+//! stuffing of the field of [`super::winding::SurfaceField`] (winding number
+//! for the sign, distance to the triangles for the magnitude).
+//!
+//! Input: vertices (m) and triangles as indices, as read by `mesh::io`.
+//! Either orientation of the whole surface is accepted (`|w| >= 1/2` is
+//! inside).
+
+use super::TetMesh;
+use super::sdf::Aabb;
+use super::stuffing::{self, Lattice, StuffingError, SurfaceGrading};
+use super::winding::SurfaceField;
+use nalgebra::Point3;
+use rayon::prelude::*;
+use std::collections::HashMap;
+
+/// What is wrong with an input surface; each names the offending element.
+#[derive(Debug, thiserror::Error, Clone, PartialEq)]
+pub enum SurfaceError {
+    /// No triangles.
+    #[error("the surface has no triangles")]
+    Empty,
+    /// A triangle refers to a vertex that does not exist.
+    #[error("triangle {triangle} refers to vertex {vertex}, but there are {vertices} vertices")]
+    IndexOutOfRange {
+        triangle: usize,
+        vertex: u32,
+        vertices: usize,
+    },
+    /// A vertex coordinate is NaN or infinite.
+    #[error("vertex {vertex} has a non-finite coordinate")]
+    NonFinite { vertex: usize },
+    /// A triangle repeats a vertex or has zero area.
+    #[error("triangle {triangle} is degenerate (repeated vertex or zero area)")]
+    DegenerateTriangle { triangle: usize },
+    /// An edge belongs to one triangle only: the surface is open there.
+    #[error("edge ({a}, {b}) of triangle {triangle} is a border: the surface is not closed")]
+    OpenEdge { a: u32, b: u32, triangle: usize },
+    /// An edge belongs to more than two triangles.
+    #[error("edge ({a}, {b}) is shared by {count} triangles: the surface is not manifold")]
+    NonManifoldEdge { a: u32, b: u32, count: usize },
+    /// Two triangles run along their shared edge in the same direction.
+    #[error("triangles {first} and {second} have opposite orientations across edge ({a}, {b})")]
+    InconsistentOrientation {
+        a: u32,
+        b: u32,
+        first: usize,
+        second: usize,
+    },
+    /// The triangles around a vertex form more than one fan.
+    #[error("vertex {vertex} joins {fans} separate fans of triangles: the surface is not manifold")]
+    NonManifoldVertex { vertex: u32, fans: usize },
+    /// Two triangles intersect.
+    #[error("triangles {first} and {second} intersect")]
+    SelfIntersection { first: usize, second: usize },
+    /// The mesher failed.
+    #[error("meshing the surface: {0}")]
+    Stuffing(#[from] StuffingError),
+}
+
+/// Meshing parameters.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SurfaceMeshing {
+    /// Lattice spacing at the surface, m.
+    pub spacing: f64,
+    /// Grading levels (0: uniform).
+    pub levels: u32,
+    /// Growth of the tetrahedron size per metre of depth (used when
+    /// `levels > 0`).
+    pub rate: f64,
+}
+
+/// Checks that the surface is a closed, consistently oriented 2-manifold
+/// without degenerate or intersecting triangles.
+pub fn check_surface(vertices: &[Point3<f64>], triangles: &[[u32; 3]]) -> Result<(), SurfaceError> {
+    if triangles.is_empty() {
+        return Err(SurfaceError::Empty);
+    }
+    if let Some(vertex) = vertices
+        .iter()
+        .position(|p| !p.coords.iter().all(|c| c.is_finite()))
+    {
+        return Err(SurfaceError::NonFinite { vertex });
+    }
+    for (triangle, t) in triangles.iter().enumerate() {
+        if let Some(&vertex) = t.iter().find(|&&v| v as usize >= vertices.len()) {
+            return Err(SurfaceError::IndexOutOfRange {
+                triangle,
+                vertex,
+                vertices: vertices.len(),
+            });
+        }
+        let [a, b, c] = t.map(|v| vertices[v as usize]);
+        if t[0] == t[1]
+            || t[1] == t[2]
+            || t[2] == t[0]
+            || (b - a).cross(&(c - a)).norm_squared() == 0.0
+        {
+            return Err(SurfaceError::DegenerateTriangle { triangle });
+        }
+    }
+    // Edges: each undirected edge in exactly two triangles, once each way.
+    let mut directed: HashMap<(u32, u32), Vec<usize>> = HashMap::with_capacity(triangles.len() * 3);
+    for (ti, t) in triangles.iter().enumerate() {
+        for i in 0..3 {
+            directed.entry((t[i], t[(i + 1) % 3])).or_default().push(ti);
+        }
+    }
+    let mut keys: Vec<(u32, u32)> = directed.keys().copied().collect();
+    keys.sort_unstable();
+    for &(a, b) in &keys {
+        let fwd = &directed[&(a, b)];
+        let back = directed.get(&(b, a)).map_or(0, Vec::len);
+        let count = fwd.len() + back;
+        if count > 2 {
+            return Err(SurfaceError::NonManifoldEdge {
+                a: a.min(b),
+                b: a.max(b),
+                count,
+            });
+        }
+        if fwd.len() == 2 {
+            return Err(SurfaceError::InconsistentOrientation {
+                a,
+                b,
+                first: fwd[0],
+                second: fwd[1],
+            });
+        }
+        if back == 0 {
+            return Err(SurfaceError::OpenEdge {
+                a,
+                b,
+                triangle: fwd[0],
+            });
+        }
+    }
+    // Vertices: the link of each vertex is one cycle. With manifold, oriented
+    // edges, each triangle (v, a, b) gives the link edge a -> b, and each link
+    // vertex has one outgoing and one incoming link edge.
+    let mut link: Vec<Vec<(u32, u32)>> = vec![Vec::new(); vertices.len()];
+    for t in triangles {
+        for i in 0..3 {
+            link[t[i] as usize].push((t[(i + 1) % 3], t[(i + 2) % 3]));
+        }
+    }
+    for (v, edges) in link.iter().enumerate() {
+        if edges.is_empty() {
+            continue;
+        }
+        let next: HashMap<u32, u32> = edges.iter().copied().collect();
+        let mut seen = 0usize;
+        let mut fans = 0usize;
+        let mut visited: HashMap<u32, bool> = HashMap::new();
+        for &(start, _) in edges {
+            if visited.contains_key(&start) {
+                continue;
+            }
+            fans += 1;
+            let mut cur = start;
+            while visited.insert(cur, true).is_none() {
+                seen += 1;
+                match next.get(&cur) {
+                    Some(&n) => cur = n,
+                    None => break,
+                }
+            }
+        }
+        if fans > 1 || seen != edges.len() {
+            return Err(SurfaceError::NonManifoldVertex {
+                vertex: v as u32,
+                fans,
+            });
+        }
+    }
+    if let Some((first, second)) = first_intersection(vertices, triangles) {
+        return Err(SurfaceError::SelfIntersection { first, second });
+    }
+    Ok(())
+}
+
+/// The first pair `(i, j)`, `i < j`, of intersecting triangles. Triangles
+/// sharing an edge intersect when they are coplanar and folded onto each
+/// other; triangles sharing one vertex when an opposite edge of one crosses
+/// the other; others when any edge of one meets the other (touching counts).
+pub fn first_intersection(
+    vertices: &[Point3<f64>],
+    triangles: &[[u32; 3]],
+) -> Option<(usize, usize)> {
+    let field = SurfaceField::new(vertices, triangles);
+    let pts = |t: usize| triangles[t].map(|v| vertices[v as usize]);
+    (0..triangles.len())
+        .into_par_iter()
+        .filter_map(|i| {
+            let ti = pts(i);
+            let lo = ti[0].inf(&ti[1]).inf(&ti[2]);
+            let hi = ti[0].sup(&ti[1]).sup(&ti[2]);
+            let mut hit: Option<usize> = None;
+            field.overlapping(&lo, &hi, |j| {
+                if j <= i || hit.is_some_and(|h| h < j) {
+                    return;
+                }
+                if triangles_intersect(triangles[i], triangles[j], &ti, &pts(j)) {
+                    hit = Some(hit.map_or(j, |h| h.min(j)));
+                }
+            });
+            hit.map(|j| (i, j))
+        })
+        .min()
+}
+
+fn triangles_intersect(
+    a: [u32; 3],
+    b: [u32; 3],
+    pa: &[Point3<f64>; 3],
+    pb: &[Point3<f64>; 3],
+) -> bool {
+    let shared: Vec<(usize, usize)> = (0..3)
+        .flat_map(|i| (0..3).filter(move |&j| a[i] == b[j]).map(move |j| (i, j)))
+        .collect();
+    match shared.len() {
+        0 => (0..3).any(|k| {
+            segment_triangle(&pa[k], &pa[(k + 1) % 3], pb)
+                || segment_triangle(&pb[k], &pb[(k + 1) % 3], pa)
+        }),
+        1 => {
+            let (i, j) = shared[0];
+            let (a1, a2) = (pa[(i + 1) % 3], pa[(i + 2) % 3]);
+            let (b1, b2) = (pb[(j + 1) % 3], pb[(j + 2) % 3]);
+            segment_triangle(&a1, &a2, pb) || segment_triangle(&b1, &b2, pa)
+        }
+        2 => {
+            // Folded: the opposite vertex of b lies in a's plane on the same
+            // side of the shared edge as a's opposite vertex.
+            let oa = (0..3).find(|&i| !b.contains(&a[i])).unwrap_or(0);
+            let ob = (0..3).find(|&j| !a.contains(&b[j])).unwrap_or(0);
+            let (e0, e1) = (pa[(oa + 1) % 3], pa[(oa + 2) % 3]);
+            if orient(&pa[0], &pa[1], &pa[2], &pb[ob]) != 0.0 {
+                return false;
+            }
+            let n = (e1 - e0).cross(&(pa[oa] - e0));
+            let side = |p: &Point3<f64>| (e1 - e0).cross(&(p - e0)).dot(&n);
+            side(&pb[ob]) > 0.0
+        }
+        _ => true,
+    }
+}
+
+fn orient(a: &Point3<f64>, b: &Point3<f64>, c: &Point3<f64>, d: &Point3<f64>) -> f64 {
+    (b - a).cross(&(c - a)).dot(&(d - a))
+}
+
+/// Whether the closed segment `[p, q]` meets the closed triangle `t`.
+fn segment_triangle(p: &Point3<f64>, q: &Point3<f64>, t: &[Point3<f64>; 3]) -> bool {
+    let [a, b, c] = t;
+    let (dp, dq) = (orient(a, b, c, p), orient(a, b, c, q));
+    if (dp > 0.0 && dq > 0.0) || (dp < 0.0 && dq < 0.0) {
+        return false;
+    }
+    if dp == 0.0 && dq == 0.0 {
+        return coplanar_segment_triangle(p, q, t);
+    }
+    let e = [orient(p, q, a, b), orient(p, q, b, c), orient(p, q, c, a)];
+    e.iter().all(|&x| x >= 0.0) || e.iter().all(|&x| x <= 0.0)
+}
+
+fn coplanar_segment_triangle(p: &Point3<f64>, q: &Point3<f64>, t: &[Point3<f64>; 3]) -> bool {
+    let n = (t[1] - t[0]).cross(&(t[2] - t[0]));
+    let drop = n.iamax();
+    let (u, v) = ((drop + 1) % 3, (drop + 2) % 3);
+    let f = |x: &Point3<f64>| [x[u], x[v]];
+    let (p, q) = (f(p), f(q));
+    let t2 = [f(&t[0]), f(&t[1]), f(&t[2])];
+    let cross = |o: [f64; 2], a: [f64; 2], b: [f64; 2]| {
+        (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+    };
+    let inside = |x: [f64; 2]| {
+        let s = [
+            cross(t2[0], t2[1], x),
+            cross(t2[1], t2[2], x),
+            cross(t2[2], t2[0], x),
+        ];
+        s.iter().all(|&k| k >= 0.0) || s.iter().all(|&k| k <= 0.0)
+    };
+    if inside(p) || inside(q) {
+        return true;
+    }
+    (0..3).any(|k| {
+        let (a, b) = (t2[k], t2[(k + 1) % 3]);
+        let (d1, d2) = (cross(p, q, a), cross(p, q, b));
+        let (d3, d4) = (cross(a, b, p), cross(a, b, q));
+        d1 * d2 <= 0.0 && d3 * d4 <= 0.0 && !(d1 == 0.0 && d2 == 0.0)
+    })
+}
+
+/// Validates the surface and meshes the solid it bounds with isosurface
+/// stuffing. Boundary vertices of the result lie on the input surface to
+/// within `1e-6 * spacing` (cut points) or exactly on it (warped vertices at
+/// cut points); sharp edges and corners of the input are rounded off at the
+/// scale of the spacing.
+pub fn mesh_surface(
+    vertices: &[Point3<f64>],
+    triangles: &[[u32; 3]],
+    params: &SurfaceMeshing,
+) -> Result<TetMesh, SurfaceError> {
+    check_surface(vertices, triangles)?;
+    let field = SurfaceField::new(vertices, triangles);
+    let (lo, hi) = field.bounds();
+    let lattice = Lattice {
+        spacing: params.spacing,
+        levels: params.levels,
+        anchor: lo,
+        bounds: Aabb { lo, hi },
+    };
+    let grading = SurfaceGrading {
+        fine: params.spacing,
+        band: params.spacing,
+        rate: params.rate,
+    };
+    Ok(stuffing::stuff(&field, &lattice, &grading)?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::winding::icosphere;
+
+    #[test]
+    fn sphere_volume() {
+        let r = 0.04;
+        let (v, f) = icosphere(Point3::new(0.001, 0.002, 0.003), r, 3);
+        let m = mesh_surface(
+            &v,
+            &f,
+            &SurfaceMeshing {
+                spacing: 0.008,
+                levels: 0,
+                rate: 0.0,
+            },
+        )
+        .expect("meshes");
+        let vol: f64 = (0..m.tets.len()).map(|t| m.signed_volume(t)).sum();
+        // Volume of the polyhedron (the icosphere is slightly inside the sphere).
+        let poly: f64 = f
+            .iter()
+            .map(|t| {
+                let [a, b, c] = t.map(|k| v[k as usize].coords);
+                a.dot(&b.cross(&c)) / 6.0
+            })
+            .sum();
+        assert!((vol - poly).abs() < 0.03 * poly, "{vol} vs {poly}");
+        let (lo, hi) = stuffing::dihedral_range(&m);
+        assert!(
+            lo > stuffing::MIN_DIHEDRAL_DEG && hi < stuffing::MAX_DIHEDRAL_DEG,
+            "{lo}..{hi}"
+        );
+    }
+
+    #[test]
+    fn inward_orientation_is_accepted() {
+        let (v, mut f) = icosphere(Point3::origin(), 0.03, 1);
+        for t in &mut f {
+            t.swap(1, 2);
+        }
+        let m = mesh_surface(
+            &v,
+            &f,
+            &SurfaceMeshing {
+                spacing: 0.01,
+                levels: 0,
+                rate: 0.0,
+            },
+        )
+        .expect("meshes");
+        assert!(!m.tets.is_empty());
+    }
+
+    #[test]
+    fn open_surface_is_rejected() {
+        let (v, mut f) = icosphere(Point3::origin(), 0.03, 1);
+        let removed = f.remove(7);
+        let err = check_surface(&v, &f).unwrap_err();
+        match err {
+            SurfaceError::OpenEdge { a, b, .. } => {
+                assert!(
+                    removed.contains(&a) && removed.contains(&b),
+                    "{a} {b} not in {removed:?}"
+                );
+            }
+            e => panic!("wrong error {e}"),
+        }
+    }
+
+    #[test]
+    fn flipped_triangle_is_rejected() {
+        let (v, mut f) = icosphere(Point3::origin(), 0.03, 1);
+        f[3].swap(0, 1);
+        assert!(matches!(
+            check_surface(&v, &f),
+            Err(SurfaceError::InconsistentOrientation { .. })
+        ));
+    }
+
+    #[test]
+    fn self_intersection_is_rejected_and_named() {
+        // Two closed spheres overlapping: each is closed and manifold, together
+        // they intersect.
+        let (v1, f1) = icosphere(Point3::origin(), 0.03, 1);
+        let (v2, f2) = icosphere(Point3::new(0.02, 0.0, 0.0), 0.03, 1);
+        let n = v1.len() as u32;
+        let v: Vec<_> = v1.into_iter().chain(v2).collect();
+        let f: Vec<_> = f1
+            .iter()
+            .copied()
+            .chain(f2.iter().map(|t| t.map(|k| k + n)))
+            .collect();
+        match check_surface(&v, &f) {
+            Err(SurfaceError::SelfIntersection { first, second }) => {
+                assert!(first < f1.len() && second >= f1.len(), "{first} {second}");
+            }
+            other => panic!("wrong result {other:?}"),
+        }
+        // Disjoint spheres are fine.
+        let (v2, _) = icosphere(Point3::new(0.1, 0.0, 0.0), 0.03, 1);
+        let v: Vec<_> = v[..n as usize].iter().copied().chain(v2).collect();
+        assert!(check_surface(&v, &f).is_ok());
+    }
+
+    #[test]
+    fn degenerate_and_bad_indices_are_rejected() {
+        let (mut v, mut f) = icosphere(Point3::origin(), 0.03, 1);
+        f[0][1] = 999;
+        assert!(matches!(
+            check_surface(&v, &f),
+            Err(SurfaceError::IndexOutOfRange {
+                triangle: 0,
+                vertex: 999,
+                ..
+            })
+        ));
+        f[0][1] = f[0][0];
+        assert!(matches!(
+            check_surface(&v, &f),
+            Err(SurfaceError::DegenerateTriangle { triangle: 0 })
+        ));
+        v[2].x = f64::NAN;
+        assert!(matches!(
+            check_surface(&v, &f),
+            Err(SurfaceError::NonFinite { vertex: 2 })
+        ));
+        assert!(matches!(check_surface(&v, &[]), Err(SurfaceError::Empty)));
+    }
+
+    #[test]
+    fn pinched_vertex_is_rejected() {
+        // Two tetrahedra surfaces sharing one vertex (index 0).
+        let v = vec![
+            Point3::new(0.0, 0.0, 0.0),
+            Point3::new(1.0, 0.0, 0.0),
+            Point3::new(0.0, 1.0, 0.0),
+            Point3::new(0.0, 0.0, 1.0),
+            Point3::new(-1.0, 0.0, 0.0),
+            Point3::new(0.0, -1.0, 0.0),
+            Point3::new(0.0, 0.0, -1.0),
+        ];
+        let tet = |a: u32, b: u32, c: u32, d: u32| vec![[a, c, b], [a, b, d], [a, d, c], [b, c, d]];
+        let mut f = tet(0, 1, 2, 3);
+        f.extend(tet(0, 4, 5, 6));
+        assert!(matches!(
+            check_surface(&v, &f),
+            Err(SurfaceError::NonManifoldVertex { vertex: 0, fans: 2 })
+        ));
+    }
+}
