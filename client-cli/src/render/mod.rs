@@ -19,6 +19,7 @@ pub mod plot;
 pub mod raster;
 pub mod text;
 pub mod ticks;
+pub mod view;
 
 use std::path::{Path, PathBuf};
 

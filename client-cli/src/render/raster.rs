@@ -101,13 +101,6 @@ impl Camera {
         aspect: f64,
         fill: f64,
     ) -> Self {
-        let centre = nalgebra::center(&lo, &hi);
-        let size = (hi - lo).norm().max(1e-12);
-        let from = if from.norm() > 0.0 { from.normalize() } else { Vector3::z() };
-        let mut cam = Camera::look_at(centre + from * size, centre, up, fov_y_deg);
-        let f = cam.focal();
-        let fill = fill.clamp(0.05, 1.0);
-        let aspect = if aspect.is_finite() && aspect > 0.0 { aspect } else { 1.0 };
         let corners: Vec<Point3<f64>> = (0..8)
             .map(|i| {
                 Point3::new(
@@ -117,6 +110,40 @@ impl Camera {
                 )
             })
             .collect();
+        Self::frame_points(&corners, from, up, fov_y_deg, aspect, fill)
+    }
+
+    /// Like [`Camera::frame_box`], fitting the given points themselves
+    /// (tighter than their bounding box). Non-finite points are ignored; no
+    /// point gives a camera on the unit box.
+    pub fn frame_points(
+        points: &[Point3<f64>],
+        from: Vector3<f64>,
+        up: Vector3<f64>,
+        fov_y_deg: f64,
+        aspect: f64,
+        fill: f64,
+    ) -> Self {
+        let mut lo = Point3::from(Vector3::repeat(f64::INFINITY));
+        let mut hi = Point3::from(Vector3::repeat(f64::NEG_INFINITY));
+        let finite = |p: &&Point3<f64>| p.coords.iter().all(|c| c.is_finite());
+        for p in points.iter().filter(finite) {
+            lo = lo.inf(p);
+            hi = hi.sup(p);
+        }
+        if lo.x > hi.x {
+            (lo, hi) = (Point3::origin(), Point3::new(1.0, 1.0, 1.0));
+        }
+        let unit_box = [lo, hi];
+        let corners: Vec<&Point3<f64>> =
+            if points.iter().any(|p| finite(&p)) { points.iter().filter(finite).collect() } else { unit_box.iter().collect() };
+        let centre = nalgebra::center(&lo, &hi);
+        let size = (hi - lo).norm().max(1e-12);
+        let from = if from.norm() > 0.0 { from.normalize() } else { Vector3::z() };
+        let mut cam = Camera::look_at(centre + from * size, centre, up, fov_y_deg);
+        let f = cam.focal();
+        let fill = fill.clamp(0.05, 1.0);
+        let aspect = if aspect.is_finite() && aspect > 0.0 { aspect } else { 1.0 };
         // Two passes: fit the distance, then re-centre the projected extents.
         for _ in 0..3 {
             let view = cam.view();
@@ -125,7 +152,7 @@ impl Camera {
             // f |a| / (aspect (d - c)) <= fill and f |b| / (d - c) <= fill.
             let t = view * cam.target;
             let mut d: f64 = 0.0;
-            for p in &corners {
+            for &p in &corners {
                 let q = view * p - t;
                 let need = q.z + (f * q.x.abs() / aspect).max(f * q.y.abs()) / fill;
                 d = d.max(need);
@@ -138,7 +165,7 @@ impl Camera {
             // projected extents, measured at the target's depth.
             let view = cam.view();
             let (mut xlo, mut xhi, mut ylo, mut yhi) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
-            for p in &corners {
+            for &p in &corners {
                 let v = view * p;
                 let w = (-v.z).max(cam.near);
                 let (xn, yn) = (f * v.x / (aspect * w), f * v.y / w);
@@ -159,10 +186,20 @@ impl Camera {
     /// [`Camera::frame_box`] from spherical angles about a z-up world:
     /// azimuth from +x towards +y, elevation above the xy plane, degrees.
     pub fn orbit_box(lo: Point3<f64>, hi: Point3<f64>, azimuth_deg: f64, elevation_deg: f64, fov_y_deg: f64, aspect: f64) -> Self {
-        let (az, el) = (azimuth_deg.to_radians(), elevation_deg.to_radians());
-        let from = Vector3::new(el.cos() * az.cos(), el.cos() * az.sin(), el.sin());
-        Self::frame_box(lo, hi, from, Vector3::z(), fov_y_deg, aspect, 0.9)
+        Self::frame_box(lo, hi, orbit_direction(azimuth_deg, elevation_deg), Vector3::z(), fov_y_deg, aspect, 0.9)
     }
+
+    /// [`Camera::frame_points`] from spherical angles about a z-up world.
+    pub fn orbit_points(points: &[Point3<f64>], azimuth_deg: f64, elevation_deg: f64, fov_y_deg: f64, aspect: f64) -> Self {
+        Self::frame_points(points, orbit_direction(azimuth_deg, elevation_deg), Vector3::z(), fov_y_deg, aspect, 0.9)
+    }
+}
+
+/// Unit vector at azimuth (from +x towards +y) and elevation (above the xy
+/// plane), degrees.
+pub fn orbit_direction(azimuth_deg: f64, elevation_deg: f64) -> Vector3<f64> {
+    let (az, el) = (azimuth_deg.to_radians(), elevation_deg.to_radians());
+    Vector3::new(el.cos() * az.cos(), el.cos() * az.sin(), el.sin())
 }
 
 /// How a mesh is coloured.
@@ -189,10 +226,16 @@ pub enum Colouring<'a> {
 pub enum Shading {
     /// One normal per triangle: facets visible.
     Flat,
-    /// Area-weighted vertex normals interpolated per pixel.
+    /// Area-weighted vertex normals interpolated per pixel, averaged only
+    /// over faces within [`CREASE_DEG`] of each other: sharp edges (a block's
+    /// corners, a groove's rim) stay sharp.
     #[default]
     Smooth,
 }
+
+/// Faces meeting at a larger angle than this (degrees) are not smoothed
+/// across their shared vertex.
+pub const CREASE_DEG: f64 = 40.0;
 
 /// Lines drawn along triangle edges.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -227,12 +270,21 @@ pub struct MeshRef<'a> {
     pub edges: Option<EdgeStyle>,
     /// Specular strength in [0, 1] (0 for matte tissue, about 0.5 for metal).
     pub specular: f64,
+    /// Drawn after all other meshes, over them (its own depth test only):
+    /// for force arrows that would otherwise hide inside the tissue.
+    pub on_top: bool,
 }
 
 impl<'a> MeshRef<'a> {
     /// A smooth-shaded, matte mesh without edge lines.
     pub fn new(positions: &'a [Point3<f64>], triangles: &'a [[u32; 3]], colouring: Colouring<'a>) -> Self {
-        Self { positions, triangles, colouring, shading: Shading::Smooth, edges: None, specular: 0.15 }
+        Self { positions, triangles, colouring, shading: Shading::Smooth, edges: None, specular: 0.15, on_top: false }
+    }
+
+    /// The same mesh drawn over all others.
+    pub fn on_top(mut self) -> Self {
+        self.on_top = true;
+        self
     }
 
     /// The same mesh with per-face normals.
@@ -377,6 +429,7 @@ impl TriMesh {
             shading: self.shading,
             edges: None,
             specular: self.specular,
+            on_top: false,
         }
     }
 }
@@ -398,8 +451,9 @@ pub struct Lighting {
     pub ambient: f64,
     /// Directional lights; the first one also makes the specular highlight.
     pub lights: Vec<Light>,
-    /// Specular exponent.
-    pub shininess: f64,
+    /// Specular exponent (an integer, so that the highlight costs a few
+    /// multiplications a pixel).
+    pub shininess: i32,
     /// Factor on the base colour of faces seen from behind, in [0, 1].
     pub back_factor: f64,
 }
@@ -409,12 +463,12 @@ impl Default for Lighting {
     /// soft ambient term.
     fn default() -> Self {
         Self {
-            ambient: 0.30,
+            ambient: 0.40,
             lights: vec![
-                Light { direction: Vector3::new(-0.45, 0.65, 0.75), intensity: 0.62 },
-                Light { direction: Vector3::new(0.7, -0.1, 0.5), intensity: 0.22 },
+                Light { direction: Vector3::new(-0.45, 0.65, 0.75), intensity: 0.52 },
+                Light { direction: Vector3::new(0.7, -0.1, 0.5), intensity: 0.20 },
             ],
-            shininess: 40.0,
+            shininess: 32,
             back_factor: 0.7,
         }
     }
@@ -432,6 +486,18 @@ pub enum Background {
         /// Colour of the bottom row.
         bottom: Rgb,
     },
+}
+
+impl Background {
+    /// Colour of output row `y` of an image `height` rows high.
+    pub fn at(&self, y: usize, height: u32) -> Rgb {
+        match *self {
+            Background::Solid(c) => c,
+            Background::Gradient { top, bottom } => {
+                super::draw::mix(top, bottom, y as f64 / (height.max(2) - 1) as f64)
+            }
+        }
+    }
 }
 
 impl Default for Background {
@@ -507,7 +573,16 @@ pub struct Renderer {
     /// 1 / w of the nearest sample so far (0 = empty).
     depth: Vec<f32>,
     verts: Vec<Vert>,
-    normals: Vec<Vector3<f64>>,
+    /// Area-weighted face normals (|n| = 2 area), view space.
+    face_normals: Vec<Vector3<f64>>,
+    /// Vertex -> incident triangles (CSR).
+    adj_start: Vec<u32>,
+    adj: Vec<u32>,
+    adj_fill: Vec<u32>,
+    /// Triangles sorted by depth: (sum of vertex depths, index).
+    order: Vec<(f32, u32)>,
+    /// Per-triangle corner normals (smooth shading).
+    corner_normals: Vec<[Vector3<f64>; 3]>,
     lut: Box<[[f32; 3]; 256]>,
     /// Lights in view space, normalised, with intensities; and the half
     /// vector of the first light.
@@ -539,7 +614,12 @@ impl Renderer {
             colour: vec![[0.0; 3]; sw * sh],
             depth: vec![0.0; sw * sh],
             verts: Vec::new(),
-            normals: Vec::new(),
+            face_normals: Vec::new(),
+            adj_start: Vec::new(),
+            adj: Vec::new(),
+            adj_fill: Vec::new(),
+            order: Vec::new(),
+            corner_normals: Vec::new(),
             lut: Box::new([[0.0; 3]; 256]),
             lights,
             half,
@@ -577,24 +657,26 @@ impl Renderer {
         self.clear();
         let view = camera.view();
         let f = camera.focal();
-        for m in meshes {
+        for m in meshes.iter().filter(|m| !m.on_top) {
             self.draw_mesh(&view, f, camera.near, m);
+        }
+        if meshes.iter().any(|m| m.on_top) {
+            self.depth.fill(0.0);
+            for m in meshes.iter().filter(|m| m.on_top) {
+                self.draw_mesh(&view, f, camera.near, m);
+            }
         }
         self.resolve(out);
         Ok(())
     }
 
     fn clear(&mut self) {
-        let sh = self.sh;
         let sw = self.sw;
-        for y in 0..sh {
-            let c = match self.opts.background {
-                Background::Solid(c) => c.map(|v| v as f32 / 255.0),
-                Background::Gradient { top, bottom } => {
-                    let t = y as f32 / (sh.max(2) - 1) as f32;
-                    [0, 1, 2].map(|i| (top[i] as f32 + (bottom[i] as f32 - top[i] as f32) * t) / 255.0)
-                }
-            };
+        let ss = sw / self.opts.width as usize;
+        for y in 0..self.sh {
+            // The gradient is constant over each output row so that images
+            // stacked or cut by rows join seamlessly.
+            let c = self.opts.background.at(y / ss, self.opts.height).map(|v| v as f32 / 255.0);
             self.colour[y * sw..(y + 1) * sw].fill(c);
         }
         self.depth.fill(0.0);
@@ -646,21 +728,7 @@ impl Renderer {
         }
         let smooth = m.shading == Shading::Smooth;
         if smooth {
-            let mut normals = std::mem::take(&mut self.normals);
-            normals.clear();
-            normals.resize(verts.len(), Vector3::zeros());
-            for t in m.triangles {
-                let [a, b, c] = t.map(|i| verts[i as usize].p);
-                // Area-weighted: |(b - a) x (c - a)| = 2 area.
-                let n = (b - a).cross(&(c - a));
-                for &i in t {
-                    normals[i as usize] += n;
-                }
-            }
-            for (v, n) in verts.iter_mut().zip(&normals) {
-                v.n = n.try_normalize(1e-300).unwrap_or_else(Vector3::zeros);
-            }
-            self.normals = normals;
+            self.corner_normals(&verts, m.triangles);
         }
         let ss = (self.sw / self.opts.width as usize).max(1) as f64;
         let lut = *self.lut;
@@ -673,8 +741,24 @@ impl Renderer {
             }),
             specular: m.specular.clamp(0.0, 1.0) as f32,
         };
-        for t in m.triangles {
-            let tri = t.map(|i| verts[i as usize]);
+        // Front to back, so that the depth test rejects hidden samples before
+        // they are shaded (a closed surface is otherwise shaded about twice).
+        let mut order = std::mem::take(&mut self.order);
+        order.clear();
+        order.extend(m.triangles.iter().enumerate().map(|(ti, t)| {
+            let w: f64 = t.iter().map(|&i| -verts[i as usize].p.z).sum();
+            (w as f32, ti as u32)
+        }));
+        order.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        for &(_, ti) in &order {
+            let ti = ti as usize;
+            let t = &m.triangles[ti];
+            let mut tri = t.map(|i| verts[i as usize]);
+            if smooth {
+                for k in 0..3 {
+                    tri[k].n = self.corner_normals[ti][k];
+                }
+            }
             let face = (tri[1].p - tri[0].p).cross(&(tri[2].p - tri[0].p));
             let Some(face_n) = face.try_normalize(1e-300) else { continue };
             // Seen from the front when the normal points towards the eye.
@@ -706,6 +790,60 @@ impl Renderer {
             }
         }
         self.verts = verts;
+        self.order = order;
+    }
+
+    /// Fills `corner_normals`: for each corner of each triangle, the sum of
+    /// the area-weighted normals of the triangles at that vertex whose unit
+    /// normal is within `CREASE_DEG` of this triangle's, normalised.
+    fn corner_normals(&mut self, verts: &[Vert], triangles: &[[u32; 3]]) {
+        let nv = verts.len();
+        self.face_normals.clear();
+        self.face_normals.extend(triangles.iter().map(|t| {
+            let [a, b, c] = t.map(|i| verts[i as usize].p);
+            (b - a).cross(&(c - a))
+        }));
+        // CSR adjacency, vertex -> triangles.
+        self.adj_start.clear();
+        self.adj_start.resize(nv + 1, 0);
+        for t in triangles {
+            for &i in t {
+                self.adj_start[i as usize + 1] += 1;
+            }
+        }
+        for i in 0..nv {
+            self.adj_start[i + 1] += self.adj_start[i];
+        }
+        self.adj.clear();
+        self.adj.resize(3 * triangles.len(), 0);
+        self.adj_fill.clear();
+        self.adj_fill.extend_from_slice(&self.adj_start[..nv]);
+        for (ti, t) in triangles.iter().enumerate() {
+            for &i in t {
+                let slot = &mut self.adj_fill[i as usize];
+                self.adj[*slot as usize] = ti as u32;
+                *slot += 1;
+            }
+        }
+        let cos_crease = CREASE_DEG.to_radians().cos();
+        self.corner_normals.clear();
+        for (ti, t) in triangles.iter().enumerate() {
+            let own = self.face_normals[ti];
+            let own_len = own.norm();
+            let corners = t.map(|v| {
+                let (a, b) = (self.adj_start[v as usize] as usize, self.adj_start[v as usize + 1] as usize);
+                let mut sum = Vector3::zeros();
+                for &f in &self.adj[a..b] {
+                    let n = self.face_normals[f as usize];
+                    // cos(angle) >= cos_crease, without normalising.
+                    if n.dot(&own) >= cos_crease * n.norm() * own_len {
+                        sum += n;
+                    }
+                }
+                sum.try_normalize(1e-300).unwrap_or_else(|| own.try_normalize(1e-300).unwrap_or_else(Vector3::z))
+            });
+            self.corner_normals.push(corners);
+        }
     }
 
     /// Rasterises one triangle (all vertices in front of the near plane).
@@ -802,8 +940,9 @@ impl Renderer {
                 for (l, k) in &self.lights {
                     diffuse += (*k * n.dot(l).max(0.0)) as f32;
                 }
-                let spec = if shade.specular > 0.0 {
-                    shade.specular * (n.dot(&self.half).max(0.0).powf(shininess)) as f32
+                let nh = n.dot(&self.half);
+                let spec = if shade.specular > 0.0 && nh > 0.5 {
+                    shade.specular * (nh as f32).powi(shininess)
                 } else {
                     0.0
                 };
