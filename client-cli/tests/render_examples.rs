@@ -5,7 +5,9 @@
 //! temporary folder), printing how long each took.
 
 use fissure_cli::render::anim::{GifOptions, save_gif};
-use fissure_cli::render::plot::{Axis, InstrumentForces, Marker, ScatterGroup, ScatterPlot, force_plot, palette};
+use fissure_cli::render::plot::{
+    Axis, InstrumentForces, Marker, ScatterGroup, ScatterPlot, force_plot, palette,
+};
 use fissure_cli::render::raster::{Camera, Colouring, EdgeStyle, MeshRef, RenderOptions, Renderer};
 use fissure_cli::render::view::{SpatulaView, SurfaceColour, ViewRenderer, ViewSpec, bounds};
 use fissure_cli::render::{Image, colormap::Colormap};
@@ -42,7 +44,10 @@ fn spatula(push: f64, force: Option<Vector3<f64>>) -> SpatulaView {
 
 /// Surface of the V valley, with the groove's +x wall pushed by up to `push`
 /// m around the spatula (a smooth synthetic bump, not a solve).
-fn valley_surface(push: f64) -> (Vec<Point3<f64>>, Vec<Point3<f64>>, Vec<[u32; 3]>) {
+/// Rest positions, moved positions and triangles of a surface.
+type Surface = (Vec<Point3<f64>>, Vec<Point3<f64>>, Vec<[u32; 3]>);
+
+fn valley_surface(push: f64) -> Surface {
     let mesh = v_valley();
     let b = mesh.boundary();
     let mut rest = Vec::new();
@@ -66,7 +71,11 @@ fn valley_surface(push: f64) -> (Vec<Point3<f64>>, Vec<Point3<f64>>, Vec<[u32; 3
 
 fn not_background_fraction(img: &Image) -> f64 {
     // The default background is a light grey-blue gradient.
-    let bg = img.pixels().iter().filter(|p| p[0] > 205 && p[2] > 215 && (p[2] as i32 - p[0] as i32) < 20).count();
+    let bg = img
+        .pixels()
+        .iter()
+        .filter(|p| p[0] > 205 && p[2] > 215 && (p[2] as i32 - p[0] as i32) < 20)
+        .count();
     1.0 - bg as f64 / img.pixels().len() as f64
 }
 
@@ -79,8 +88,13 @@ fn v_valley_with_spatula_still() {
     let mut spec = ViewSpec::new("V-valley block with a spatula in the groove");
     spec.subtitle = format!("{} surface triangles   colour: height", tris.len());
     let t = Instant::now();
-    let img = vr.render(&moved, &tris, &[spatula(0.0, None)], &spec).unwrap();
-    eprintln!("v-valley still 1000x700: {:.1} ms", t.elapsed().as_secs_f64() * 1e3);
+    let img = vr
+        .render(&moved, &tris, &[spatula(0.0, None)], &spec)
+        .unwrap();
+    eprintln!(
+        "v-valley still 1000x700: {:.1} ms",
+        t.elapsed().as_secs_f64() * 1e3
+    );
     assert_eq!((img.width(), img.height()), (1000, 700));
     img.save_png(dir.join("v_valley_spatula.png")).unwrap();
     let f = not_background_fraction(&img);
@@ -98,7 +112,9 @@ fn v_valley_pushed_open_with_force_arrow() {
     spec.azimuth_deg = -125.0;
     spec.elevation_deg = 38.0;
     let f = Vector3::new(-0.42, 0.03, 0.08);
-    let img = vr.render(&moved, &tris, &[spatula(0.004, Some(f))], &spec).unwrap();
+    let img = vr
+        .render(&moved, &tris, &[spatula(0.004, Some(f))], &spec)
+        .unwrap();
     img.save_png(dir.join("v_valley_pushed.png")).unwrap();
     assert!(not_background_fraction(&img) > 0.15);
 }
@@ -122,7 +138,15 @@ fn v_valley_opening_animation_gif() {
         spec.frame_box = Some(bounds(&rest));
         spec.force_scale = Some(0.05);
         spec.edges = false;
-        frames.push(vr.render(&moved, &tris, &[spatula(push, Some(Vector3::new(-0.4 * s, 0.0, 0.05 * s)))], &spec).unwrap());
+        frames.push(
+            vr.render(
+                &moved,
+                &tris,
+                &[spatula(push, Some(Vector3::new(-0.4 * s, 0.0, 0.05 * s)))],
+                &spec,
+            )
+            .unwrap(),
+        );
     }
     let render_ms = t.elapsed().as_secs_f64() * 1e3;
     let t = Instant::now();
@@ -135,7 +159,9 @@ fn v_valley_opening_animation_gif() {
         size / 1024
     );
     let bytes = std::fs::read(&path).unwrap();
-    let mut dec = gif::DecodeOptions::new().read_info(bytes.as_slice()).unwrap();
+    let mut dec = gif::DecodeOptions::new()
+        .read_info(bytes.as_slice())
+        .unwrap();
     assert_eq!((dec.width(), dec.height()), (480, 360));
     let mut n = 0;
     while dec.read_next_frame().unwrap().is_some() {
@@ -153,7 +179,9 @@ fn blob(nu: usize, nv: usize) -> (Vec<Point3<f64>>, Vec<[u32; 3]>) {
         let v = j as f64 / nv as f64 * std::f64::consts::PI;
         for i in 0..nu {
             let u = i as f64 / nu as f64 * std::f64::consts::TAU;
-            let ripple = 1.0 + 0.025 * (7.0 * u).sin() * (9.0 * v).sin() + 0.015 * (13.0 * u + 3.0 * v).cos();
+            let ripple = 1.0
+                + 0.025 * (7.0 * u).sin() * (9.0 * v).sin()
+                + 0.015 * (13.0 * u + 3.0 * v).cos();
             pos.push(Point3::new(
                 0.07 * ripple * v.sin() * u.cos(),
                 0.055 * ripple * v.sin() * u.sin(),
@@ -177,13 +205,20 @@ fn sixteen_thousand_triangles_at_800x600() {
     let (dir, _keep) = out_dir();
     let (pos, tris) = blob(128, 63);
     assert!(tris.len() >= 16_000, "{} triangles", tris.len());
-    let (lo, hi) = bounds(&pos);
     let opts = RenderOptions::new(800, 600);
-    let cam = Camera::orbit_box(lo, hi, -50.0, 25.0, 30.0, opts.aspect());
+    let cam = Camera::orbit_points(&pos, -50.0, 25.0, 30.0, opts.aspect());
     let mut r = Renderer::new(opts).unwrap();
     let values: Vec<f64> = pos.iter().map(|p| p.z * 1e3).collect();
-    let mesh = MeshRef::new(&pos, &tris, Colouring::Scalar { values: &values, map: Colormap::Viridis, range: (-45.0, 45.0) })
-        .with_edges(EdgeStyle::default());
+    let mesh = MeshRef::new(
+        &pos,
+        &tris,
+        Colouring::Scalar {
+            values: &values,
+            map: Colormap::Viridis,
+            range: (-45.0, 45.0),
+        },
+    )
+    .with_edges(EdgeStyle::default());
     let img = r.render(&cam, &[mesh]).unwrap();
     let runs = 5;
     let t = Instant::now();
@@ -221,13 +256,24 @@ fn force_plot_of_two_spatulas() {
         })
         .collect();
     let ins = [
-        InstrumentForces { name: "left".into(), time: time.clone(), force: left },
-        InstrumentForces { name: "right".into(), time, force: right },
+        InstrumentForces {
+            name: "left".into(),
+            time: time.clone(),
+            force: left,
+        },
+        InstrumentForces {
+            name: "right".into(),
+            time,
+            force: right,
+        },
     ];
     let plot = force_plot("Reaction forces on the spatulas", &ins, true, Some(0.5));
     let t = Instant::now();
     let img = plot.render().unwrap();
-    eprintln!("force plot 900x500, 8 series x 3000 samples: {:.1} ms", t.elapsed().as_secs_f64() * 1e3);
+    eprintln!(
+        "force plot 900x500, 8 series x 3000 samples: {:.1} ms",
+        t.elapsed().as_secs_f64() * 1e3
+    );
     // The left |F| curve at t = 2 s (about 0.48 N) is where the frame says.
     let frame = plot.frame().unwrap();
     img.save_png(dir.join("forces.png")).unwrap();
@@ -235,22 +281,55 @@ fn force_plot_of_two_spatulas() {
     let mag = (fx * fx + 0.05f64.powi(2) + 0.12f64.powi(2)).sqrt();
     let p = frame.to_px([2.0, mag]);
     let c = img.get(p[0] as u32, p[1] as u32).unwrap();
-    assert!((c[0] as i32 - 31).abs() < 40 && (c[2] as i32 - 160).abs() < 50, "{c:?}");
+    assert!(
+        (c[0] as i32 - 31).abs() < 40 && (c[2] as i32 - 160).abs() < 50,
+        "{c:?}"
+    );
 }
 
 #[test]
 fn accuracy_scatter_with_pareto_front() {
     let (dir, _keep) = out_dir();
-    let mut plot = ScatterPlot::new("Accuracy against cost per step", Axis::log("time per step (s)"), Axis::log("relative force error"));
+    let mut plot = ScatterPlot::new(
+        "Accuracy against cost per step",
+        Axis::log("time per step (s)"),
+        Axis::log("relative force error"),
+    );
     let configs = [
-        ("direct", Marker::Circle, vec![[0.35, 2e-4], [0.9, 6e-5], [2.8, 1.5e-5]]),
-        ("compliance", Marker::Square, vec![[0.004, 2.2e-4], [0.011, 6.5e-5], [0.03, 2.5e-5]]),
-        ("corotational", Marker::Diamond, vec![[0.02, 8e-5], [0.06, 2e-5], [0.2, 9e-6]]),
-        ("neo-Hookean", Marker::Triangle, vec![[0.5, 1e-5], [1.6, 3e-6]]),
+        (
+            "direct",
+            Marker::Circle,
+            vec![[0.35, 2e-4], [0.9, 6e-5], [2.8, 1.5e-5]],
+        ),
+        (
+            "compliance",
+            Marker::Square,
+            vec![[0.004, 2.2e-4], [0.011, 6.5e-5], [0.03, 2.5e-5]],
+        ),
+        (
+            "corotational",
+            Marker::Diamond,
+            vec![[0.02, 8e-5], [0.06, 2e-5], [0.2, 9e-6]],
+        ),
+        (
+            "neo-Hookean",
+            Marker::Triangle,
+            vec![[0.5, 1e-5], [1.6, 3e-6]],
+        ),
     ];
     for (i, (name, marker, pts)) in configs.into_iter().enumerate() {
-        let labels = pts.iter().enumerate().map(|(k, _)| format!("{name} h{k}")).collect();
-        plot.add(ScatterGroup { label: name.into(), points: pts, point_labels: labels, colour: palette(i), marker });
+        let labels = pts
+            .iter()
+            .enumerate()
+            .map(|(k, _)| format!("{name} h{k}"))
+            .collect();
+        plot.add(ScatterGroup {
+            label: name.into(),
+            points: pts,
+            point_labels: labels,
+            colour: palette(i),
+            marker,
+        });
     }
     let img = plot.render().unwrap();
     img.save_png(dir.join("pareto.png")).unwrap();

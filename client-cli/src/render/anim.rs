@@ -40,7 +40,12 @@ pub struct GifOptions {
 impl Default for GifOptions {
     /// 25 frames a second, looping, global palette, sampling factor 10.
     fn default() -> Self {
-        Self { delay_cs: 4, repeat: true, palette: PaletteMode::Global, quality: 10 }
+        Self {
+            delay_cs: 4,
+            repeat: true,
+            palette: PaletteMode::Global,
+            quality: 10,
+        }
     }
 }
 
@@ -55,7 +60,10 @@ struct Lookup<'q> {
 
 impl<'q> Lookup<'q> {
     fn new(quant: &'q NeuQuant) -> Self {
-        Self { quant, table: vec![u16::MAX; 1 << 18] }
+        Self {
+            quant,
+            table: vec![u16::MAX; 1 << 18],
+        }
     }
 
     fn index(&mut self, c: [u8; 3]) -> u8 {
@@ -69,9 +77,15 @@ impl<'q> Lookup<'q> {
 }
 
 fn check_frames(frames: &[Image]) -> Result<(u16, u16), RenderError> {
-    let first = frames.first().ok_or_else(|| RenderError::Anim("no frames".into()))?;
+    let first = frames
+        .first()
+        .ok_or_else(|| RenderError::Anim("no frames".into()))?;
     let (w, h) = (first.width(), first.height());
-    if let Some((i, f)) = frames.iter().enumerate().find(|(_, f)| f.width() != w || f.height() != h) {
+    if let Some((i, f)) = frames
+        .iter()
+        .enumerate()
+        .find(|(_, f)| f.width() != w || f.height() != h)
+    {
         return Err(RenderError::Anim(format!(
             "frame {i} is {} x {} px, frame 0 is {w} x {h} px",
             f.width(),
@@ -79,7 +93,9 @@ fn check_frames(frames: &[Image]) -> Result<(u16, u16), RenderError> {
         )));
     }
     let (Ok(w16), Ok(h16)) = (u16::try_from(w), u16::try_from(h)) else {
-        return Err(RenderError::Anim(format!("{w} x {h} px is too large for a GIF")));
+        return Err(RenderError::Anim(format!(
+            "{w} x {h} px is too large for a GIF"
+        )));
     };
     Ok((w16, h16))
 }
@@ -87,7 +103,10 @@ fn check_frames(frames: &[Image]) -> Result<(u16, u16), RenderError> {
 /// Encodes `frames` (all of one size) as an animated GIF in memory.
 pub fn encode_gif(frames: &[Image], opts: &GifOptions) -> Result<Vec<u8>, RenderError> {
     let (w, h) = check_frames(frames)?;
-    let gif_err = |source| RenderError::Gif { path: "<memory>".into(), source };
+    let gif_err = |source| RenderError::Gif {
+        path: "<memory>".into(),
+        source,
+    };
     let quality = opts.quality.clamp(1, 30);
     let mut out = Vec::new();
     {
@@ -117,8 +136,12 @@ pub fn encode_gif(frames: &[Image], opts: &GifOptions) -> Result<Vec<u8>, Render
             PaletteMode::PerFrame => global_palette = Vec::new(),
         }
         let mut enc = gif::Encoder::new(&mut out, w, h, &global_palette).map_err(gif_err)?;
-        enc.set_repeat(if opts.repeat { gif::Repeat::Infinite } else { gif::Repeat::Finite(0) })
-            .map_err(gif_err)?;
+        enc.set_repeat(if opts.repeat {
+            gif::Repeat::Infinite
+        } else {
+            gif::Repeat::Finite(0)
+        })
+        .map_err(gif_err)?;
         match quant {
             Some(q) => {
                 let mut lookup = Lookup::new(&q);
@@ -129,9 +152,11 @@ pub fn encode_gif(frames: &[Image], opts: &GifOptions) -> Result<Vec<u8>, Render
                     for (d, p) in cur.iter_mut().zip(f.pixels()) {
                         *d = lookup.index(*p);
                     }
-                    let mut frame = gif::Frame::default();
-                    frame.delay = opts.delay_cs;
-                    frame.dispose = gif::DisposalMethod::Keep;
+                    let mut frame = gif::Frame {
+                        delay: opts.delay_cs,
+                        dispose: gif::DisposalMethod::Keep,
+                        ..gif::Frame::default()
+                    };
                     if fi == 0 {
                         frame.width = w;
                         frame.height = h;
@@ -176,8 +201,8 @@ pub fn encode_gif(frames: &[Image], opts: &GifOptions) -> Result<Vec<u8>, Render
             }
             None => {
                 for f in frames {
-                    let mut rgb = f.to_rgb_bytes();
-                    let mut frame = gif::Frame::from_rgb_speed(w, h, &mut rgb, quality);
+                    let rgb = f.to_rgb_bytes();
+                    let mut frame = gif::Frame::from_rgb_speed(w, h, &rgb, quality);
                     frame.delay = opts.delay_cs;
                     enc.write_frame(&frame).map_err(gif_err)?;
                 }
@@ -188,13 +213,23 @@ pub fn encode_gif(frames: &[Image], opts: &GifOptions) -> Result<Vec<u8>, Render
 }
 
 /// Encodes `frames` as an animated GIF file at `path`.
-pub fn save_gif(frames: &[Image], path: impl AsRef<Path>, opts: &GifOptions) -> Result<(), RenderError> {
+pub fn save_gif(
+    frames: &[Image],
+    path: impl AsRef<Path>,
+    opts: &GifOptions,
+) -> Result<(), RenderError> {
     let path = path.as_ref();
     let bytes = encode_gif(frames, opts).map_err(|e| match e {
-        RenderError::Gif { source, .. } => RenderError::Gif { path: path.into(), source },
+        RenderError::Gif { source, .. } => RenderError::Gif {
+            path: path.into(),
+            source,
+        },
         other => other,
     })?;
-    std::fs::write(path, bytes).map_err(|source| RenderError::Io { path: path.into(), source })
+    std::fs::write(path, bytes).map_err(|source| RenderError::Io {
+        path: path.into(),
+        source,
+    })
 }
 
 #[cfg(test)]
@@ -208,7 +243,14 @@ mod tests {
             .map(|i| {
                 let mut img = Image::new(w, h, [240, 240, 240]).unwrap();
                 for y in 0..h as i64 {
-                    fill_rect(&mut img, 0, y, 30, y + 1, [(y * 255 / h as i64) as u8, 60, 120]);
+                    fill_rect(
+                        &mut img,
+                        0,
+                        y,
+                        30,
+                        y + 1,
+                        [(y * 255 / h as i64) as u8, 60, 120],
+                    );
                 }
                 let x = 40.0 + (w as f64 - 80.0) * i as f64 / n as f64;
                 disc(&mut img, [x, h as f64 / 2.0], 15.0, [200, 40, 40]);
@@ -230,7 +272,8 @@ mod tests {
                 for x in 0..f.width as usize {
                     let s = &f.buffer[4 * (y * f.width as usize + x)..][..4];
                     if s[3] > 0 {
-                        canvas[(y + f.top as usize) * w as usize + x + f.left as usize] = [s[0], s[1], s[2]];
+                        canvas[(y + f.top as usize) * w as usize + x + f.left as usize] =
+                            [s[0], s[1], s[2]];
                     }
                 }
             }
@@ -265,13 +308,21 @@ mod tests {
         }
         // Difference frames make it far smaller than 12 whole frames.
         let single = encode_gif(&src[..1], &GifOptions::default()).unwrap();
-        assert!(bytes.len() < 6 * single.len(), "{} vs {}", bytes.len(), single.len());
+        assert!(
+            bytes.len() < 6 * single.len(),
+            "{} vs {}",
+            bytes.len(),
+            single.len()
+        );
     }
 
     #[test]
     fn per_frame_palette_gif_decodes_to_the_frames() {
         let src = frames(5, 120, 80);
-        let opts = GifOptions { palette: PaletteMode::PerFrame, ..GifOptions::default() };
+        let opts = GifOptions {
+            palette: PaletteMode::PerFrame,
+            ..GifOptions::default()
+        };
         let bytes = encode_gif(&src, &opts).unwrap();
         let (w, h, dec) = decode(&bytes);
         assert_eq!((w, h, dec.len()), (120, 80, 5));
@@ -282,11 +333,21 @@ mod tests {
     #[test]
     fn identical_frames_and_bad_input() {
         let img = Image::new(20, 10, [1, 2, 3]).unwrap();
-        let bytes = encode_gif(&[img.clone(), img.clone(), img.clone()], &GifOptions::default()).unwrap();
+        let bytes = encode_gif(
+            &[img.clone(), img.clone(), img.clone()],
+            &GifOptions::default(),
+        )
+        .unwrap();
         assert_eq!(decode(&bytes).2.len(), 3);
-        assert!(matches!(encode_gif(&[], &GifOptions::default()), Err(RenderError::Anim(_))));
+        assert!(matches!(
+            encode_gif(&[], &GifOptions::default()),
+            Err(RenderError::Anim(_))
+        ));
         let other = Image::new(21, 10, [0; 3]).unwrap();
-        assert!(matches!(encode_gif(&[img, other], &GifOptions::default()), Err(RenderError::Anim(_))));
+        assert!(matches!(
+            encode_gif(&[img, other], &GifOptions::default()),
+            Err(RenderError::Anim(_))
+        ));
     }
 
     #[test]

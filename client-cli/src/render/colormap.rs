@@ -68,10 +68,13 @@ pub fn normalise(v: f64, lo: f64, hi: f64) -> f64 {
 
 /// The finite minimum and maximum of `values`, or `None` when there is none.
 pub fn finite_range(values: &[f64]) -> Option<(f64, f64)> {
-    values.iter().filter(|v| v.is_finite()).fold(None, |acc, &v| match acc {
-        None => Some((v, v)),
-        Some((lo, hi)) => Some((lo.min(v), hi.max(v))),
-    })
+    values
+        .iter()
+        .filter(|v| v.is_finite())
+        .fold(None, |acc, &v| match acc {
+            None => Some((v, v)),
+            Some((lo, hi)) => Some((lo.min(v), hi.max(v))),
+        })
 }
 
 /// The symmetric range [-m, m] with m the largest finite |value| (for
@@ -100,7 +103,12 @@ pub struct Legend {
 impl Legend {
     /// A legend of `map` over `range` titled `title`, with 14 px text.
     pub fn new(map: Colormap, range: (f64, f64), title: impl Into<String>) -> Self {
-        Self { map, range, title: title.into(), text_size: 14.0 }
+        Self {
+            map,
+            range,
+            title: title.into(),
+            text_size: 14.0,
+        }
     }
 
     /// Draws the legend with the bar at [x, x + bar_w) x [y, y + bar_h) px;
@@ -114,8 +122,14 @@ impl Legend {
         }
         stroke_rect(img, x, y, x + bar_w, y + bar_h, [90, 90, 90]);
         let target = (bar_h / 45).clamp(2, 8) as usize;
-        let (ticks, _) = if hi > lo { ticks::linear(lo, hi, target) } else { ticks::linear(hi, lo, target) };
-        let style = TextStyle::new(self.text_size).colour(ink).align(HAlign::Left, VAlign::Middle);
+        let (ticks, _) = if hi > lo {
+            ticks::linear(lo, hi, target)
+        } else {
+            ticks::linear(hi, lo, target)
+        };
+        let style = TextStyle::new(self.text_size)
+            .colour(ink)
+            .align(HAlign::Left, VAlign::Middle);
         for t in ticks {
             let f = normalise(t.value, lo, hi);
             if !(0.0..=1.0).contains(&f) {
@@ -127,7 +141,9 @@ impl Legend {
             draw_text(img, &t.label, (x + bar_w + 6) as f32, py as f32, &style);
         }
         if !self.title.is_empty() {
-            let st = TextStyle::new(self.text_size).colour(ink).align(HAlign::Left, VAlign::Bottom);
+            let st = TextStyle::new(self.text_size)
+                .colour(ink)
+                .align(HAlign::Left, VAlign::Bottom);
             draw_text(img, &self.title, x as f32, (y - 6) as f32, &st);
         }
     }
@@ -137,7 +153,10 @@ impl Legend {
         let style = TextStyle::new(self.text_size);
         let (lo, hi) = self.range;
         let (ticks, _) = ticks::linear(lo.min(hi), lo.max(hi), 6);
-        let labels = ticks.iter().map(|t| measure(&t.label, &style).width).fold(0.0, f32::max);
+        let labels = ticks
+            .iter()
+            .map(|t| measure(&t.label, &style).width)
+            .fold(0.0, f32::max);
         let title = measure(&self.title, &style).width;
         (bar_w as f32 + 6.0 + labels).max(title).ceil() as i64
     }
@@ -150,11 +169,18 @@ mod tests {
     #[test]
     fn viridis_endpoints_are_matplotlibs() {
         // matplotlib: viridis(0) = #440154, viridis(1) = #fde725.
-        let near = |a: Rgb, b: Rgb| a.iter().zip(b).all(|(x, y)| (*x as i32 - y as i32).abs() <= 2);
+        let near = |a: Rgb, b: Rgb| {
+            a.iter()
+                .zip(b)
+                .all(|(x, y)| (*x as i32 - y as i32).abs() <= 2)
+        };
         assert!(near(Colormap::Viridis.sample(0.0), [0x44, 0x01, 0x54]));
         assert!(near(Colormap::Viridis.sample(1.0), [0xfd, 0xe7, 0x25]));
         // Clamped outside [0, 1].
-        assert_eq!(Colormap::Viridis.sample(-3.0), Colormap::Viridis.sample(0.0));
+        assert_eq!(
+            Colormap::Viridis.sample(-3.0),
+            Colormap::Viridis.sample(0.0)
+        );
         assert_eq!(Colormap::Viridis.sample(7.0), Colormap::Viridis.sample(1.0));
     }
 
@@ -183,7 +209,10 @@ mod tests {
     fn nan_and_empty_ranges() {
         assert_eq!(Colormap::Viridis.map(f64::NAN, 0.0, 1.0), NAN_COLOUR);
         assert_eq!(normalise(3.0, 3.0, 3.0), 0.5);
-        assert_eq!(finite_range(&[f64::NAN, 2.0, -1.0, f64::INFINITY]), Some((-1.0, 2.0)));
+        assert_eq!(
+            finite_range(&[f64::NAN, 2.0, -1.0, f64::INFINITY]),
+            Some((-1.0, 2.0))
+        );
         assert_eq!(symmetric_range(&[-1.0, 3.0]), Some((-3.0, 3.0)));
         assert_eq!(finite_range(&[f64::NAN]), None);
     }
@@ -195,11 +224,21 @@ mod tests {
         legend.draw(&mut img, 20, 40, 20, 200);
         let top = img.get(30, 42).unwrap();
         let bottom = img.get(30, 237).unwrap();
-        let near = |a: Rgb, b: Rgb| a.iter().zip(b).all(|(x, y)| (*x as i32 - y as i32).abs() <= 8);
+        let near = |a: Rgb, b: Rgb| {
+            a.iter()
+                .zip(b)
+                .all(|(x, y)| (*x as i32 - y as i32).abs() <= 8)
+        };
         assert!(near(top, Colormap::Viridis.sample(1.0)), "top {top:?}");
-        assert!(near(bottom, Colormap::Viridis.sample(0.0)), "bottom {bottom:?}");
+        assert!(
+            near(bottom, Colormap::Viridis.sample(0.0)),
+            "bottom {bottom:?}"
+        );
         // Labels right of the bar put ink there.
-        let ink = (45..120).flat_map(|x| (40..240).map(move |y| (x, y))).filter(|&(x, y)| img.get(x, y).unwrap()[0] < 128).count();
+        let ink = (45..120)
+            .flat_map(|x| (40..240).map(move |y| (x, y)))
+            .filter(|&(x, y)| img.get(x, y).unwrap()[0] < 128)
+            .count();
         assert!(ink > 50);
     }
 }

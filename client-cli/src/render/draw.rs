@@ -61,7 +61,13 @@ struct Mask {
 impl Mask {
     fn new(img: &Image) -> Self {
         let (w, h) = (img.width() as i64, img.height() as i64);
-        Self { w, h, cov: vec![0.0; (w * h) as usize], lo: [w, h], hi: [-1, -1] }
+        Self {
+            w,
+            h,
+            cov: vec![0.0; (w * h) as usize],
+            lo: [w, h],
+            hi: [-1, -1],
+        }
     }
 
     fn segment(&mut self, a: [f64; 2], b: [f64; 2], half_width: f64) {
@@ -99,7 +105,8 @@ impl Mask {
 pub fn polyline(img: &mut Image, points: &[[f64; 2]], width: f64, colour: Rgb, dash: Option<Dash>) {
     let mut mask = Mask::new(img);
     let hw = 0.5 * width.max(0.0);
-    let finite = |p: &[f64; 2]| p[0].is_finite() && p[1].is_finite() && p[0].abs() < 1e7 && p[1].abs() < 1e7;
+    let finite =
+        |p: &[f64; 2]| p[0].is_finite() && p[1].is_finite() && p[0].abs() < 1e7 && p[1].abs() < 1e7;
     // Position in the dash pattern, px.
     let mut phase = 0.0;
     for pair in points.windows(2) {
@@ -115,8 +122,11 @@ pub fn polyline(img: &mut Image, points: &[[f64; 2]], width: f64, colour: Rgb, d
                 let mut s = 0.0;
                 while s < len {
                     let in_period = phase % period;
-                    let (drawing, left) =
-                        if in_period < on { (true, on - in_period) } else { (false, period - in_period) };
+                    let (drawing, left) = if in_period < on {
+                        (true, on - in_period)
+                    } else {
+                        (false, period - in_period)
+                    };
                     let step = left.min(len - s);
                     if drawing {
                         let t0 = s / len;
@@ -185,7 +195,10 @@ pub fn fill_polygon(img: &mut Image, pts: &[[f64; 2]], colour: Rgb) {
             let mut n = 0;
             for sy in 0..4 {
                 for sx in 0..4 {
-                    if inside(x as f64 + (sx as f64 + 0.5) / 4.0, y as f64 + (sy as f64 + 0.5) / 4.0) {
+                    if inside(
+                        x as f64 + (sx as f64 + 0.5) / 4.0,
+                        y as f64 + (sy as f64 + 0.5) / 4.0,
+                    ) {
                         n += 1;
                     }
                 }
@@ -218,7 +231,13 @@ mod tests {
     #[test]
     fn dashes_leave_gaps() {
         let mut img = Image::new(40, 5, [255; 3]).unwrap();
-        polyline(&mut img, &[[0.0, 2.5], [40.0, 2.5]], 1.0, [0; 3], Some(Dash { on: 5.0, off: 5.0 }));
+        polyline(
+            &mut img,
+            &[[0.0, 2.5], [40.0, 2.5]],
+            1.0,
+            [0; 3],
+            Some(Dash { on: 5.0, off: 5.0 }),
+        );
         assert_eq!(img.get(2, 2), Some([0; 3]));
         assert_eq!(img.get(7, 2), Some([255; 3]));
         assert_eq!(img.get(12, 2), Some([0; 3]));
@@ -227,7 +246,11 @@ mod tests {
     #[test]
     fn polygon_fills_inside_not_outside() {
         let mut img = Image::new(10, 10, [255; 3]).unwrap();
-        fill_polygon(&mut img, &[[2.0, 2.0], [8.0, 2.0], [8.0, 8.0], [2.0, 8.0]], [0; 3]);
+        fill_polygon(
+            &mut img,
+            &[[2.0, 2.0], [8.0, 2.0], [8.0, 8.0], [2.0, 8.0]],
+            [0; 3],
+        );
         assert_eq!(img.get(5, 5), Some([0; 3]));
         assert_eq!(img.get(9, 9), Some([255; 3]));
         assert_eq!(img.get(1, 5), Some([255; 3]));

@@ -33,11 +33,23 @@ pub enum RenderError {
     #[error("invalid image size {width} x {height} px (each side must be 1..=16384)")]
     BadSize { width: u32, height: u32 },
     /// A triangle refers to a vertex that does not exist.
-    #[error("mesh {mesh}: triangle {triangle} refers to vertex {vertex}, but the mesh has {vertices} vertices")]
-    IndexOutOfRange { mesh: usize, triangle: usize, vertex: u32, vertices: usize },
+    #[error(
+        "mesh {mesh}: triangle {triangle} refers to vertex {vertex}, but the mesh has {vertices} vertices"
+    )]
+    IndexOutOfRange {
+        mesh: usize,
+        triangle: usize,
+        vertex: u32,
+        vertices: usize,
+    },
     /// Per-vertex data does not match the number of vertices.
     #[error("mesh {mesh}: {what} has {got} entries for {vertices} vertices")]
-    LengthMismatch { mesh: usize, what: &'static str, got: usize, vertices: usize },
+    LengthMismatch {
+        mesh: usize,
+        what: &'static str,
+        got: usize,
+        vertices: usize,
+    },
     /// A value that must be finite is not.
     #[error("{what} is not finite")]
     NonFinite { what: String },
@@ -49,13 +61,22 @@ pub enum RenderError {
     Anim(String),
     /// Writing or encoding a PNG failed.
     #[error("cannot write PNG {path}: {source}")]
-    Png { path: PathBuf, source: png::EncodingError },
+    Png {
+        path: PathBuf,
+        source: png::EncodingError,
+    },
     /// Writing or encoding a GIF failed.
     #[error("cannot write GIF {path}: {source}")]
-    Gif { path: PathBuf, source: gif::EncodingError },
+    Gif {
+        path: PathBuf,
+        source: gif::EncodingError,
+    },
     /// Creating the output file failed.
     #[error("cannot create {path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
 }
 
 /// An RGB8 image, row-major from the top-left corner.
@@ -75,7 +96,11 @@ impl Image {
         if width == 0 || height == 0 || width > MAX_SIDE || height > MAX_SIDE {
             return Err(RenderError::BadSize { width, height });
         }
-        Ok(Self { width, height, pixels: vec![colour; width as usize * height as usize] })
+        Ok(Self {
+            width,
+            height,
+            pixels: vec![colour; width as usize * height as usize],
+        })
     }
 
     /// Width, px.
@@ -164,9 +189,14 @@ impl Image {
     /// Writes the image as an 8-bit RGB PNG file.
     pub fn save_png(&self, path: impl AsRef<Path>) -> Result<(), RenderError> {
         let path = path.as_ref();
-        let bytes =
-            self.encode_png().map_err(|source| RenderError::Png { path: path.into(), source })?;
-        std::fs::write(path, bytes).map_err(|source| RenderError::Io { path: path.into(), source })
+        let bytes = self.encode_png().map_err(|source| RenderError::Png {
+            path: path.into(),
+            source,
+        })?;
+        std::fs::write(path, bytes).map_err(|source| RenderError::Io {
+            path: path.into(),
+            source,
+        })
     }
 
     /// Copies `src` into this image with its top-left corner at (`x`, `y`),
@@ -174,7 +204,11 @@ impl Image {
     pub fn blit(&mut self, src: &Image, x: i64, y: i64) {
         for sy in 0..src.height as i64 {
             for sx in 0..src.width as i64 {
-                self.put(x + sx, y + sy, src.pixels[(sy * src.width as i64 + sx) as usize]);
+                self.put(
+                    x + sx,
+                    y + sy,
+                    src.pixels[(sy * src.width as i64 + sx) as usize],
+                );
             }
         }
     }
@@ -204,8 +238,14 @@ mod tests {
 
     #[test]
     fn bad_sizes_are_refused() {
-        assert!(matches!(Image::new(0, 5, [0; 3]), Err(RenderError::BadSize { .. })));
-        assert!(matches!(Image::new(5, MAX_SIDE + 1, [0; 3]), Err(RenderError::BadSize { .. })));
+        assert!(matches!(
+            Image::new(0, 5, [0; 3]),
+            Err(RenderError::BadSize { .. })
+        ));
+        assert!(matches!(
+            Image::new(5, MAX_SIDE + 1, [0; 3]),
+            Err(RenderError::BadSize { .. })
+        ));
     }
 
     #[test]

@@ -36,12 +36,20 @@ pub struct Axis {
 impl Axis {
     /// A linear axis with an automatic range.
     pub fn linear(title: impl Into<String>) -> Self {
-        Self { title: title.into(), scale: Scale::Linear, range: None }
+        Self {
+            title: title.into(),
+            scale: Scale::Linear,
+            range: None,
+        }
     }
 
     /// A logarithmic axis with an automatic range.
     pub fn log(title: impl Into<String>) -> Self {
-        Self { title: title.into(), scale: Scale::Log10, range: None }
+        Self {
+            title: title.into(),
+            scale: Scale::Log10,
+            range: None,
+        }
     }
 
     /// The same axis with a fixed range.
@@ -91,12 +99,22 @@ pub struct Series {
 impl Series {
     /// A solid 2 px series.
     pub fn new(label: impl Into<String>, points: Vec<[f64; 2]>, colour: Rgb) -> Self {
-        Self { label: label.into(), points, colour, width: 2.0, style: LineStyle::Solid }
+        Self {
+            label: label.into(),
+            points,
+            colour,
+            width: 2.0,
+            style: LineStyle::Solid,
+        }
     }
 
     /// The series from separate x and y samples (the shorter length wins).
     pub fn from_xy(label: impl Into<String>, x: &[f64], y: &[f64], colour: Rgb) -> Self {
-        Self::new(label, x.iter().zip(y).map(|(&a, &b)| [a, b]).collect(), colour)
+        Self::new(
+            label,
+            x.iter().zip(y).map(|(&a, &b)| [a, b]).collect(),
+            colour,
+        )
     }
 
     /// The same series with another width, px.
@@ -171,18 +189,31 @@ impl Frame {
 }
 
 /// Data range for an axis: the fixed one, or the data's widened to ticks.
-fn axis_range(axis: &Axis, values: impl Iterator<Item = f64>, which: &str) -> Result<(f64, f64), RenderError> {
+fn axis_range(
+    axis: &Axis,
+    values: impl Iterator<Item = f64>,
+    which: &str,
+) -> Result<(f64, f64), RenderError> {
     if let Some((lo, hi)) = axis.range {
-        let ok = lo.is_finite() && hi.is_finite() && hi > lo && (axis.scale == Scale::Linear || lo > 0.0);
+        let ok = lo.is_finite()
+            && hi.is_finite()
+            && hi > lo
+            && (axis.scale == Scale::Linear || lo > 0.0);
         if !ok {
-            return Err(RenderError::Plot(format!("{which} axis range ({lo}, {hi}) cannot be shown")));
+            return Err(RenderError::Plot(format!(
+                "{which} axis range ({lo}, {hi}) cannot be shown"
+            )));
         }
         return Ok((lo, hi));
     }
-    let usable: Vec<f64> = values.filter(|v| v.is_finite() && (axis.scale == Scale::Linear || *v > 0.0)).collect();
+    let usable: Vec<f64> = values
+        .filter(|v| v.is_finite() && (axis.scale == Scale::Linear || *v > 0.0))
+        .collect();
     let (lo, hi) = usable
         .iter()
-        .fold(None, |acc: Option<(f64, f64)>, &v| Some(acc.map_or((v, v), |(a, b)| (a.min(v), b.max(v)))))
+        .fold(None, |acc: Option<(f64, f64)>, &v| {
+            Some(acc.map_or((v, v), |(a, b)| (a.min(v), b.max(v))))
+        })
         .ok_or_else(|| RenderError::Plot(format!("no {which} value can be shown")))?;
     Ok(match axis.scale {
         Scale::Linear => ticks::nice_range(lo, hi, 6),
@@ -245,7 +276,10 @@ impl Canvas {
         let tick_style = TextStyle::new(TICK_SIZE);
         let x_ticks = axis_ticks(x.scale, x_range, (width / 110).clamp(3, 10) as usize);
         let y_ticks = axis_ticks(y.scale, y_range, (height / 70).clamp(3, 10) as usize);
-        let label_w = y_ticks.iter().map(|t| measure(&t.label, &tick_style).width).fold(0.0, f32::max);
+        let label_w = y_ticks
+            .iter()
+            .map(|t| measure(&t.label, &tick_style).width)
+            .fold(0.0, f32::max);
         let line_h = measure("0", &tick_style);
         let line_h = line_h.ascent + line_h.descent;
         let axis_h = {
@@ -263,16 +297,49 @@ impl Canvas {
             .filter(|e| !e.label.is_empty())
             .map(|e| measure(&e.label, &TextStyle::new(LEGEND_SIZE)).width + 44.0)
             .fold(0.0f32, f32::max);
-        let left = (12.0 + if y.title.is_empty() { 0.0 } else { axis_h + 10.0 } + label_w + 10.0).ceil() as i64;
-        let right = if legend_w > 0.0 { (legend_w + 28.0) as i64 } else { 24 };
-        let bottom = (8.0 + line_h + 10.0 + if x.title.is_empty() { 0.0 } else { axis_h + 10.0 }).ceil() as i64;
+        let left = (12.0
+            + if y.title.is_empty() {
+                0.0
+            } else {
+                axis_h + 10.0
+            }
+            + label_w
+            + 10.0)
+            .ceil() as i64;
+        let right = if legend_w > 0.0 {
+            (legend_w + 28.0) as i64
+        } else {
+            24
+        };
+        let bottom = (8.0
+            + line_h
+            + 10.0
+            + if x.title.is_empty() {
+                0.0
+            } else {
+                axis_h + 10.0
+            })
+        .ceil() as i64;
         let top = title_h.ceil() as i64;
         let area = [left, top, width as i64 - right, height as i64 - bottom];
         if area[2] - area[0] < 40 || area[3] - area[1] < 40 {
-            return Err(RenderError::Plot(format!("image {width} x {height} px is too small for the plot")));
+            return Err(RenderError::Plot(format!(
+                "image {width} x {height} px is too small for the plot"
+            )));
         }
-        let frame = Frame { area, x_range, y_range, x_scale: x.scale, y_scale: y.scale };
-        let mut c = Self { img, frame, x_ticks, y_ticks };
+        let frame = Frame {
+            area,
+            x_range,
+            y_range,
+            x_scale: x.scale,
+            y_scale: y.scale,
+        };
+        let mut c = Self {
+            img,
+            frame,
+            x_ticks,
+            y_ticks,
+        };
         c.decorate(title, x, y, legend);
         Ok(c)
     }
@@ -284,12 +351,20 @@ impl Canvas {
         let img = &mut self.img;
         for tk in &self.x_ticks {
             let px = self.frame.to_px([tk.value, self.frame.y_range.0])[0].round() as i64;
-            let colour = if tk.label.is_empty() { GRID_MINOR } else { GRID };
+            let colour = if tk.label.is_empty() {
+                GRID_MINOR
+            } else {
+                GRID
+            };
             fill_rect(img, px, t, px + 1, b, colour);
         }
         for tk in &self.y_ticks {
             let py = self.frame.to_px([self.frame.x_range.0, tk.value])[1].round() as i64;
-            let colour = if tk.label.is_empty() { GRID_MINOR } else { GRID };
+            let colour = if tk.label.is_empty() {
+                GRID_MINOR
+            } else {
+                GRID
+            };
             fill_rect(img, l, py, r, py + 1, colour);
         }
         let tick_style = TextStyle::new(TICK_SIZE).colour(INK);
@@ -314,31 +389,66 @@ impl Canvas {
         let axis_style = TextStyle::new(AXIS_TITLE_SIZE).colour(INK);
         if !x.title.is_empty() {
             let st = axis_style.align(HAlign::Center, VAlign::Bottom);
-            draw_text(img, &x.title, 0.5 * (l + r) as f32, img.height() as f32 - 8.0, &st);
+            draw_text(
+                img,
+                &x.title,
+                0.5 * (l + r) as f32,
+                img.height() as f32 - 8.0,
+                &st,
+            );
         }
         if !y.title.is_empty() {
             let st = axis_style.align(HAlign::Center, VAlign::Top);
             draw_text_vertical(img, &y.title, 10.0, 0.5 * (t + b) as f32, &st);
         }
         if !title.is_empty() {
-            let st = TextStyle::new(TITLE_SIZE).bold().colour([25, 25, 25]).align(HAlign::Center, VAlign::Top);
+            let st = TextStyle::new(TITLE_SIZE)
+                .bold()
+                .colour([25, 25, 25])
+                .align(HAlign::Center, VAlign::Top);
             draw_text(img, title, 0.5 * (l + r) as f32, 10.0, &st);
         }
         // Legend right of the plot area, top-aligned.
         let entries: Vec<&LegendEntry> = legend.iter().filter(|e| !e.label.is_empty()).collect();
         if !entries.is_empty() {
-            let st = TextStyle::new(LEGEND_SIZE).colour(INK).align(HAlign::Left, VAlign::Middle);
+            let st = TextStyle::new(LEGEND_SIZE)
+                .colour(INK)
+                .align(HAlign::Left, VAlign::Middle);
             let row = 21.0;
             let lx = r as f64 + 14.0;
-            let w = entries.iter().map(|e| measure(&e.label, &st).width).fold(0.0f32, f32::max) as f64 + 44.0;
+            let w = entries
+                .iter()
+                .map(|e| measure(&e.label, &st).width)
+                .fold(0.0f32, f32::max) as f64
+                + 44.0;
             let h = row * entries.len() as f64 + 10.0;
-            fill_rect(img, lx as i64, t, (lx + w) as i64, t + h as i64, [250, 250, 251]);
-            stroke_rect(img, lx as i64, t, (lx + w) as i64, t + h as i64, [205, 208, 214]);
+            fill_rect(
+                img,
+                lx as i64,
+                t,
+                (lx + w) as i64,
+                t + h as i64,
+                [250, 250, 251],
+            );
+            stroke_rect(
+                img,
+                lx as i64,
+                t,
+                (lx + w) as i64,
+                t + h as i64,
+                [205, 208, 214],
+            );
             for (k, e) in entries.iter().enumerate() {
                 let cy = t as f64 + 5.0 + row * (k as f64 + 0.5);
                 match e.swatch {
                     Swatch::Line(style, width) => {
-                        polyline(img, &[[lx + 8.0, cy], [lx + 32.0, cy]], width.max(1.5), e.colour, style.dash());
+                        polyline(
+                            img,
+                            &[[lx + 8.0, cy], [lx + 32.0, cy]],
+                            width.max(1.5),
+                            e.colour,
+                            style.dash(),
+                        );
                     }
                     Swatch::Marker(m) => m.draw(img, [lx + 20.0, cy], 4.5, e.colour),
                 }
@@ -351,7 +461,8 @@ impl Canvas {
     /// be put back with [`Canvas::finish`].
     fn area_image(&self) -> Image {
         let [l, t, r, b] = self.frame.area;
-        let mut sub = Image::new((r - l) as u32, (b - t) as u32, [255; 3]).unwrap_or_else(|_| self.img.clone());
+        let mut sub = Image::new((r - l) as u32, (b - t) as u32, [255; 3])
+            .unwrap_or_else(|_| self.img.clone());
         for y in 0..sub.height() as i64 {
             for x in 0..sub.width() as i64 {
                 if let Some(p) = self.img.get((l + x) as u32, (t + y) as u32) {
@@ -365,7 +476,10 @@ impl Canvas {
     /// Frame for drawing into the area image (its origin at the area's corner).
     fn local_frame(&self) -> Frame {
         let [l, t, r, b] = self.frame.area;
-        Frame { area: [0, 0, r - l, b - t], ..self.frame }
+        Frame {
+            area: [0, 0, r - l, b - t],
+            ..self.frame
+        }
     }
 
     fn finish(mut self, area: Image) -> Image {
@@ -398,7 +512,15 @@ pub struct LinePlot {
 impl LinePlot {
     /// An empty 900 x 500 px plot.
     pub fn new(title: impl Into<String>, x: Axis, y: Axis) -> Self {
-        Self { title: title.into(), x, y, series: Vec::new(), hlines: Vec::new(), width: 900, height: 500 }
+        Self {
+            title: title.into(),
+            x,
+            y,
+            series: Vec::new(),
+            hlines: Vec::new(),
+            width: 900,
+            height: 500,
+        }
     }
 
     /// Adds a curve.
@@ -409,14 +531,22 @@ impl LinePlot {
 
     /// Adds a dashed horizontal line at `y` (a threshold).
     pub fn threshold(&mut self, y: f64, label: impl Into<String>, colour: Rgb) -> &mut Self {
-        self.hlines.push(HLine { y, label: label.into(), colour });
+        self.hlines.push(HLine {
+            y,
+            label: label.into(),
+            colour,
+        });
         self
     }
 
     fn legend(&self) -> Vec<LegendEntry> {
         self.series
             .iter()
-            .map(|s| LegendEntry { label: s.label.clone(), colour: s.colour, swatch: Swatch::Line(s.style, s.width) })
+            .map(|s| LegendEntry {
+                label: s.label.clone(),
+                colour: s.colour,
+                swatch: Swatch::Line(s.style, s.width),
+            })
             .collect()
     }
 
@@ -426,11 +556,27 @@ impl LinePlot {
     }
 
     fn canvas(&self) -> Result<Canvas, RenderError> {
-        let xs = self.series.iter().flat_map(|s| s.points.iter().map(|p| p[0]));
-        let ys = self.series.iter().flat_map(|s| s.points.iter().map(|p| p[1])).chain(self.hlines.iter().map(|h| h.y));
+        let xs = self
+            .series
+            .iter()
+            .flat_map(|s| s.points.iter().map(|p| p[0]));
+        let ys = self
+            .series
+            .iter()
+            .flat_map(|s| s.points.iter().map(|p| p[1]))
+            .chain(self.hlines.iter().map(|h| h.y));
         let xr = axis_range(&self.x, xs, "x")?;
         let yr = axis_range(&self.y, ys, "y")?;
-        Canvas::new(self.width, self.height, &self.title, &self.x, &self.y, xr, yr, &self.legend())
+        Canvas::new(
+            self.width,
+            self.height,
+            &self.title,
+            &self.x,
+            &self.y,
+            xr,
+            yr,
+            &self.legend(),
+        )
     }
 
     /// Draws the plot.
@@ -444,9 +590,17 @@ impl LinePlot {
                 continue;
             }
             let aw = area.width() as f64;
-            polyline(&mut area, &[[0.0, py], [aw, py]], 1.6, h.colour, LineStyle::Dashed.dash());
+            polyline(
+                &mut area,
+                &[[0.0, py], [aw, py]],
+                1.6,
+                h.colour,
+                LineStyle::Dashed.dash(),
+            );
             if !h.label.is_empty() {
-                let st = TextStyle::new(12.0).colour(h.colour).align(HAlign::Right, VAlign::Bottom);
+                let st = TextStyle::new(12.0)
+                    .colour(h.colour)
+                    .align(HAlign::Right, VAlign::Bottom);
                 draw_text(&mut area, &h.label, aw as f32 - 6.0, py as f32 - 3.0, &st);
             }
         }
@@ -477,12 +631,27 @@ pub struct InstrumentForces {
 /// The force plot of a run: for each instrument |F| (thick) and, when
 /// `components`, Fx, Fy, Fz (thin; instrument i uses palette colours 4i..);
 /// an optional safety threshold (N) as a dashed red line.
-pub fn force_plot(title: &str, instruments: &[InstrumentForces], components: bool, threshold: Option<f64>) -> LinePlot {
+pub fn force_plot(
+    title: &str,
+    instruments: &[InstrumentForces],
+    components: bool,
+    threshold: Option<f64>,
+) -> LinePlot {
     let mut plot = LinePlot::new(title, Axis::linear("time (s)"), Axis::linear("force (N)"));
     // Per instrument: a base colour for |F| and three for the components.
     const SETS: [[Rgb; 4]; 2] = [
-        [[31, 87, 160], [94, 153, 221], [38, 160, 140], [150, 110, 200]],
-        [[200, 82, 20], [240, 150, 70], [190, 150, 30], [200, 90, 140]],
+        [
+            [31, 87, 160],
+            [94, 153, 221],
+            [38, 160, 140],
+            [150, 110, 200],
+        ],
+        [
+            [200, 82, 20],
+            [240, 150, 70],
+            [190, 150, 30],
+            [200, 90, 140],
+        ],
     ];
     for (i, ins) in instruments.iter().enumerate() {
         let set = SETS[i % 2];
@@ -490,20 +659,31 @@ pub fn force_plot(title: &str, instruments: &[InstrumentForces], components: boo
         let mag: Vec<[f64; 2]> = (0..n)
             .map(|k| {
                 let f = ins.force[k];
-                [ins.time[k], (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt()]
+                [
+                    ins.time[k],
+                    (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt(),
+                ]
             })
             .collect();
         if components {
             for (c, name) in ["Fx", "Fy", "Fz"].iter().enumerate() {
                 let pts = (0..n).map(|k| [ins.time[k], ins.force[k][c]]).collect();
                 let style = [LineStyle::Solid, LineStyle::Dashed, LineStyle::Dotted][c];
-                plot.add(Series::new(format!("{} {name}", ins.name), pts, set[c + 1]).width(1.3).style(style));
+                plot.add(
+                    Series::new(format!("{} {name}", ins.name), pts, set[c + 1])
+                        .width(1.3)
+                        .style(style),
+                );
             }
         }
         plot.add(Series::new(format!("{} |F|", ins.name), mag, set[0]).width(2.4));
     }
     if let Some(t) = threshold {
-        plot.threshold(t, format!("limit {} N", ticks::format_value(t, t.abs() / 10.0)), [200, 30, 30]);
+        plot.threshold(
+            t,
+            format!("limit {} N", ticks::format_value(t, t.abs() / 10.0)),
+            [200, 30, 30],
+        );
     }
     plot
 }
@@ -533,15 +713,29 @@ impl Marker {
                 Marker::Circle => Vec::new(),
                 Marker::Square => {
                     let h = r * 0.85;
-                    vec![[c[0] - h, c[1] - h], [c[0] + h, c[1] - h], [c[0] + h, c[1] + h], [c[0] - h, c[1] + h]]
+                    vec![
+                        [c[0] - h, c[1] - h],
+                        [c[0] + h, c[1] - h],
+                        [c[0] + h, c[1] + h],
+                        [c[0] - h, c[1] + h],
+                    ]
                 }
                 Marker::Diamond => {
                     let h = r * 1.2;
-                    vec![[c[0], c[1] - h], [c[0] + h, c[1]], [c[0], c[1] + h], [c[0] - h, c[1]]]
+                    vec![
+                        [c[0], c[1] - h],
+                        [c[0] + h, c[1]],
+                        [c[0], c[1] + h],
+                        [c[0] - h, c[1]],
+                    ]
                 }
                 Marker::Triangle => {
                     let h = r * 1.25;
-                    vec![[c[0], c[1] - h], [c[0] + h * 0.95, c[1] + h * 0.65], [c[0] - h * 0.95, c[1] + h * 0.65]]
+                    vec![
+                        [c[0], c[1] - h],
+                        [c[0] + h * 0.95, c[1] + h * 0.65],
+                        [c[0] - h * 0.95, c[1] + h * 0.65],
+                    ]
                 }
             }
         };
@@ -595,9 +789,15 @@ pub struct ScatterPlot {
 /// sorted by increasing x. Non-finite points are ignored; of identical points
 /// the first is kept.
 pub fn pareto_front(points: &[[f64; 2]]) -> Vec<usize> {
-    let mut idx: Vec<usize> =
-        (0..points.len()).filter(|&i| points[i][0].is_finite() && points[i][1].is_finite()).collect();
-    idx.sort_by(|&a, &b| points[a][0].total_cmp(&points[b][0]).then(points[a][1].total_cmp(&points[b][1])).then(a.cmp(&b)));
+    let mut idx: Vec<usize> = (0..points.len())
+        .filter(|&i| points[i][0].is_finite() && points[i][1].is_finite())
+        .collect();
+    idx.sort_by(|&a, &b| {
+        points[a][0]
+            .total_cmp(&points[b][0])
+            .then(points[a][1].total_cmp(&points[b][1]))
+            .then(a.cmp(&b))
+    });
     let mut front = Vec::new();
     let mut best_y = f64::INFINITY;
     for i in idx {
@@ -612,7 +812,15 @@ pub fn pareto_front(points: &[[f64; 2]]) -> Vec<usize> {
 impl ScatterPlot {
     /// An empty 800 x 560 px scatter plot with the Pareto front shown.
     pub fn new(title: impl Into<String>, x: Axis, y: Axis) -> Self {
-        Self { title: title.into(), x, y, groups: Vec::new(), pareto: true, width: 800, height: 560 }
+        Self {
+            title: title.into(),
+            x,
+            y,
+            groups: Vec::new(),
+            pareto: true,
+            width: 800,
+            height: 560,
+        }
     }
 
     /// Adds a group.
@@ -622,14 +830,24 @@ impl ScatterPlot {
     }
 
     fn canvas(&self) -> Result<Canvas, RenderError> {
-        let xs = self.groups.iter().flat_map(|g| g.points.iter().map(|p| p[0]));
-        let ys = self.groups.iter().flat_map(|g| g.points.iter().map(|p| p[1]));
+        let xs = self
+            .groups
+            .iter()
+            .flat_map(|g| g.points.iter().map(|p| p[0]));
+        let ys = self
+            .groups
+            .iter()
+            .flat_map(|g| g.points.iter().map(|p| p[1]));
         let xr = axis_range(&self.x, xs, "x")?;
         let yr = axis_range(&self.y, ys, "y")?;
         let mut legend: Vec<LegendEntry> = self
             .groups
             .iter()
-            .map(|g| LegendEntry { label: g.label.clone(), colour: g.colour, swatch: Swatch::Marker(g.marker) })
+            .map(|g| LegendEntry {
+                label: g.label.clone(),
+                colour: g.colour,
+                swatch: Swatch::Marker(g.marker),
+            })
             .collect();
         if self.pareto {
             legend.push(LegendEntry {
@@ -638,7 +856,16 @@ impl ScatterPlot {
                 swatch: Swatch::Line(LineStyle::Dashed, 1.5),
             });
         }
-        Canvas::new(self.width, self.height, &self.title, &self.x, &self.y, xr, yr, &legend)
+        Canvas::new(
+            self.width,
+            self.height,
+            &self.title,
+            &self.x,
+            &self.y,
+            xr,
+            yr,
+            &legend,
+        )
     }
 
     /// The frame the plot will use.
@@ -659,8 +886,11 @@ impl ScatterPlot {
             .flat_map(|(gi, g)| g.points.iter().enumerate().map(move |(pi, &p)| (gi, pi, p)))
             .filter(|(_, _, p)| f.to_px(*p).iter().all(|v| v.is_finite()))
             .collect();
-        let front: Vec<usize> =
-            if self.pareto { pareto_front(&all.iter().map(|a| a.2).collect::<Vec<_>>()) } else { Vec::new() };
+        let front: Vec<usize> = if self.pareto {
+            pareto_front(&all.iter().map(|a| a.2).collect::<Vec<_>>())
+        } else {
+            Vec::new()
+        };
         if front.len() > 1 {
             let mut stair = Vec::with_capacity(2 * front.len());
             for (k, &i) in front.iter().enumerate() {
@@ -671,7 +901,13 @@ impl ScatterPlot {
                 }
                 stair.push(f.to_px(p));
             }
-            polyline(&mut area, &stair, 1.5, [40, 40, 40], LineStyle::Dashed.dash());
+            polyline(
+                &mut area,
+                &stair,
+                1.5,
+                [40, 40, 40],
+                LineStyle::Dashed.dash(),
+            );
         }
         for g in &self.groups {
             for &p in &g.points {
@@ -688,9 +924,21 @@ impl ScatterPlot {
                 ring.push([c[0] + 8.0 * a.cos(), c[1] + 8.0 * a.sin()]);
             }
             polyline(&mut area, &ring, 1.4, [40, 40, 40], None);
-            if let Some(label) = self.groups[gi].point_labels.get(pi).filter(|l| !l.is_empty()) {
-                let st = TextStyle::new(12.0).colour([40, 40, 40]).align(HAlign::Left, VAlign::Bottom);
-                draw_text(&mut area, label, (c[0] + 9.0) as f32, (c[1] - 6.0) as f32, &st);
+            if let Some(label) = self.groups[gi]
+                .point_labels
+                .get(pi)
+                .filter(|l| !l.is_empty())
+            {
+                let st = TextStyle::new(12.0)
+                    .colour([40, 40, 40])
+                    .align(HAlign::Left, VAlign::Bottom);
+                draw_text(
+                    &mut area,
+                    label,
+                    (c[0] + 9.0) as f32,
+                    (c[1] - 6.0) as f32,
+                    &st,
+                );
             }
         }
         Ok(canvas.finish(area))
@@ -707,22 +955,36 @@ mod tests {
     use super::*;
 
     fn is_colour(img: &Image, x: f64, y: f64, c: Rgb, tol: i32) -> bool {
-        img.get(x as u32, y as u32).is_some_and(|p| p.iter().zip(c).all(|(a, b)| (*a as i32 - b as i32).abs() <= tol))
+        img.get(x as u32, y as u32).is_some_and(|p| {
+            p.iter()
+                .zip(c)
+                .all(|(a, b)| (*a as i32 - b as i32).abs() <= tol)
+        })
     }
 
     #[test]
     fn a_known_line_lands_on_the_expected_pixels() {
         let red = [220, 20, 20];
-        let mut plot = LinePlot::new("y = 2x", Axis::linear("x").with_range(0.0, 1.0), Axis::linear("y").with_range(0.0, 2.0));
+        let mut plot = LinePlot::new(
+            "y = 2x",
+            Axis::linear("x").with_range(0.0, 1.0),
+            Axis::linear("y").with_range(0.0, 2.0),
+        );
         plot.add(Series::new("2x", vec![[0.0, 0.0], [1.0, 2.0]], red).width(3.0));
         let frame = plot.frame().unwrap();
         let img = plot.render().unwrap();
         for t in [0.2, 0.5, 0.8] {
             let p = frame.to_px([t, 2.0 * t]);
-            assert!(is_colour(&img, p[0], p[1], red, 10), "curve missing at x = {t}");
+            assert!(
+                is_colour(&img, p[0], p[1], red, 10),
+                "curve missing at x = {t}"
+            );
             // Well off the line: background (white or grid).
             let q = frame.to_px([t, 2.0 * t + 0.4]);
-            assert!(!is_colour(&img, q[0], q[1], red, 60), "ink off the curve at x = {t}");
+            assert!(
+                !is_colour(&img, q[0], q[1], red, 60),
+                "ink off the curve at x = {t}"
+            );
         }
         // The frame maps corners of the range to the corners of the area.
         let [l, t, r, b] = frame.area.map(|v| v as f64);
@@ -732,22 +994,35 @@ mod tests {
 
     #[test]
     fn threshold_line_is_dashed_at_its_value() {
-        let mut plot = LinePlot::new("", Axis::linear("t (s)").with_range(0.0, 1.0), Axis::linear("F (N)").with_range(0.0, 1.0));
+        let mut plot = LinePlot::new(
+            "",
+            Axis::linear("t (s)").with_range(0.0, 1.0),
+            Axis::linear("F (N)").with_range(0.0, 1.0),
+        );
         plot.add(Series::new("", vec![[0.0, 0.1], [1.0, 0.1]], [0, 0, 255]));
         plot.threshold(0.5, "", [200, 30, 30]);
         let frame = plot.frame().unwrap();
         let img = plot.render().unwrap();
         let y = frame.to_px([0.0, 0.5])[1];
         let [l, _, r, _] = frame.area;
-        let on = (l..r).filter(|&x| is_colour(&img, x as f64, y, [200, 30, 30], 40)).count();
+        let on = (l..r)
+            .filter(|&x| is_colour(&img, x as f64, y, [200, 30, 30], 40))
+            .count();
         let span = (r - l) as usize;
-        assert!(on > span / 3 && on < span * 9 / 10, "dashed coverage {on} of {span}");
+        assert!(
+            on > span / 3 && on < span * 9 / 10,
+            "dashed coverage {on} of {span}"
+        );
     }
 
     #[test]
     fn out_of_range_data_is_clipped_to_the_area() {
         let blue = [0, 0, 255];
-        let mut plot = LinePlot::new("", Axis::linear("x").with_range(0.0, 1.0), Axis::linear("y").with_range(0.0, 1.0));
+        let mut plot = LinePlot::new(
+            "",
+            Axis::linear("x").with_range(0.0, 1.0),
+            Axis::linear("y").with_range(0.0, 1.0),
+        );
         plot.add(Series::new("", vec![[-1.0, 0.5], [2.0, 0.5]], blue).width(4.0));
         let frame = plot.frame().unwrap();
         let img = plot.render().unwrap();
@@ -758,7 +1033,15 @@ mod tests {
 
     #[test]
     fn pareto_front_of_known_points() {
-        let pts = [[1.0, 5.0], [2.0, 3.0], [3.0, 4.0], [4.0, 1.0], [5.0, 1.0], [0.5, 9.0], [f64::NAN, 0.0]];
+        let pts = [
+            [1.0, 5.0],
+            [2.0, 3.0],
+            [3.0, 4.0],
+            [4.0, 1.0],
+            [5.0, 1.0],
+            [0.5, 9.0],
+            [f64::NAN, 0.0],
+        ];
         assert_eq!(pareto_front(&pts), vec![5, 0, 1, 3]);
         assert!(pareto_front(&[]).is_empty());
     }

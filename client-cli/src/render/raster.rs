@@ -14,6 +14,9 @@
 //! space; attributes (colour or scalar, normal) are interpolated perspective
 //! correctly with weights `b_i / w_i`. The image is rendered at `s x s` times
 //! the output resolution (supersampling, default s = 2) and box-filtered down.
+//! Each mesh's triangles are set up once, sorted front to back (so hidden
+//! samples fail the depth test before shading), then rasterised in parallel
+//! over bands of 16 sample rows (rayon).
 //!
 //! **Shading.** Per pixel: `c = base (ambient + sum_k I_k max(0, n . l_k))
 //! + spec max(0, n . h)^shininess`, with lights fixed in the view frame (so a
@@ -29,6 +32,7 @@
 use super::colormap::Colormap;
 use super::{Image, RenderError, Rgb};
 use nalgebra::{Isometry3, Point3, UnitQuaternion, Vector3};
+use rayon::prelude::*;
 
 /// A pinhole camera.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -48,16 +52,29 @@ pub struct Camera {
 impl Camera {
     /// A camera at `eye` looking at `target`, with the near plane at a
     /// thousandth of their distance.
-    pub fn look_at(eye: Point3<f64>, target: Point3<f64>, up: Vector3<f64>, fov_y_deg: f64) -> Self {
+    pub fn look_at(
+        eye: Point3<f64>,
+        target: Point3<f64>,
+        up: Vector3<f64>,
+        fov_y_deg: f64,
+    ) -> Self {
         let near = ((eye - target).norm() * 1e-3).max(1e-9);
-        Self { eye, target, up, fov_y_deg, near }
+        Self {
+            eye,
+            target,
+            up,
+            fov_y_deg,
+            near,
+        }
     }
 
     /// The world-to-view isometry (camera at the origin looking along -z).
     pub fn view(&self) -> Isometry3<f64> {
         let dir = self.target - self.eye;
         // Fall back to another up vector when `up` is parallel to the view.
-        let up = if dir.cross(&self.up).norm_squared() > 1e-20 * dir.norm_squared() * self.up.norm_squared() {
+        let up = if dir.cross(&self.up).norm_squared()
+            > 1e-20 * dir.norm_squared() * self.up.norm_squared()
+        {
             self.up
         } else if dir.cross(&Vector3::y()).norm_squared() > 1e-12 * dir.norm_squared() {
             Vector3::y()
@@ -78,13 +95,16 @@ impl Camera {
     pub fn project(&self, p: &Point3<f64>, width: u32, height: u32) -> Option<[f64; 2]> {
         let v = self.view() * p;
         let w = -v.z;
-        if !(w >= self.near) {
+        if w.is_nan() || w < self.near {
             return None;
         }
         let f = self.focal();
         let aspect = width as f64 / height as f64;
         let (xn, yn) = (f * v.x / (aspect * w), f * v.y / w);
-        Some([(xn + 1.0) * 0.5 * width as f64, (1.0 - yn) * 0.5 * height as f64])
+        Some([
+            (xn + 1.0) * 0.5 * width as f64,
+            (1.0 - yn) * 0.5 * height as f64,
+        ])
     }
 
     /// A camera that looks at the box [`lo`, `hi`] from direction `from`
@@ -135,15 +155,26 @@ impl Camera {
             (lo, hi) = (Point3::origin(), Point3::new(1.0, 1.0, 1.0));
         }
         let unit_box = [lo, hi];
-        let corners: Vec<&Point3<f64>> =
-            if points.iter().any(|p| finite(&p)) { points.iter().filter(finite).collect() } else { unit_box.iter().collect() };
+        let corners: Vec<&Point3<f64>> = if points.iter().any(|p| finite(&p)) {
+            points.iter().filter(finite).collect()
+        } else {
+            unit_box.iter().collect()
+        };
         let centre = nalgebra::center(&lo, &hi);
         let size = (hi - lo).norm().max(1e-12);
-        let from = if from.norm() > 0.0 { from.normalize() } else { Vector3::z() };
+        let from = if from.norm() > 0.0 {
+            from.normalize()
+        } else {
+            Vector3::z()
+        };
         let mut cam = Camera::look_at(centre + from * size, centre, up, fov_y_deg);
         let f = cam.focal();
         let fill = fill.clamp(0.05, 1.0);
-        let aspect = if aspect.is_finite() && aspect > 0.0 { aspect } else { 1.0 };
+        let aspect = if aspect.is_finite() && aspect > 0.0 {
+            aspect
+        } else {
+            1.0
+        };
         // Two passes: fit the distance, then re-centre the projected extents.
         for _ in 0..3 {
             let view = cam.view();
@@ -185,13 +216,41 @@ impl Camera {
 
     /// [`Camera::frame_box`] from spherical angles about a z-up world:
     /// azimuth from +x towards +y, elevation above the xy plane, degrees.
-    pub fn orbit_box(lo: Point3<f64>, hi: Point3<f64>, azimuth_deg: f64, elevation_deg: f64, fov_y_deg: f64, aspect: f64) -> Self {
-        Self::frame_box(lo, hi, orbit_direction(azimuth_deg, elevation_deg), Vector3::z(), fov_y_deg, aspect, 0.9)
+    pub fn orbit_box(
+        lo: Point3<f64>,
+        hi: Point3<f64>,
+        azimuth_deg: f64,
+        elevation_deg: f64,
+        fov_y_deg: f64,
+        aspect: f64,
+    ) -> Self {
+        Self::frame_box(
+            lo,
+            hi,
+            orbit_direction(azimuth_deg, elevation_deg),
+            Vector3::z(),
+            fov_y_deg,
+            aspect,
+            0.9,
+        )
     }
 
     /// [`Camera::frame_points`] from spherical angles about a z-up world.
-    pub fn orbit_points(points: &[Point3<f64>], azimuth_deg: f64, elevation_deg: f64, fov_y_deg: f64, aspect: f64) -> Self {
-        Self::frame_points(points, orbit_direction(azimuth_deg, elevation_deg), Vector3::z(), fov_y_deg, aspect, 0.9)
+    pub fn orbit_points(
+        points: &[Point3<f64>],
+        azimuth_deg: f64,
+        elevation_deg: f64,
+        fov_y_deg: f64,
+        aspect: f64,
+    ) -> Self {
+        Self::frame_points(
+            points,
+            orbit_direction(azimuth_deg, elevation_deg),
+            Vector3::z(),
+            fov_y_deg,
+            aspect,
+            0.9,
+        )
     }
 }
 
@@ -251,7 +310,11 @@ pub struct EdgeStyle {
 
 impl Default for EdgeStyle {
     fn default() -> Self {
-        Self { colour: [20, 20, 20], width: 0.5, opacity: 0.35 }
+        Self {
+            colour: [20, 20, 20],
+            width: 0.5,
+            opacity: 0.35,
+        }
     }
 }
 
@@ -277,8 +340,20 @@ pub struct MeshRef<'a> {
 
 impl<'a> MeshRef<'a> {
     /// A smooth-shaded, matte mesh without edge lines.
-    pub fn new(positions: &'a [Point3<f64>], triangles: &'a [[u32; 3]], colouring: Colouring<'a>) -> Self {
-        Self { positions, triangles, colouring, shading: Shading::Smooth, edges: None, specular: 0.15, on_top: false }
+    pub fn new(
+        positions: &'a [Point3<f64>],
+        triangles: &'a [[u32; 3]],
+        colouring: Colouring<'a>,
+    ) -> Self {
+        Self {
+            positions,
+            triangles,
+            colouring,
+            shading: Shading::Smooth,
+            edges: None,
+            specular: 0.15,
+            on_top: false,
+        }
     }
 
     /// The same mesh drawn over all others.
@@ -339,14 +414,26 @@ impl TriMesh {
             .collect();
         // Corner i has bit 0 = +x, bit 1 = +y, bit 2 = +z.
         let triangles = vec![
-            [0, 2, 3], [0, 3, 1], // -z
-            [4, 5, 7], [4, 7, 6], // +z
-            [0, 1, 5], [0, 5, 4], // -y
-            [2, 6, 7], [2, 7, 3], // +y
-            [0, 4, 6], [0, 6, 2], // -x
-            [1, 3, 7], [1, 7, 5], // +x
+            [0, 2, 3],
+            [0, 3, 1], // -z
+            [4, 5, 7],
+            [4, 7, 6], // +z
+            [0, 1, 5],
+            [0, 5, 4], // -y
+            [2, 6, 7],
+            [2, 7, 3], // +y
+            [0, 4, 6],
+            [0, 6, 2], // -x
+            [1, 3, 7],
+            [1, 7, 5], // +x
         ];
-        Self { positions, triangles, colour, shading: Shading::Flat, specular: 0.5 }
+        Self {
+            positions,
+            triangles,
+            colour,
+            shading: Shading::Flat,
+            specular: 0.5,
+        }
     }
 
     /// An arrow from `origin` along `vector` (its tip at `origin + vector`):
@@ -356,14 +443,26 @@ impl TriMesh {
     /// `vector = s F`.
     pub fn arrow(origin: Point3<f64>, vector: Vector3<f64>, radius: f64, colour: Rgb) -> Self {
         const SEG: u32 = 20;
-        let mut m = Self { positions: Vec::new(), triangles: Vec::new(), colour, shading: Shading::Smooth, specular: 0.35 };
+        let mut m = Self {
+            positions: Vec::new(),
+            triangles: Vec::new(),
+            colour,
+            shading: Shading::Smooth,
+            specular: 0.35,
+        };
         let len = vector.norm();
-        if !(len.is_finite() && len > 0.0 && radius.is_finite() && radius > 0.0) || !origin.coords.iter().all(|c| c.is_finite()) {
+        let usable = len.is_finite()
+            && len > 0.0
+            && radius.is_finite()
+            && radius > 0.0
+            && origin.coords.iter().all(|c| c.is_finite());
+        if !usable {
             return m;
         }
         let axis = vector / len;
-        let rot = UnitQuaternion::rotation_between(&Vector3::z(), &axis)
-            .unwrap_or_else(|| UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI));
+        let rot = UnitQuaternion::rotation_between(&Vector3::z(), &axis).unwrap_or_else(|| {
+            UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI)
+        });
         let pose = Isometry3::from_parts(origin.coords.into(), rot);
         let head_len = (8.0 * radius).min(0.4 * len);
         let shaft_len = len - head_len;
@@ -417,7 +516,8 @@ impl TriMesh {
     pub fn append(&mut self, other: &TriMesh) {
         let base = self.positions.len() as u32;
         self.positions.extend_from_slice(&other.positions);
-        self.triangles.extend(other.triangles.iter().map(|t| t.map(|i| i + base)));
+        self.triangles
+            .extend(other.triangles.iter().map(|t| t.map(|i| i + base)));
     }
 
     /// A view of this mesh for [`Renderer::render`].
@@ -463,10 +563,16 @@ impl Default for Lighting {
     /// soft ambient term.
     fn default() -> Self {
         Self {
-            ambient: 0.40,
+            ambient: 0.46,
             lights: vec![
-                Light { direction: Vector3::new(-0.45, 0.65, 0.75), intensity: 0.52 },
-                Light { direction: Vector3::new(0.7, -0.1, 0.5), intensity: 0.20 },
+                Light {
+                    direction: Vector3::new(-0.45, 0.65, 0.75),
+                    intensity: 0.48,
+                },
+                Light {
+                    direction: Vector3::new(0.7, -0.1, 0.5),
+                    intensity: 0.18,
+                },
             ],
             shininess: 32,
             back_factor: 0.7,
@@ -502,7 +608,10 @@ impl Background {
 
 impl Default for Background {
     fn default() -> Self {
-        Background::Gradient { top: [250, 251, 253], bottom: [214, 220, 228] }
+        Background::Gradient {
+            top: [250, 251, 253],
+            bottom: [214, 220, 228],
+        }
     }
 }
 
@@ -525,7 +634,13 @@ impl RenderOptions {
     /// `width` x `height` with 2 x 2 supersampling, the default background
     /// and lighting.
     pub fn new(width: u32, height: u32) -> Self {
-        Self { width, height, supersample: 2, background: Background::default(), lighting: Lighting::default() }
+        Self {
+            width,
+            height,
+            supersample: 2,
+            background: Background::default(),
+            lighting: Lighting::default(),
+        }
     }
 
     /// Aspect ratio width / height.
@@ -581,6 +696,8 @@ pub struct Renderer {
     adj_fill: Vec<u32>,
     /// Triangles sorted by depth: (sum of vertex depths, index).
     order: Vec<(f32, u32)>,
+    /// Triangles of the current mesh set up for rasterisation.
+    queue: Vec<Setup>,
     /// Per-triangle corner normals (smooth shading).
     corner_normals: Vec<[Vector3<f64>; 3]>,
     lut: Box<[[f32; 3]; 256]>,
@@ -596,8 +713,15 @@ impl Renderer {
         let ss = opts.supersample.clamp(1, 4);
         let sw = opts.width as u64 * ss as u64;
         let sh = opts.height as u64 * ss as u64;
-        if opts.width == 0 || opts.height == 0 || sw > super::MAX_SIDE as u64 * 2 || sh > super::MAX_SIDE as u64 * 2 {
-            return Err(RenderError::BadSize { width: opts.width, height: opts.height });
+        if opts.width == 0
+            || opts.height == 0
+            || sw > super::MAX_SIDE as u64 * 2
+            || sh > super::MAX_SIDE as u64 * 2
+        {
+            return Err(RenderError::BadSize {
+                width: opts.width,
+                height: opts.height,
+            });
         }
         let (sw, sh) = (sw as usize, sh as usize);
         let lights: Vec<(Vector3<f64>, f64)> = opts
@@ -607,7 +731,10 @@ impl Renderer {
             .filter(|l| l.direction.norm() > 0.0 && l.direction.iter().all(|c| c.is_finite()))
             .map(|l| (l.direction.normalize(), l.intensity))
             .collect();
-        let half = lights.first().map(|(d, _)| (d + Vector3::z()).normalize()).unwrap_or(Vector3::z());
+        let half = lights
+            .first()
+            .map(|(d, _)| (d + Vector3::z()).normalize())
+            .unwrap_or(Vector3::z());
         Ok(Self {
             sw,
             sh,
@@ -619,6 +746,7 @@ impl Renderer {
             adj: Vec::new(),
             adj_fill: Vec::new(),
             order: Vec::new(),
+            queue: Vec::new(),
             corner_normals: Vec::new(),
             lut: Box::new([[0.0; 3]; 256]),
             lights,
@@ -633,7 +761,11 @@ impl Renderer {
     }
 
     /// Renders `meshes` seen by `camera` into a new image.
-    pub fn render(&mut self, camera: &Camera, meshes: &[MeshRef<'_>]) -> Result<Image, RenderError> {
+    pub fn render(
+        &mut self,
+        camera: &Camera,
+        meshes: &[MeshRef<'_>],
+    ) -> Result<Image, RenderError> {
         let mut img = Image::new(self.opts.width, self.opts.height, [0; 3])?;
         self.render_into(camera, meshes, &mut img)?;
         Ok(img)
@@ -642,17 +774,32 @@ impl Renderer {
     /// Renders into `out`, which must have the options' size. Checks every
     /// mesh first (indices, lengths, finiteness) and draws nothing when one
     /// is bad.
-    pub fn render_into(&mut self, camera: &Camera, meshes: &[MeshRef<'_>], out: &mut Image) -> Result<(), RenderError> {
+    pub fn render_into(
+        &mut self,
+        camera: &Camera,
+        meshes: &[MeshRef<'_>],
+        out: &mut Image,
+    ) -> Result<(), RenderError> {
         if out.width() != self.opts.width || out.height() != self.opts.height {
-            return Err(RenderError::BadSize { width: out.width(), height: out.height() });
+            return Err(RenderError::BadSize {
+                width: out.width(),
+                height: out.height(),
+            });
         }
         for (mi, m) in meshes.iter().enumerate() {
             validate(mi, m)?;
         }
-        if !(camera.eye.coords.iter().chain(camera.target.coords.iter()).all(|c| c.is_finite()))
+        if !(camera
+            .eye
+            .coords
+            .iter()
+            .chain(camera.target.coords.iter())
+            .all(|c| c.is_finite()))
             || camera.eye == camera.target
         {
-            return Err(RenderError::NonFinite { what: "camera eye/target (or they coincide)".into() });
+            return Err(RenderError::NonFinite {
+                what: "camera eye/target (or they coincide)".into(),
+            });
         }
         self.clear();
         let view = camera.view();
@@ -676,7 +823,11 @@ impl Renderer {
         for y in 0..self.sh {
             // The gradient is constant over each output row so that images
             // stacked or cut by rows join seamlessly.
-            let c = self.opts.background.at(y / ss, self.opts.height).map(|v| v as f32 / 255.0);
+            let c = self
+                .opts
+                .background
+                .at(y / ss, self.opts.height)
+                .map(|v| v as f32 / 255.0);
             self.colour[y * sw..(y + 1) * sw].fill(c);
         }
         self.depth.fill(0.0);
@@ -721,10 +872,22 @@ impl Renderer {
                 Colouring::PerVertex(cs) => cs[i].map(|v| v as f32 / 255.0),
                 Colouring::Scalar { values, .. } => {
                     let t = super::colormap::normalise(values[i], range.0, range.1);
-                    [if t.is_nan() { f32::NAN } else { t.clamp(0.0, 1.0) as f32 }, 0.0, 0.0]
+                    [
+                        if t.is_nan() {
+                            f32::NAN
+                        } else {
+                            t.clamp(0.0, 1.0) as f32
+                        },
+                        0.0,
+                        0.0,
+                    ]
                 }
             };
-            verts.push(Vert { p: (view * p).coords, attr, n: Vector3::zeros() });
+            verts.push(Vert {
+                p: (view * p).coords,
+                attr,
+                n: Vector3::zeros(),
+            });
         }
         let smooth = m.shading == Shading::Smooth;
         if smooth {
@@ -737,7 +900,11 @@ impl Renderer {
             lut: &lut,
             smooth,
             edges: m.edges.map(|e| {
-                (e.width.max(0.0) * ss, e.colour.map(|v| v as f32 / 255.0), e.opacity.clamp(0.0, 1.0) as f32)
+                (
+                    e.width.max(0.0) * ss,
+                    e.colour.map(|v| v as f32 / 255.0),
+                    e.opacity.clamp(0.0, 1.0) as f32,
+                )
             }),
             specular: m.specular.clamp(0.0, 1.0) as f32,
         };
@@ -760,13 +927,15 @@ impl Renderer {
                 }
             }
             let face = (tri[1].p - tri[0].p).cross(&(tri[2].p - tri[0].p));
-            let Some(face_n) = face.try_normalize(1e-300) else { continue };
+            let Some(face_n) = face.try_normalize(1e-300) else {
+                continue;
+            };
             // Seen from the front when the normal points towards the eye.
             let centroid = (tri[0].p + tri[1].p + tri[2].p) / 3.0;
             let back = face_n.dot(&-centroid) < 0.0;
             let inside = tri.map(|v| -v.p.z >= near);
             if inside.iter().all(|&b| b) {
-                self.raster(&tri, &face_n, back, f, &shade);
+                self.raster(&tri, &face_n, back, f);
             } else if inside.iter().any(|&b| b) {
                 // Clip the polygon against the near plane w = near.
                 let mut poly: [Vert; 4] = [tri[0]; 4];
@@ -785,10 +954,11 @@ impl Renderer {
                     }
                 }
                 for k in 1..n.saturating_sub(1) {
-                    self.raster(&[poly[0], poly[k], poly[k + 1]], &face_n, back, f, &shade);
+                    self.raster(&[poly[0], poly[k], poly[k + 1]], &face_n, back, f);
                 }
             }
         }
+        self.raster_queued(&shade);
         self.verts = verts;
         self.order = order;
     }
@@ -831,7 +1001,10 @@ impl Renderer {
             let own = self.face_normals[ti];
             let own_len = own.norm();
             let corners = t.map(|v| {
-                let (a, b) = (self.adj_start[v as usize] as usize, self.adj_start[v as usize + 1] as usize);
+                let (a, b) = (
+                    self.adj_start[v as usize] as usize,
+                    self.adj_start[v as usize + 1] as usize,
+                );
                 let mut sum = Vector3::zeros();
                 for &f in &self.adj[a..b] {
                     let n = self.face_normals[f as usize];
@@ -840,14 +1013,16 @@ impl Renderer {
                         sum += n;
                     }
                 }
-                sum.try_normalize(1e-300).unwrap_or_else(|| own.try_normalize(1e-300).unwrap_or_else(Vector3::z))
+                sum.try_normalize(1e-300)
+                    .unwrap_or_else(|| own.try_normalize(1e-300).unwrap_or_else(Vector3::z))
             });
             self.corner_normals.push(corners);
         }
     }
 
-    /// Rasterises one triangle (all vertices in front of the near plane).
-    fn raster(&mut self, tri: &[Vert; 3], face_n: &Vector3<f64>, back: bool, f: f64, shade: &MeshShade<'_>) {
+    /// Projects one triangle (all vertices in front of the near plane) and
+    /// queues its screen-space setup for [`Renderer::raster_queued`].
+    fn raster(&mut self, tri: &[Vert; 3], face_n: &Vector3<f64>, back: bool, f: f64) {
         let (sw, sh) = (self.sw as f64, self.sh as f64);
         let aspect = self.opts.aspect();
         let mut s = [[0.0f64; 2]; 3];
@@ -858,23 +1033,51 @@ impl Renderer {
             let (xn, yn) = (f * tri[k].p.x / (aspect * w), f * tri[k].p.y / w);
             s[k] = [(xn + 1.0) * 0.5 * sw, (1.0 - yn) * 0.5 * sh];
         }
-        let edge = |a: [f64; 2], b: [f64; 2], p: [f64; 2]| (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0]);
+        let edge = |a: [f64; 2], b: [f64; 2], p: [f64; 2]| {
+            (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0])
+        };
         let area = edge(s[0], s[1], s[2]);
-        if !(area.abs() > 1e-12) {
+        if area.is_nan() || area.abs() <= 1e-12 {
             return;
         }
         // Order so that the area is positive.
         let (o, s, inv_w) = if area > 0.0 {
             ([0, 1, 2], s, inv_w)
         } else {
-            ([0, 2, 1], [s[0], s[2], s[1]], [inv_w[0], inv_w[2], inv_w[1]])
+            (
+                [0, 2, 1],
+                [s[0], s[2], s[1]],
+                [inv_w[0], inv_w[2], inv_w[1]],
+            )
         };
         let area = area.abs();
         let v = [tri[o[0]], tri[o[1]], tri[o[2]]];
-        let x0 = s.iter().map(|p| p[0]).fold(f64::MAX, f64::min).floor().max(0.0) as usize;
-        let x1 = (s.iter().map(|p| p[0]).fold(f64::MIN, f64::max).ceil().min(sw) as usize).min(self.sw);
-        let y0 = s.iter().map(|p| p[1]).fold(f64::MAX, f64::min).floor().max(0.0) as usize;
-        let y1 = (s.iter().map(|p| p[1]).fold(f64::MIN, f64::max).ceil().min(sh) as usize).min(self.sh);
+        let x0 = s
+            .iter()
+            .map(|p| p[0])
+            .fold(f64::MAX, f64::min)
+            .floor()
+            .max(0.0) as usize;
+        let x1 = (s
+            .iter()
+            .map(|p| p[0])
+            .fold(f64::MIN, f64::max)
+            .ceil()
+            .min(sw) as usize)
+            .min(self.sw);
+        let y0 = s
+            .iter()
+            .map(|p| p[1])
+            .fold(f64::MAX, f64::min)
+            .floor()
+            .max(0.0) as usize;
+        let y1 = (s
+            .iter()
+            .map(|p| p[1])
+            .fold(f64::MIN, f64::max)
+            .ceil()
+            .min(sh) as usize)
+            .min(self.sh);
         if x0 >= x1 || y0 >= y1 {
             return;
         }
@@ -890,99 +1093,218 @@ impl Renderer {
         let inv_len = e.map(|(a, b)| 1.0 / ((b[0] - a[0]).hypot(b[1] - a[1])).max(1e-300));
         // Face normal as lit: flipped towards the viewer when seen from behind.
         let fn_lit = if back { -face_n } else { *face_n };
-        let base_k = if back { self.opts.lighting.back_factor as f32 } else { 1.0 };
-        let ambient = self.opts.lighting.ambient as f32;
-        let shininess = self.opts.lighting.shininess;
-        for y in y0..y1 {
-            let py = y as f64 + 0.5;
-            let row = y * self.sw;
-            for x in x0..x1 {
-                let px = x as f64 + 0.5;
-                let w = coef.map(|(a, b, c)| a * px + b * py + c);
-                if !(0..3).all(|i| w[i] > 0.0 || (w[i] == 0.0 && owns_zero[i])) {
-                    continue;
-                }
-                let b = [w[0] / area, w[1] / area, w[2] / area];
-                let iw = b[0] * inv_w[0] + b[1] * inv_w[1] + b[2] * inv_w[2];
-                let idx = row + x;
-                let d = iw as f32;
-                if d <= self.depth[idx] {
-                    continue;
-                }
-                self.depth[idx] = d;
-                // Perspective-correct weights.
-                let pc = [b[0] * inv_w[0] / iw, b[1] * inv_w[1] / iw, b[2] * inv_w[2] / iw];
-                let pcf = pc.map(|v| v as f32);
-                let mut base = if shade.scalar {
-                    let t = pcf[0] * v[0].attr[0] + pcf[1] * v[1].attr[0] + pcf[2] * v[2].attr[0];
-                    if t.is_nan() {
-                        super::colormap::NAN_COLOUR.map(|c| c as f32 / 255.0)
-                    } else {
-                        shade.lut[(t.clamp(0.0, 1.0) * 255.0).round() as usize]
-                    }
-                } else {
-                    [0, 1, 2].map(|c| pcf[0] * v[0].attr[c] + pcf[1] * v[1].attr[c] + pcf[2] * v[2].attr[c])
-                };
-                let n = if shade.smooth {
-                    let n = v[0].n * pc[0] + v[1].n * pc[1] + v[2].n * pc[2];
-                    match n.try_normalize(1e-300) {
-                        // Keep the interpolated normal on the viewer's side of the face.
-                        Some(n) => {
-                            let n = if back { -n } else { n };
-                            if n.dot(&fn_lit) < 0.0 { fn_lit } else { n }
-                        }
-                        None => fn_lit,
-                    }
-                } else {
-                    fn_lit
-                };
-                let mut diffuse = ambient;
-                for (l, k) in &self.lights {
-                    diffuse += (*k * n.dot(l).max(0.0)) as f32;
-                }
-                let nh = n.dot(&self.half);
-                let spec = if shade.specular > 0.0 && nh > 0.5 {
-                    shade.specular * (nh as f32).powi(shininess)
-                } else {
-                    0.0
-                };
-                for c in &mut base {
-                    *c = (*c * base_k * diffuse + spec).min(1.0);
-                }
-                if let Some((width, ecol, opacity)) = shade.edges {
-                    let dist = (0..3).map(|i| w[i] * inv_len[i]).fold(f64::MAX, f64::min);
-                    if dist < width + 0.5 {
-                        let a = opacity * ((width + 0.5 - dist).min(1.0) as f32);
-                        for c in 0..3 {
-                            base[c] += (ecol[c] - base[c]) * a;
-                        }
+        self.queue.push(Setup {
+            v,
+            inv_w,
+            area,
+            coef,
+            owns_zero,
+            inv_len,
+            bbox: [x0, x1, y0, y1],
+            fn_lit,
+            back,
+        });
+    }
+
+    /// Rasterises the queued triangles of one mesh, in parallel over bands of
+    /// rows (each band keeps the queue's front-to-back order).
+    fn raster_queued(&mut self, shade: &MeshShade<'_>) {
+        const BAND: usize = 16;
+        let queue = std::mem::take(&mut self.queue);
+        let ctx = Ctx {
+            sw: self.sw,
+            lights: &self.lights,
+            half: self.half,
+            ambient: self.opts.lighting.ambient as f32,
+            back_factor: self.opts.lighting.back_factor as f32,
+            shininess: self.opts.lighting.shininess,
+        };
+        let sw = self.sw;
+        self.colour
+            .par_chunks_mut(BAND * sw)
+            .zip(self.depth.par_chunks_mut(BAND * sw))
+            .enumerate()
+            .for_each(|(bi, (colour, depth))| {
+                let (ya, yb) = (bi * BAND, bi * BAND + depth.len() / sw);
+                for t in &queue {
+                    if t.bbox[2] < yb && t.bbox[3] > ya {
+                        raster_rows(&ctx, t, shade, colour, depth, ya, yb);
                     }
                 }
-                self.colour[idx] = base;
+            });
+        self.queue = queue;
+        self.queue.clear();
+    }
+}
+
+/// A triangle set up in screen space (supersampled pixels).
+#[derive(Debug, Clone, Copy)]
+struct Setup {
+    v: [Vert; 3],
+    inv_w: [f64; 3],
+    area: f64,
+    /// Edge functions w_i = A_i x + B_i y + C_i, edge i opposite vertex i.
+    coef: [(f64, f64, f64); 3],
+    owns_zero: [bool; 3],
+    inv_len: [f64; 3],
+    /// x0, x1, y0, y1 (half-open).
+    bbox: [usize; 4],
+    fn_lit: Vector3<f64>,
+    back: bool,
+}
+
+/// Constants of the pixel loop shared by all triangles.
+struct Ctx<'a> {
+    sw: usize,
+    lights: &'a [(Vector3<f64>, f64)],
+    half: Vector3<f64>,
+    ambient: f32,
+    back_factor: f32,
+    shininess: i32,
+}
+
+/// Rasterises rows [ya, yb) of triangle `t` into a band whose first row is
+/// `ya`.
+fn raster_rows(
+    ctx: &Ctx<'_>,
+    t: &Setup,
+    shade: &MeshShade<'_>,
+    colour: &mut [[f32; 3]],
+    depth: &mut [f32],
+    ya: usize,
+    yb: usize,
+) {
+    let Setup {
+        v,
+        inv_w,
+        area,
+        coef,
+        owns_zero,
+        inv_len,
+        bbox,
+        fn_lit,
+        back,
+    } = *t;
+    let [x0, x1, y0, y1] = bbox;
+    let base_k = if back { ctx.back_factor } else { 1.0 };
+    let (ambient, shininess) = (ctx.ambient, ctx.shininess);
+    let inv_area = 1.0 / area;
+    for y in y0.max(ya)..y1.min(yb) {
+        let py = y as f64 + 0.5;
+        let row = (y - ya) * ctx.sw;
+        for x in x0..x1 {
+            let px = x as f64 + 0.5;
+            let w = coef.map(|(a, b, c)| a * px + b * py + c);
+            if !(0..3).all(|i| w[i] > 0.0 || (w[i] == 0.0 && owns_zero[i])) {
+                continue;
             }
+            let b = [w[0] * inv_area, w[1] * inv_area, w[2] * inv_area];
+            let iw = b[0] * inv_w[0] + b[1] * inv_w[1] + b[2] * inv_w[2];
+            let idx = row + x;
+            let d = iw as f32;
+            if d <= depth[idx] {
+                continue;
+            }
+            depth[idx] = d;
+            // Perspective-correct weights.
+            let r = 1.0 / iw;
+            let pc = [
+                b[0] * inv_w[0] * r,
+                b[1] * inv_w[1] * r,
+                b[2] * inv_w[2] * r,
+            ];
+            let pcf = pc.map(|v| v as f32);
+            let mut base = if shade.scalar {
+                let t = pcf[0] * v[0].attr[0] + pcf[1] * v[1].attr[0] + pcf[2] * v[2].attr[0];
+                if t.is_nan() {
+                    super::colormap::NAN_COLOUR.map(|c| c as f32 / 255.0)
+                } else {
+                    shade.lut[(t.clamp(0.0, 1.0) * 255.0).round() as usize]
+                }
+            } else {
+                [0, 1, 2]
+                    .map(|c| pcf[0] * v[0].attr[c] + pcf[1] * v[1].attr[c] + pcf[2] * v[2].attr[c])
+            };
+            let n = if shade.smooth {
+                let n = v[0].n * pc[0] + v[1].n * pc[1] + v[2].n * pc[2];
+                match n.try_normalize(1e-300) {
+                    // Keep the interpolated normal on the viewer's side of the face.
+                    Some(n) => {
+                        let n = if back { -n } else { n };
+                        if n.dot(&fn_lit) < 0.0 { fn_lit } else { n }
+                    }
+                    None => fn_lit,
+                }
+            } else {
+                fn_lit
+            };
+            let mut diffuse = ambient;
+            for (l, k) in ctx.lights {
+                diffuse += (*k * n.dot(l).max(0.0)) as f32;
+            }
+            let nh = n.dot(&ctx.half);
+            let spec = if shade.specular > 0.0 && nh > 0.5 {
+                shade.specular * (nh as f32).powi(shininess)
+            } else {
+                0.0
+            };
+            for c in &mut base {
+                *c = (*c * base_k * diffuse + spec).min(1.0);
+            }
+            if let Some((width, ecol, opacity)) = shade.edges {
+                let dist = (0..3).map(|i| w[i] * inv_len[i]).fold(f64::MAX, f64::min);
+                if dist < width + 0.5 {
+                    let a = opacity * ((width + 0.5 - dist).min(1.0) as f32);
+                    for c in 0..3 {
+                        base[c] += (ecol[c] - base[c]) * a;
+                    }
+                }
+            }
+            colour[idx] = base;
         }
     }
 }
 
 fn validate(mi: usize, m: &MeshRef<'_>) -> Result<(), RenderError> {
     let nv = m.positions.len();
-    if let Some(i) = m.positions.iter().position(|p| !p.coords.iter().all(|c| c.is_finite())) {
-        return Err(RenderError::NonFinite { what: format!("mesh {mi}: vertex {i}") });
+    if let Some(i) = m
+        .positions
+        .iter()
+        .position(|p| !p.coords.iter().all(|c| c.is_finite()))
+    {
+        return Err(RenderError::NonFinite {
+            what: format!("mesh {mi}: vertex {i}"),
+        });
     }
     for (ti, t) in m.triangles.iter().enumerate() {
         if let Some(&vertex) = t.iter().find(|&&i| i as usize >= nv) {
-            return Err(RenderError::IndexOutOfRange { mesh: mi, triangle: ti, vertex, vertices: nv });
+            return Err(RenderError::IndexOutOfRange {
+                mesh: mi,
+                triangle: ti,
+                vertex,
+                vertices: nv,
+            });
         }
     }
     match m.colouring {
-        Colouring::PerVertex(c) if c.len() != nv => {
-            Err(RenderError::LengthMismatch { mesh: mi, what: "per-vertex colours", got: c.len(), vertices: nv })
-        }
+        Colouring::PerVertex(c) if c.len() != nv => Err(RenderError::LengthMismatch {
+            mesh: mi,
+            what: "per-vertex colours",
+            got: c.len(),
+            vertices: nv,
+        }),
         Colouring::Scalar { values, .. } if values.len() != nv => {
-            Err(RenderError::LengthMismatch { mesh: mi, what: "scalar values", got: values.len(), vertices: nv })
+            Err(RenderError::LengthMismatch {
+                mesh: mi,
+                what: "scalar values",
+                got: values.len(),
+                vertices: nv,
+            })
         }
         Colouring::Scalar { range, .. } if !(range.0.is_finite() && range.1.is_finite()) => {
-            Err(RenderError::NonFinite { what: format!("mesh {mi}: colour range") })
+            Err(RenderError::NonFinite {
+                what: format!("mesh {mi}: colour range"),
+            })
         }
         _ => Ok(()),
     }
@@ -995,12 +1317,21 @@ mod tests {
     const BG: Rgb = [10, 20, 30];
 
     fn opts(w: u32, h: u32, ss: u32) -> RenderOptions {
-        RenderOptions { supersample: ss, background: Background::Solid(BG), ..RenderOptions::new(w, h) }
+        RenderOptions {
+            supersample: ss,
+            background: Background::Solid(BG),
+            ..RenderOptions::new(w, h)
+        }
     }
 
     /// Camera on +z looking at the origin.
     fn front_camera() -> Camera {
-        Camera::look_at(Point3::new(0.0, 0.0, 10.0), Point3::origin(), Vector3::y(), 30.0)
+        Camera::look_at(
+            Point3::new(0.0, 0.0, 10.0),
+            Point3::origin(),
+            Vector3::y(),
+            30.0,
+        )
     }
 
     fn quad(z: f64, half: f64) -> (Vec<Point3<f64>>, Vec<[u32; 3]>) {
@@ -1023,19 +1354,39 @@ mod tests {
     fn a_triangle_covers_its_projection_and_nothing_else() {
         let (w, h) = (200, 150);
         let cam = front_camera();
-        let pos = [Point3::new(-1.0, -1.0, 0.0), Point3::new(1.5, -0.8, 0.0), Point3::new(0.2, 1.2, 0.0)];
+        let pos = [
+            Point3::new(-1.0, -1.0, 0.0),
+            Point3::new(1.5, -0.8, 0.0),
+            Point3::new(0.2, 1.2, 0.0),
+        ];
         let tri = [[0u32, 1, 2]];
         let mut r = Renderer::new(opts(w, h, 1)).unwrap();
-        let img = r.render(&cam, &[MeshRef::new(&pos, &tri, Colouring::Uniform([200, 200, 200]))]).unwrap();
+        let img = r
+            .render(
+                &cam,
+                &[MeshRef::new(
+                    &pos,
+                    &tri,
+                    Colouring::Uniform([200, 200, 200]),
+                )],
+            )
+            .unwrap();
         let s = pos.map(|p| cam.project(&p, w, h).unwrap());
-        let edge = |a: [f64; 2], b: [f64; 2], p: [f64; 2]| (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0]);
+        let edge = |a: [f64; 2], b: [f64; 2], p: [f64; 2]| {
+            (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0])
+        };
         let area = edge(s[0], s[1], s[2]);
         let mut mismatches = 0;
         let mut covered = 0;
         for y in 0..h {
             for x in 0..w {
                 let p = [x as f64 + 0.5, y as f64 + 0.5];
-                let e = [edge(s[1], s[2], p), edge(s[2], s[0], p), edge(s[0], s[1], p)].map(|v| v / area.signum());
+                let e = [
+                    edge(s[1], s[2], p),
+                    edge(s[2], s[0], p),
+                    edge(s[0], s[1], p),
+                ]
+                .map(|v| v / area.signum());
                 let inside = e.iter().all(|&v| v > 1e-6);
                 let outside = e.iter().any(|&v| v < -1e-6);
                 let bg = is_bg(img.get(x, y).unwrap());
@@ -1049,9 +1400,15 @@ mod tests {
         }
         assert_eq!(mismatches, 0);
         let expected = area.abs() / 2.0;
-        assert!((covered as f64 - expected).abs() < 0.02 * expected + 10.0, "{covered} vs {expected}");
+        assert!(
+            (covered as f64 - expected).abs() < 0.02 * expected + 10.0,
+            "{covered} vs {expected}"
+        );
         // A lit front face is brighter than the ambient term alone.
-        let c = [(s[0][0] + s[1][0] + s[2][0]) / 3.0, (s[0][1] + s[1][1] + s[2][1]) / 3.0];
+        let c = [
+            (s[0][0] + s[1][0] + s[2][0]) / 3.0,
+            (s[0][1] + s[1][1] + s[2][1]) / 3.0,
+        ];
         let px = img.get(c[0] as u32, c[1] as u32).unwrap();
         assert!(px[0] > (200.0 * 0.5) as u8, "centre {px:?}");
     }
@@ -1068,7 +1425,9 @@ mod tests {
             let c = img.get(60, 60).unwrap();
             assert!(c[0] > 100 && c[0] > c[1] + 100, "centre {c:?}");
             // Outside the near quad but inside the far one: green.
-            let s = front_camera().project(&Point3::new(1.6, 0.0, -1.0), 120, 120).unwrap();
+            let s = front_camera()
+                .project(&Point3::new(1.6, 0.0, -1.0), 120, 120)
+                .unwrap();
             let g = img.get(s[0] as u32, s[1] as u32).unwrap();
             assert!(g[1] > 100 && g[1] > g[0] + 100, "far {g:?}");
         }
@@ -1079,7 +1438,12 @@ mod tests {
         let (p, t) = quad(0.0, 1.0);
         let mut r = Renderer::new(opts(64, 64, 1)).unwrap();
         let cam = front_camera();
-        let img = r.render(&cam, &[MeshRef::new(&p, &t, Colouring::Uniform([180, 180, 180])).flat()]).unwrap();
+        let img = r
+            .render(
+                &cam,
+                &[MeshRef::new(&p, &t, Colouring::Uniform([180, 180, 180])).flat()],
+            )
+            .unwrap();
         let lo = cam.project(&p[3], 64, 64).unwrap();
         let hi = cam.project(&p[1], 64, 64).unwrap();
         for y in (lo[1].ceil() as u32 + 1)..(hi[1].floor() as u32 - 1) {
@@ -1089,8 +1453,18 @@ mod tests {
         }
         let front = img.get(32, 32).unwrap();
         // The same quad seen from behind (camera on -z).
-        let back_cam = Camera::look_at(Point3::new(0.0, 0.0, -10.0), Point3::origin(), Vector3::y(), 30.0);
-        let img = r.render(&back_cam, &[MeshRef::new(&p, &t, Colouring::Uniform([180, 180, 180])).flat()]).unwrap();
+        let back_cam = Camera::look_at(
+            Point3::new(0.0, 0.0, -10.0),
+            Point3::origin(),
+            Vector3::y(),
+            30.0,
+        );
+        let img = r
+            .render(
+                &back_cam,
+                &[MeshRef::new(&p, &t, Colouring::Uniform([180, 180, 180])).flat()],
+            )
+            .unwrap();
         let back = img.get(32, 32).unwrap();
         assert!(!is_bg(back));
         assert!(back[0] < front[0], "back {back:?} front {front:?}");
@@ -1098,10 +1472,19 @@ mod tests {
 
     #[test]
     fn triangles_through_the_camera_plane_are_clipped() {
-        let pos = [Point3::new(-1.0, -0.5, 5.0), Point3::new(1.0, -0.5, 5.0), Point3::new(0.0, -0.5, 20.0)];
+        let pos = [
+            Point3::new(-1.0, -0.5, 5.0),
+            Point3::new(1.0, -0.5, 5.0),
+            Point3::new(0.0, -0.5, 20.0),
+        ];
         let tri = [[0u32, 1, 2]];
         let mut r = Renderer::new(opts(80, 60, 2)).unwrap();
-        let img = r.render(&front_camera(), &[MeshRef::new(&pos, &tri, Colouring::Uniform([255; 3]))]).unwrap();
+        let img = r
+            .render(
+                &front_camera(),
+                &[MeshRef::new(&pos, &tri, Colouring::Uniform([255; 3]))],
+            )
+            .unwrap();
         let drawn = img.pixels().iter().filter(|p| !is_bg(**p)).count();
         assert!(drawn > 0 && drawn < 80 * 60);
     }
@@ -1110,7 +1493,15 @@ mod tests {
     fn scalar_colouring_follows_the_map() {
         let (p, t) = quad(0.0, 1.0);
         let values = [0.0, 1.0, 1.0, 0.0];
-        let mesh = MeshRef::new(&p, &t, Colouring::Scalar { values: &values, map: Colormap::Viridis, range: (0.0, 1.0) });
+        let mesh = MeshRef::new(
+            &p,
+            &t,
+            Colouring::Scalar {
+                values: &values,
+                map: Colormap::Viridis,
+                range: (0.0, 1.0),
+            },
+        );
         let mut r = Renderer::new(opts(100, 100, 2)).unwrap();
         let img = r.render(&front_camera(), &[mesh.flat()]).unwrap();
         let left = img.get(35, 50).unwrap();
@@ -1125,19 +1516,51 @@ mod tests {
         let (p, _) = quad(0.0, 1.0);
         let mut r = Renderer::new(opts(10, 10, 1)).unwrap();
         let bad_tri = [[0u32, 1, 9]];
-        let e = r.render(&front_camera(), &[MeshRef::new(&p, &bad_tri, Colouring::Uniform([0; 3]))]);
-        assert!(matches!(e, Err(RenderError::IndexOutOfRange { triangle: 0, vertex: 9, .. })));
+        let e = r.render(
+            &front_camera(),
+            &[MeshRef::new(&p, &bad_tri, Colouring::Uniform([0; 3]))],
+        );
+        assert!(matches!(
+            e,
+            Err(RenderError::IndexOutOfRange {
+                triangle: 0,
+                vertex: 9,
+                ..
+            })
+        ));
         let ok_tri = [[0u32, 1, 2]];
         let cols = [[0u8; 3]; 2];
-        let e = r.render(&front_camera(), &[MeshRef::new(&p, &ok_tri, Colouring::PerVertex(&cols))]);
-        assert!(matches!(e, Err(RenderError::LengthMismatch { got: 2, vertices: 4, .. })));
+        let e = r.render(
+            &front_camera(),
+            &[MeshRef::new(&p, &ok_tri, Colouring::PerVertex(&cols))],
+        );
+        assert!(matches!(
+            e,
+            Err(RenderError::LengthMismatch {
+                got: 2,
+                vertices: 4,
+                ..
+            })
+        ));
         let mut nan = p.clone();
         nan[2].x = f64::NAN;
-        let e = r.render(&front_camera(), &[MeshRef::new(&nan, &ok_tri, Colouring::Uniform([0; 3]))]);
+        let e = r.render(
+            &front_camera(),
+            &[MeshRef::new(&nan, &ok_tri, Colouring::Uniform([0; 3]))],
+        );
         assert!(matches!(e, Err(RenderError::NonFinite { .. })));
         // Degenerate triangles draw nothing and do not fail.
-        let flat = [Point3::new(0.0, 0.0, 0.0), Point3::new(1.0, 1.0, 0.0), Point3::new(2.0, 2.0, 0.0)];
-        let img = r.render(&front_camera(), &[MeshRef::new(&flat, &ok_tri, Colouring::Uniform([255; 3]))]).unwrap();
+        let flat = [
+            Point3::new(0.0, 0.0, 0.0),
+            Point3::new(1.0, 1.0, 0.0),
+            Point3::new(2.0, 2.0, 0.0),
+        ];
+        let img = r
+            .render(
+                &front_camera(),
+                &[MeshRef::new(&flat, &ok_tri, Colouring::Uniform([255; 3]))],
+            )
+            .unwrap();
         assert!(img.pixels().iter().all(|p| is_bg(*p)));
         assert!(Renderer::new(opts(0, 10, 1)).is_err());
     }
@@ -1160,7 +1583,10 @@ mod tests {
                 yl = yl.min(s[1]);
                 yh = yh.max(s[1]);
             }
-            assert!(xl >= -0.5 && yl >= -0.5 && xh <= 800.5 && yh <= 600.5, "({az}, {el}): {xl} {xh} {yl} {yh}");
+            assert!(
+                xl >= -0.5 && yl >= -0.5 && xh <= 800.5 && yh <= 600.5,
+                "({az}, {el}): {xl} {xh} {yl} {yh}"
+            );
             // Tight in at least one direction (90 % fill), roughly centred.
             let fill = ((xh - xl) / 800.0).max((yh - yl) / 600.0);
             assert!(fill > 0.85 && fill < 0.95, "({az}, {el}): fill {fill}");
@@ -1183,7 +1609,10 @@ mod tests {
                 a.dot(&b.cross(&c)) / 6.0
             })
             .sum();
-        assert!((vol - 8.0 * half.x * half.y * half.z).abs() < 1e-12, "volume {vol}");
+        assert!(
+            (vol - 8.0 * half.x * half.y * half.z).abs() < 1e-12,
+            "volume {vol}"
+        );
     }
 
     #[test]
@@ -1191,13 +1620,34 @@ mod tests {
         let o = Point3::new(0.1, 0.2, 0.3);
         let v = Vector3::new(0.0, -0.03, 0.04);
         let m = TriMesh::arrow(o, v, 0.001, [0; 3]);
-        let along = m.positions.iter().map(|p| (p - o).dot(&v.normalize())).fold(f64::MIN, f64::max);
+        let along = m
+            .positions
+            .iter()
+            .map(|p| (p - o).dot(&v.normalize()))
+            .fold(f64::MIN, f64::max);
         assert!((along - v.norm()).abs() < 1e-12);
-        let behind = m.positions.iter().map(|p| (p - o).dot(&v.normalize())).fold(f64::MAX, f64::min);
+        let behind = m
+            .positions
+            .iter()
+            .map(|p| (p - o).dot(&v.normalize()))
+            .fold(f64::MAX, f64::min);
         assert!(behind.abs() < 1e-12);
-        assert!(m.triangles.iter().flatten().all(|&i| (i as usize) < m.positions.len()));
-        assert!(TriMesh::arrow(o, Vector3::zeros(), 0.001, [0; 3]).triangles.is_empty());
-        assert!(TriMesh::arrow(o, Vector3::new(f64::NAN, 0.0, 0.0), 0.001, [0; 3]).triangles.is_empty());
+        assert!(
+            m.triangles
+                .iter()
+                .flatten()
+                .all(|&i| (i as usize) < m.positions.len())
+        );
+        assert!(
+            TriMesh::arrow(o, Vector3::zeros(), 0.001, [0; 3])
+                .triangles
+                .is_empty()
+        );
+        assert!(
+            TriMesh::arrow(o, Vector3::new(f64::NAN, 0.0, 0.0), 0.001, [0; 3])
+                .triangles
+                .is_empty()
+        );
         // Pointing straight down (antiparallel to the build axis).
         let down = TriMesh::arrow(o, Vector3::new(0.0, 0.0, -0.05), 0.001, [0; 3]);
         let lowest = down.positions.iter().map(|p| p.z).fold(f64::MAX, f64::min);

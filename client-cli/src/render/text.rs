@@ -79,7 +79,13 @@ pub struct TextStyle {
 impl TextStyle {
     /// Dark grey regular text of `size` px, anchored at its top-left.
     pub fn new(size: f32) -> Self {
-        Self { size, colour: [30, 30, 30], weight: Weight::Regular, h: HAlign::Left, v: VAlign::Top }
+        Self {
+            size,
+            colour: [30, 30, 30],
+            weight: Weight::Regular,
+            h: HAlign::Left,
+            v: VAlign::Top,
+        }
     }
 
     /// The same style in bold.
@@ -129,7 +135,14 @@ fn layout(text: &str, style: &TextStyle) -> (Vec<(GlyphId, f32)>, Extent) {
         caret += scaled.h_advance(id);
         prev = Some(id);
     }
-    (glyphs, Extent { width: caret, ascent: scaled.ascent(), descent: -scaled.descent() })
+    (
+        glyphs,
+        Extent {
+            width: caret,
+            ascent: scaled.ascent(),
+            descent: -scaled.descent(),
+        },
+    )
 }
 
 /// The extent of `text` drawn with `style`.
@@ -163,7 +176,8 @@ fn rasterise(text: &str, style: &TextStyle, x0: f32, y0: f32, mut put: impl FnMu
         let g = id.with_scale_and_position(scale, point(x0 + x, y0 + ext.ascent));
         if let Some(outlined) = f.outline_glyph(g) {
             let bb = outlined.px_bounds();
-            outlined.draw(|gx, gy, c| put(bb.min.x as i64 + gx as i64, bb.min.y as i64 + gy as i64, c));
+            outlined
+                .draw(|gx, gy, c| put(bb.min.x as i64 + gx as i64, bb.min.y as i64 + gy as i64, c));
         }
     }
 }
@@ -174,7 +188,9 @@ pub fn draw_text(img: &mut Image, text: &str, x: f32, y: f32, style: &TextStyle)
     let (dx, dy) = anchor_offset(&ext, style);
     // Snap the box to whole pixels so that stems stay crisp.
     let (x0, y0) = ((x + dx).round(), (y + dy).round());
-    rasterise(text, style, x0, y0, |px, py, c| img.blend(px, py, style.colour, c));
+    rasterise(text, style, x0, y0, |px, py, c| {
+        img.blend(px, py, style.colour, c)
+    });
     ext
 }
 
@@ -182,14 +198,22 @@ pub fn draw_text(img: &mut Image, text: &str, x: f32, y: f32, style: &TextStyle)
 /// a vertical axis title. The alignment refers to the rotated text: `h` along
 /// the reading direction (upwards), `v` across it; returns the unrotated
 /// extent.
-pub fn draw_text_vertical(img: &mut Image, text: &str, x: f32, y: f32, style: &TextStyle) -> Extent {
+pub fn draw_text_vertical(
+    img: &mut Image,
+    text: &str,
+    x: f32,
+    y: f32,
+    style: &TextStyle,
+) -> Extent {
     let ext = measure(text, style);
     let (dx, dy) = anchor_offset(&ext, style);
     // Unrotated coordinates (u along the text, v down across it), relative to
     // the anchor; rotation maps (u, v) to image (x + v, y - u).
     let (u0, v0) = (dx.round(), dy.round());
     let (ax, ay) = (x.round() as i64, y.round() as i64);
-    rasterise(text, style, u0, v0, |u, v, c| img.blend(ax + v, ay - u - 1, style.colour, c));
+    rasterise(text, style, u0, v0, |u, v, c| {
+        img.blend(ax + v, ay - u - 1, style.colour, c)
+    });
     ext
 }
 
@@ -201,7 +225,10 @@ mod tests {
     fn fonts_parse_and_text_has_ink_where_placed() {
         for w in [Weight::Regular, Weight::Bold] {
             let mut img = Image::new(200, 40, [255; 3]).unwrap();
-            let style = TextStyle { weight: w, ..TextStyle::new(20.0) };
+            let style = TextStyle {
+                weight: w,
+                ..TextStyle::new(20.0)
+            };
             let ext = draw_text(&mut img, "Force 1.5 N", 10.0, 5.0, &style);
             assert!(ext.width > 80.0 && ext.width < 150.0, "width {}", ext.width);
             let dark: Vec<(u32, u32)> = (0..40)
@@ -212,7 +239,10 @@ mod tests {
             // All ink lies inside the laid-out box (with a pixel of slack).
             for (x, y) in dark {
                 assert!(x as f32 >= 9.0 && (x as f32) <= 11.0 + ext.width, "x {x}");
-                assert!(y as f32 >= 4.0 && (y as f32) <= 6.0 + ext.ascent + ext.descent, "y {y}");
+                assert!(
+                    y as f32 >= 4.0 && (y as f32) <= 6.0 + ext.ascent + ext.descent,
+                    "y {y}"
+                );
             }
         }
     }

@@ -61,7 +61,10 @@ pub fn linear(lo: f64, hi: f64, target: usize) -> (Vec<Tick>, f64) {
     let ticks = (first..=last)
         .map(|i| {
             let value = i as f64 * step;
-            Tick { value, label: format_value(value, step) }
+            Tick {
+                value,
+                label: format_value(value, step),
+            }
         })
         .collect();
     (ticks, step)
@@ -76,7 +79,10 @@ pub fn nice_range(lo: f64, hi: f64, target: usize) -> (f64, f64) {
         (lo - pad, hi + pad)
     };
     let step = nice_step(hi - lo, target);
-    ((lo / step - 1e-9).floor() * step, (hi / step + 1e-9).ceil() * step)
+    (
+        (lo / step + 1e-9).floor() * step,
+        (hi / step - 1e-9).ceil() * step,
+    )
 }
 
 fn superscript(n: i32) -> String {
@@ -110,7 +116,9 @@ pub fn log10(lo: f64, hi: f64) -> Vec<Tick> {
         return ticks;
     }
     let (k0, k1) = (a.floor() as i32, b.ceil() as i32);
-    let decades_inside = (k0..=k1).filter(|&k| (k as f64) >= a - 1e-9 && (k as f64) <= b + 1e-9).count();
+    let decades_inside = (k0..=k1)
+        .filter(|&k| (k as f64) >= a - 1e-9 && (k as f64) <= b + 1e-9)
+        .count();
     let labelled_minor = decades_inside < 2;
     // With many decades, label every second or third one.
     let every = ((k1 - k0) as usize / 8 + 1) as i32;
@@ -160,6 +168,8 @@ mod tests {
     fn nice_range_widens_outward() {
         assert_eq!(nice_range(0.13, 0.87, 5), (0.1, 0.9));
         assert_eq!(nice_range(0.13, 0.87, 2), (0.0, 1.0));
+        assert_eq!(nice_range(0.0, 2.999, 6), (0.0, 3.0));
+        assert_eq!(nice_range(-1.0, 3.0, 4), (-1.0, 3.0));
         let (lo, hi) = nice_range(2.0, 2.0, 5);
         assert!(lo < 2.0 && hi > 2.0);
     }
@@ -167,7 +177,11 @@ mod tests {
     #[test]
     fn log_ticks_label_decades() {
         let t = log10(1e-4, 1.0);
-        let labelled: Vec<&str> = t.iter().filter(|t| !t.label.is_empty()).map(|t| t.label.as_str()).collect();
+        let labelled: Vec<&str> = t
+            .iter()
+            .filter(|t| !t.label.is_empty())
+            .map(|t| t.label.as_str())
+            .collect();
         assert_eq!(labelled, ["10⁻⁴", "0.001", "0.01", "0.1", "1"]);
         assert_eq!(t.len(), 4 * 9 + 1);
         let t = log10(2.0, 8.0);

@@ -8,7 +8,9 @@
 //! are metres; the legend shows millimetres for heights and displacements.
 
 use super::colormap::{Colormap, Legend, finite_range};
-use super::raster::{Background, Camera, Colouring, EdgeStyle, MeshRef, RenderOptions, Renderer, TriMesh};
+use super::raster::{
+    Background, Camera, Colouring, EdgeStyle, MeshRef, RenderOptions, Renderer, TriMesh,
+};
 use super::text::{HAlign, TextStyle, VAlign, draw_text, measure};
 use super::{Image, RenderError, Rgb};
 use nalgebra::{Isometry3, Point3, Vector3};
@@ -131,7 +133,14 @@ impl ViewRenderer {
             },
             ..RenderOptions::new(width - PANEL, view_h)
         };
-        Ok(Self { width, height, renderer: Renderer::new(opts)?, background, values: Vec::new(), points: Vec::new() })
+        Ok(Self {
+            width,
+            height,
+            renderer: Renderer::new(opts)?,
+            background,
+            values: Vec::new(),
+            points: Vec::new(),
+        })
     }
 
     /// Draws the surface (`positions`, `triangles`), the spatulas and their
@@ -143,16 +152,23 @@ impl ViewRenderer {
         spatulas: &[SpatulaView],
         spec: &ViewSpec<'_>,
     ) -> Result<Image, RenderError> {
-        let plates: Vec<TriMesh> = spatulas.iter().map(|s| TriMesh::cuboid(&s.pose, s.half_extents, STEEL)).collect();
+        let plates: Vec<TriMesh> = spatulas
+            .iter()
+            .map(|s| TriMesh::cuboid(&s.pose, s.half_extents, STEEL))
+            .collect();
         let aspect = self.renderer.options().aspect();
         let (cam, (lo, hi)) = match spec.frame_box {
-            Some((lo, hi)) => (Camera::orbit_box(lo, hi, spec.azimuth_deg, spec.elevation_deg, 30.0, aspect), (lo, hi)),
+            Some((lo, hi)) => (
+                Camera::orbit_box(lo, hi, spec.azimuth_deg, spec.elevation_deg, 30.0, aspect),
+                (lo, hi),
+            ),
             None => {
                 let mut pts = std::mem::take(&mut self.points);
                 pts.clear();
                 pts.extend_from_slice(positions);
                 pts.extend(plates.iter().flat_map(|m| m.positions.iter().copied()));
-                let cam = Camera::orbit_points(&pts, spec.azimuth_deg, spec.elevation_deg, 30.0, aspect);
+                let cam =
+                    Camera::orbit_points(&pts, spec.azimuth_deg, spec.elevation_deg, 30.0, aspect);
                 let b = bounds(&pts);
                 self.points = pts;
                 (cam, b)
@@ -174,7 +190,12 @@ impl ViewRenderer {
                         vertices: positions.len(),
                     });
                 }
-                self.values.extend(positions.iter().zip(rest).map(|(p, r)| (p - r).norm() * 1e3));
+                self.values.extend(
+                    positions
+                        .iter()
+                        .zip(rest)
+                        .map(|(p, r)| (p - r).norm() * 1e3),
+                );
                 ("displacement (mm)", Colormap::Viridis)
             }
             SurfaceColour::Scalar { values, title, map } => {
@@ -183,25 +204,52 @@ impl ViewRenderer {
             }
             SurfaceColour::Tissue => ("", Colormap::Viridis),
         };
-        let range = spec.range.or_else(|| finite_range(&self.values)).unwrap_or((0.0, 1.0));
-        let range = if range.1 > range.0 { range } else { (range.0, range.0 + 1.0) };
+        let range = spec
+            .range
+            .or_else(|| finite_range(&self.values))
+            .unwrap_or((0.0, 1.0));
+        let range = if range.1 > range.0 {
+            range
+        } else {
+            (range.0, range.0 + 1.0)
+        };
         let colouring = match spec.colour {
             SurfaceColour::Tissue => Colouring::Uniform(TISSUE),
-            _ => Colouring::Scalar { values: &self.values, map, range },
+            _ => Colouring::Scalar {
+                values: &self.values,
+                map,
+                range,
+            },
         };
         let mut surface = MeshRef::new(positions, triangles, colouring).with_specular(0.08);
         if spec.edges {
-            surface = surface.with_edges(EdgeStyle { colour: [15, 15, 25], width: 0.35, opacity: 0.22 });
+            surface = surface.with_edges(EdgeStyle {
+                colour: [15, 15, 25],
+                width: 0.35,
+                opacity: 0.22,
+            });
         }
         let diag = (hi - lo).norm();
-        let fmax = spatulas.iter().filter_map(|s| s.force).map(|f| f.norm()).filter(|f| f.is_finite()).fold(0.0, f64::max);
-        let scale = spec.force_scale.unwrap_or(if fmax > 0.0 { 0.35 * diag / fmax } else { 0.0 });
+        let fmax = spatulas
+            .iter()
+            .filter_map(|s| s.force)
+            .map(|f| f.norm())
+            .filter(|f| f.is_finite())
+            .fold(0.0, f64::max);
+        let scale = spec
+            .force_scale
+            .unwrap_or(if fmax > 0.0 { 0.35 * diag / fmax } else { 0.0 });
         let arrows: Vec<(usize, TriMesh)> = spatulas
             .iter()
             .enumerate()
             .filter_map(|(i, s)| {
                 let f = s.force?;
-                let a = TriMesh::arrow(s.pose.translation.vector.into(), f * scale, 0.006 * diag, ARROWS[i % 2]);
+                let a = TriMesh::arrow(
+                    s.pose.translation.vector.into(),
+                    f * scale,
+                    0.006 * diag,
+                    ARROWS[i % 2],
+                );
                 (!a.triangles.is_empty()).then_some((i, a))
             })
             .collect();
@@ -218,9 +266,21 @@ impl ViewRenderer {
         }
         img.blit(&view, 0, TITLE_BAND as i64);
         let ink = [25, 28, 35];
-        draw_text(&mut img, &spec.title, 18.0, 12.0, &TextStyle::new(19.0).bold().colour(ink));
+        draw_text(
+            &mut img,
+            &spec.title,
+            18.0,
+            12.0,
+            &TextStyle::new(19.0).bold().colour(ink),
+        );
         if !spec.subtitle.is_empty() {
-            draw_text(&mut img, &spec.subtitle, 18.0, 37.0, &TextStyle::new(13.0).colour([80, 84, 92]));
+            draw_text(
+                &mut img,
+                &spec.subtitle,
+                18.0,
+                37.0,
+                &TextStyle::new(13.0).colour([80, 84, 92]),
+            );
         }
         if !legend_title.is_empty() {
             let legend = Legend::new(map, range, legend_title);
@@ -237,8 +297,15 @@ impl ViewRenderer {
         let mut y = self.height as f32 - 12.0;
         for (i, s) in spatulas.iter().enumerate().rev() {
             if let Some(f) = s.force {
-                let text = format!("{}: |F| = {:.3} N   ({:+.3}, {:+.3}, {:+.3}) N", s.name, f.norm(), f.x, f.y, f.z)
-                    .replace('-', "\u{2212}");
+                let text = format!(
+                    "{}: |F| = {:.3} N   ({:+.3}, {:+.3}, {:+.3}) N",
+                    s.name,
+                    f.norm(),
+                    f.x,
+                    f.y,
+                    f.z
+                )
+                .replace('-', "\u{2212}");
                 draw_text(&mut img, &text, 18.0, y, &st.colour(ARROWS[i % 2]));
                 y -= 20.0;
             }
@@ -254,10 +321,22 @@ impl ViewRenderer {
                 let (dx, dy) = (p1[0] - p0[0], p1[1] - p0[1]);
                 let len = dx.hypot(dy).max(1e-9);
                 let (ux, uy) = (dx / len, dy / len);
-                let h = if ux < -0.3 { HAlign::Right } else if ux > 0.3 { HAlign::Left } else { HAlign::Center };
-                let v = if uy < -0.3 { VAlign::Bottom } else if uy > 0.3 { VAlign::Top } else { VAlign::Middle };
+                let h = if ux < -0.3 {
+                    HAlign::Right
+                } else if ux > 0.3 {
+                    HAlign::Left
+                } else {
+                    HAlign::Center
+                };
+                let v = if uy < -0.3 {
+                    VAlign::Bottom
+                } else if uy > 0.3 {
+                    VAlign::Top
+                } else {
+                    VAlign::Middle
+                };
                 let lbl = TextStyle::new(13.0).bold().colour(a.colour).align(h, v);
-                let (x, y) = (p1[0] + 10.0 * ux, p1[1] + 10.0 * uy + TITLE_BAND as f64);
+                let (x, y) = (p1[0] + 16.0 * ux, p1[1] + 16.0 * uy + TITLE_BAND as f64);
                 draw_text(&mut img, &s.name, x as f32, y as f32, &lbl);
             }
         }
@@ -269,9 +348,16 @@ impl ViewRenderer {
 pub fn bounds(positions: &[Point3<f64>]) -> (Point3<f64>, Point3<f64>) {
     let mut lo = Point3::from(Vector3::repeat(f64::INFINITY));
     let mut hi = Point3::from(Vector3::repeat(f64::NEG_INFINITY));
-    for p in positions.iter().filter(|p| p.coords.iter().all(|c| c.is_finite())) {
+    for p in positions
+        .iter()
+        .filter(|p| p.coords.iter().all(|c| c.is_finite()))
+    {
         lo = lo.inf(p);
         hi = hi.sup(p);
     }
-    if lo.x > hi.x { (Point3::origin(), Point3::new(1.0, 1.0, 1.0)) } else { (lo, hi) }
+    if lo.x > hi.x {
+        (Point3::origin(), Point3::new(1.0, 1.0, 1.0))
+    } else {
+        (lo, hi)
+    }
 }
