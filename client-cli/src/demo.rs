@@ -48,7 +48,8 @@ pub struct DemoReport {
 
 /// Runs the demo.
 pub async fn run(args: &DemoArgs) -> anyhow::Result<DemoReport> {
-    let (scene, _) = Scene::load(&args.scene).with_context(|| format!("loading scene {:?}", args.scene))?;
+    let (scene, _) =
+        Scene::load(&args.scene).with_context(|| format!("loading scene {:?}", args.scene))?;
     let plans: Vec<(String, Trajectory)> = BUNDLED
         .iter()
         .filter(|b| b.1 == scene.name)
@@ -57,7 +58,8 @@ pub async fn run(args: &DemoArgs) -> anyhow::Result<DemoReport> {
     if plans.is_empty() {
         bail!("scene {:?} has no bundled trajectories", scene.name);
     }
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
     let recording = args.out.join("session.fsrec");
     let options = SimOptions {
         stepped: Some(true),
@@ -72,17 +74,32 @@ pub async fn run(args: &DemoArgs) -> anyhow::Result<DemoReport> {
     let url = format!("http://{}", server.addr);
 
     let mut client = connect(&url).await?;
-    let surface = client.get_surface(pb::GetSurfaceRequest {}).await?.into_inner();
+    let surface = client
+        .get_surface(pb::GetSurfaceRequest {})
+        .await?
+        .into_inner();
     // Watcher: keeps the frame with the largest displacement and the last one.
-    let frames: Arc<Mutex<(usize, Option<pb::DeformationFrame>, Option<pb::DeformationFrame>)>> =
-        Arc::new(Mutex::new((0, None, None)));
-    let mut watch = client.watch(pb::WatchRequest { include_positions: true }).await?.into_inner();
+    let frames: Arc<
+        Mutex<(
+            usize,
+            Option<pb::DeformationFrame>,
+            Option<pb::DeformationFrame>,
+        )>,
+    > = Arc::new(Mutex::new((0, None, None)));
+    let mut watch = client
+        .watch(pb::WatchRequest {
+            include_positions: true,
+        })
+        .await?
+        .into_inner();
     let watched = frames.clone();
     let watcher = tokio::spawn(async move {
         while let Ok(Some(f)) = watch.message().await {
             let mut w = watched.lock().expect("frames lock");
             w.0 += 1;
-            let bigger = w.1.as_ref().is_none_or(|m| f.max_displacement_m > m.max_displacement_m);
+            let bigger =
+                w.1.as_ref()
+                    .is_none_or(|m| f.max_displacement_m > m.max_displacement_m);
             if bigger {
                 w.1 = Some(f.clone());
             }
@@ -161,7 +178,12 @@ pub async fn run(args: &DemoArgs) -> anyhow::Result<DemoReport> {
             println!("  {}", f.display());
         }
     }
-    Ok(DemoReport { out: args.out.clone(), forces, frames: frame_count, files })
+    Ok(DemoReport {
+        out: args.out.clone(),
+        forces,
+        frames: frame_count,
+        files,
+    })
 }
 
 fn write(path: &Path, text: &str) -> anyhow::Result<()> {
@@ -193,16 +215,32 @@ pub fn summary_table(scene: &str, forces: &[(String, Vec<ForceRow>)], stats: &pb
     let mut s = format!("fissure demo — scene {scene}\n\n");
     s.push_str(&format!(
         "{:<10} {:>8} {:>11} {:>11} {:>9} {:>13} {:>13} {:>12}\n",
-        "instrument", "samples", "peak |F| N", "mean |F| N", "max cont.", "server p50 us", "server p99 us", "rtt p99 us"
+        "instrument",
+        "samples",
+        "peak |F| N",
+        "mean |F| N",
+        "max cont.",
+        "server p50 us",
+        "server p99 us",
+        "rtt p99 us"
     ));
     for (name, rows) in forces {
         let mags: Vec<f64> = rows
             .iter()
             .map(|r| (r.force_n[0].powi(2) + r.force_n[1].powi(2) + r.force_n[2].powi(2)).sqrt())
             .collect();
-        let in_contact: Vec<f64> = mags.iter().zip(rows).filter(|(_, r)| r.contact_count > 0).map(|(m, _)| *m).collect();
+        let in_contact: Vec<f64> = mags
+            .iter()
+            .zip(rows)
+            .filter(|(_, r)| r.contact_count > 0)
+            .map(|(m, _)| *m)
+            .collect();
         let peak = mags.iter().copied().fold(0.0, f64::max);
-        let mean = if in_contact.is_empty() { 0.0 } else { in_contact.iter().sum::<f64>() / in_contact.len() as f64 };
+        let mean = if in_contact.is_empty() {
+            0.0
+        } else {
+            in_contact.iter().sum::<f64>() / in_contact.len() as f64
+        };
         let mut server: Vec<f64> = rows.iter().map(|r| r.server_us).collect();
         server.sort_by(f64::total_cmp);
         let mut rtt: Vec<f64> = rows.iter().map(|r| r.rtt_us).collect();

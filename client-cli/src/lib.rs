@@ -1,10 +1,11 @@
 //! Client logic of the `fissure` command: trajectories, replay, the demo, mesh
-//! tools and benchmarks. The binary (`main.rs`) only parses arguments.
+//! tools, rendering and benchmarks. The binary (`main.rs`) only parses arguments.
 
 pub mod bench_collision;
 pub mod bench_fem;
 pub mod demo;
 pub mod mesh_cmd;
+pub mod render;
 pub mod replay;
 pub mod report;
 pub mod trajectory;

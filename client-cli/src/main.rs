@@ -86,29 +86,51 @@ fn main() -> anyhow::Result<()> {
             rt.block_on(fissure_cli::demo::run(&args))?;
         }
         Command::Replay(args) => {
-            let plans: Vec<(String, Trajectory, PathBuf)> = match (&args.recording, &args.trajectory, &args.instrument) {
-                (Some(rec), _, _) => {
-                    let stem = args.out.file_stem().and_then(|s| s.to_str()).unwrap_or("forces").to_owned();
-                    fissure_cli::report::trajectories(rec)?
-                        .into_iter()
-                        .map(|(name, t)| {
-                            let out = args.out.with_file_name(format!("{stem}-{name}.csv"));
-                            (name, t, out)
-                        })
-                        .collect()
-                }
-                (None, Some(t), Some(i)) => vec![(i.clone(), Trajectory::load(t)?, args.out.clone())],
-                _ => anyhow::bail!("give --instrument and --trajectory, or --recording"),
-            };
+            let plans: Vec<(String, Trajectory, PathBuf)> =
+                match (&args.recording, &args.trajectory, &args.instrument) {
+                    (Some(rec), _, _) => {
+                        let stem = args
+                            .out
+                            .file_stem()
+                            .and_then(|s| s.to_str())
+                            .unwrap_or("forces")
+                            .to_owned();
+                        fissure_cli::report::trajectories(rec)?
+                            .into_iter()
+                            .map(|(name, t)| {
+                                let out = args.out.with_file_name(format!("{stem}-{name}.csv"));
+                                (name, t, out)
+                            })
+                            .collect()
+                    }
+                    (None, Some(t), Some(i)) => {
+                        vec![(i.clone(), Trajectory::load(t)?, args.out.clone())]
+                    }
+                    _ => anyhow::bail!("give --instrument and --trajectory, or --recording"),
+                };
             rt.block_on(async {
                 let mut tasks = Vec::new();
                 for (name, trajectory, out) in plans {
-                    let (server, token, pacing) = (args.server.clone(), args.token.clone(), args.pacing);
+                    let (server, token, pacing) =
+                        (args.server.clone(), args.token.clone(), args.pacing);
                     tasks.push(tokio::spawn(async move {
                         let mut client = connect(&server).await?;
-                        let rows = replay(&mut client, &name, token.as_deref(), &trajectory, pacing, |_| {}).await?;
-                        std::fs::write(&out, forces_csv(&rows)).with_context(|| format!("writing {}", out.display()))?;
-                        eprintln!("{name}: {} force samples written to {}", rows.len(), out.display());
+                        let rows = replay(
+                            &mut client,
+                            &name,
+                            token.as_deref(),
+                            &trajectory,
+                            pacing,
+                            |_| {},
+                        )
+                        .await?;
+                        std::fs::write(&out, forces_csv(&rows))
+                            .with_context(|| format!("writing {}", out.display()))?;
+                        eprintln!(
+                            "{name}: {} force samples written to {}",
+                            rows.len(),
+                            out.display()
+                        );
                         anyhow::Ok(())
                     }));
                 }
@@ -118,7 +140,11 @@ fn main() -> anyhow::Result<()> {
                 anyhow::Ok(())
             })?;
         }
-        Command::Report { file, threshold_n, json } => {
+        Command::Report {
+            file,
+            threshold_n,
+            json,
+        } => {
             let r = fissure_cli::report::report(&file, threshold_n)?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&r)?);
@@ -135,7 +161,9 @@ fn main() -> anyhow::Result<()> {
                     .await
                     .with_context(|| format!("cannot connect to {server}"))?;
                 let mut health = tonic_health::pb::health_client::HealthClient::new(channel);
-                let req = tonic_health::pb::HealthCheckRequest { service: "fissure.v1.Fissure".into() };
+                let req = tonic_health::pb::HealthCheckRequest {
+                    service: "fissure.v1.Fissure".into(),
+                };
                 anyhow::Ok(health.check(req).await?.into_inner().status)
             })?;
             let status = ServingStatus::try_from(status).unwrap_or(ServingStatus::Unknown);

@@ -87,12 +87,25 @@ pub async fn connect(url: &str) -> anyhow::Result<FissureClient<Channel>> {
 }
 
 /// Builds a haptic request with the claim metadata.
-pub fn haptic_request<S>(stream: S, instrument: &str, token: Option<&str>) -> anyhow::Result<tonic::Request<S>> {
+pub fn haptic_request<S>(
+    stream: S,
+    instrument: &str,
+    token: Option<&str>,
+) -> anyhow::Result<tonic::Request<S>> {
     let mut req = tonic::Request::new(stream);
-    req.metadata_mut().insert(INSTRUMENT_METADATA_KEY, instrument.parse().context("instrument name is not valid metadata")?);
+    req.metadata_mut().insert(
+        INSTRUMENT_METADATA_KEY,
+        instrument
+            .parse()
+            .context("instrument name is not valid metadata")?,
+    );
     if let Some(t) = token {
-        req.metadata_mut()
-            .insert(AUTHORIZATION_METADATA_KEY, format!("Bearer {t}").parse().context("token is not valid metadata")?);
+        req.metadata_mut().insert(
+            AUTHORIZATION_METADATA_KEY,
+            format!("Bearer {t}")
+                .parse()
+                .context("token is not valid metadata")?,
+        );
     }
     Ok(req)
 }
@@ -102,8 +115,17 @@ pub fn pose_message(p: &crate::trajectory::Waypoint, sequence: u64) -> pb::PoseS
     pb::PoseSample {
         t_s: p.t_s,
         sequence,
-        position_m: Some(pb::Vec3 { x: p.x_m, y: p.y_m, z: p.z_m }),
-        orientation: Some(pb::Quaternion { w: p.qw, x: p.qx, y: p.qy, z: p.qz }),
+        position_m: Some(pb::Vec3 {
+            x: p.x_m,
+            y: p.y_m,
+            z: p.z_m,
+        }),
+        orientation: Some(pb::Quaternion {
+            w: p.qw,
+            x: p.qx,
+            y: p.qy,
+            z: p.qz,
+        }),
     }
 }
 
@@ -119,7 +141,11 @@ pub async fn replay(
     mut progress: impl FnMut(f64),
 ) -> anyhow::Result<Vec<ForceRow>> {
     let (tx, rx) = tokio::sync::mpsc::channel::<pb::PoseSample>(16);
-    let req = haptic_request(tokio_stream::wrappers::ReceiverStream::new(rx), instrument, token)?;
+    let req = haptic_request(
+        tokio_stream::wrappers::ReceiverStream::new(rx),
+        instrument,
+        token,
+    )?;
     let mut inbound = client
         .haptic(req)
         .await
@@ -138,7 +164,9 @@ pub async fn replay(
             }
         }
         let sent = Instant::now();
-        tx.send(pose_message(p, i as u64 + 1)).await.context("the server closed the haptic stream")?;
+        tx.send(pose_message(p, i as u64 + 1))
+            .await
+            .context("the server closed the haptic stream")?;
         let Some(sample) = inbound.message().await.context("reading a force sample")? else {
             bail!("the server ended the haptic stream after {i} samples");
         };

@@ -48,7 +48,8 @@ pub struct Report {
 }
 
 fn norm(v: &Option<pb::Vec3>) -> f64 {
-    v.as_ref().map_or(0.0, |v| (v.x * v.x + v.y * v.y + v.z * v.z).sqrt())
+    v.as_ref()
+        .map_or(0.0, |v| (v.x * v.x + v.y * v.y + v.z * v.z).sqrt())
 }
 
 /// Reads a recording and summarises it; `threshold_n` is the safe-force threshold.
@@ -61,7 +62,9 @@ pub fn report(path: &Path, threshold_n: f64) -> anyhow::Result<Report> {
     let mut poses: BTreeMap<String, Vec<pb::PoseSample>> = BTreeMap::new();
     for e in entries {
         match e.entry {
-            Some(pb::recording_entry::Entry::Header(h)) => scene = h.scene.map(|s| s.name).unwrap_or_default(),
+            Some(pb::recording_entry::Entry::Header(h)) => {
+                scene = h.scene.map(|s| s.name).unwrap_or_default()
+            }
             Some(pb::recording_entry::Entry::Pose(p)) => {
                 poses.entry(p.instrument).or_default().extend(p.pose);
             }
@@ -80,7 +83,11 @@ pub fn report(path: &Path, threshold_n: f64) -> anyhow::Result<Report> {
     let (mut t_min, mut t_max) = (f64::INFINITY, f64::NEG_INFINITY);
     let mut instruments = Vec::new();
     for (name, samples) in &forces {
-        let mut r = InstrumentReport { instrument: name.clone(), samples: samples.len(), ..Default::default() };
+        let mut r = InstrumentReport {
+            instrument: name.clone(),
+            samples: samples.len(),
+            ..Default::default()
+        };
         let mut in_contact = (0.0, 0usize);
         for (i, s) in samples.iter().enumerate() {
             let f = norm(&s.force_n);
@@ -100,7 +107,11 @@ pub fn report(path: &Path, threshold_n: f64) -> anyhow::Result<Report> {
                 }
             }
         }
-        r.mean_force_in_contact_n = if in_contact.1 > 0 { in_contact.0 / in_contact.1 as f64 } else { 0.0 };
+        r.mean_force_in_contact_n = if in_contact.1 > 0 {
+            in_contact.0 / in_contact.1 as f64
+        } else {
+            0.0
+        };
         if let Some(ps) = poses.get(name) {
             if let (Some(a), Some(b)) = (ps.first(), ps.last()) {
                 r.duration_s = b.t_s - a.t_s;
@@ -110,7 +121,10 @@ pub fn report(path: &Path, threshold_n: f64) -> anyhow::Result<Report> {
             r.path_length_m = ps
                 .windows(2)
                 .map(|w| {
-                    let (a, b) = (w[0].position_m.clone().unwrap_or_default(), w[1].position_m.clone().unwrap_or_default());
+                    let (a, b) = (
+                        w[0].position_m.clone().unwrap_or_default(),
+                        w[1].position_m.clone().unwrap_or_default(),
+                    );
                     ((b.x - a.x).powi(2) + (b.y - a.y).powi(2) + (b.z - a.z).powi(2)).sqrt()
                 })
                 .sum();
@@ -150,7 +164,10 @@ pub fn trajectories(path: &Path) -> anyhow::Result<Vec<(String, Trajectory)>> {
             }
         }
     }
-    Ok(out.into_iter().map(|(n, points)| (n, Trajectory { points })).collect())
+    Ok(out
+        .into_iter()
+        .map(|(n, points)| (n, Trajectory { points }))
+        .collect())
 }
 
 /// The report as a table.
@@ -161,7 +178,11 @@ pub fn table(r: &Report) -> String {
         r.duration_s,
         r.frames,
         r.failed_frames,
-        if r.truncated { ", last entry truncated" } else { "" }
+        if r.truncated {
+            ", last entry truncated"
+        } else {
+            ""
+        }
     );
     s.push_str(&format!(
         "{:<10} {:>8} {:>10} {:>11} {:>14} {:>17} {:>13} {:>16}\n",

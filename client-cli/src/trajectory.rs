@@ -43,10 +43,19 @@ pub enum TrajectoryError {
     Io { file: String, message: String },
     /// Wrong header.
     #[error("{file}:1: the header must be `{expected}`, got `{got}`")]
-    Header { file: String, expected: String, got: String },
+    Header {
+        file: String,
+        expected: String,
+        got: String,
+    },
     /// A bad value.
     #[error("{file}:{line}: column `{column}`: {message}")]
-    Value { file: String, line: usize, column: String, message: String },
+    Value {
+        file: String,
+        line: usize,
+        column: String,
+        message: String,
+    },
     /// JSON syntax or shape.
     #[error("{file}: {message}")]
     Json { file: String, message: String },
@@ -60,8 +69,18 @@ pub const CSV_HEADER: &str = "t_s,x_m,y_m,z_m,qw,qx,qy,qz";
 
 /// The bundled trajectories, by name: `(name, scene, instrument, csv)`.
 pub const BUNDLED: &[(&str, &str, &str, &str)] = &[
-    ("cube-press-left", "cube", "left", include_str!("../trajectories/cube-press-left.csv")),
-    ("cube-press-right", "cube", "right", include_str!("../trajectories/cube-press-right.csv")),
+    (
+        "cube-press-left",
+        "cube",
+        "left",
+        include_str!("../trajectories/cube-press-left.csv"),
+    ),
+    (
+        "cube-press-right",
+        "cube",
+        "right",
+        include_str!("../trajectories/cube-press-right.csv"),
+    ),
 ];
 
 impl Trajectory {
@@ -79,7 +98,10 @@ impl Trajectory {
                 BUNDLED.iter().map(|b| b.0).collect::<Vec<_>>().join(", ")
             ),
         })?;
-        if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("json")) {
+        if path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("json"))
+        {
             Self::parse_json(&text, &file)
         } else {
             Self::parse_csv(&text, &file)
@@ -92,7 +114,11 @@ impl Trajectory {
         let header = lines.next().map(|(_, l)| l.trim()).unwrap_or("");
         let header_norm: String = header.chars().filter(|c| !c.is_whitespace()).collect();
         if header_norm != CSV_HEADER {
-            return Err(TrajectoryError::Header { file: file.into(), expected: CSV_HEADER.into(), got: header.into() });
+            return Err(TrajectoryError::Header {
+                file: file.into(),
+                expected: CSV_HEADER.into(),
+                got: header.into(),
+            });
         }
         let columns: Vec<&str> = CSV_HEADER.split(',').collect();
         let mut points = Vec::new();
@@ -113,16 +139,29 @@ impl Trajectory {
             }
             let mut v = [0.0; 8];
             for (k, f) in fields.iter().enumerate() {
-                v[k] = f.parse::<f64>().ok().filter(|x| x.is_finite()).ok_or_else(|| TrajectoryError::Value {
-                    file: file.into(),
-                    line: line_no,
-                    column: columns[k].into(),
-                    message: format!("{f:?} is not a finite number"),
-                })?;
+                v[k] = f
+                    .parse::<f64>()
+                    .ok()
+                    .filter(|x| x.is_finite())
+                    .ok_or_else(|| TrajectoryError::Value {
+                        file: file.into(),
+                        line: line_no,
+                        column: columns[k].into(),
+                        message: format!("{f:?} is not a finite number"),
+                    })?;
             }
             points.push((
                 line_no,
-                Waypoint { t_s: v[0], x_m: v[1], y_m: v[2], z_m: v[3], qw: v[4], qx: v[5], qy: v[6], qz: v[7] },
+                Waypoint {
+                    t_s: v[0],
+                    x_m: v[1],
+                    y_m: v[2],
+                    z_m: v[3],
+                    qw: v[4],
+                    qx: v[5],
+                    qy: v[6],
+                    qz: v[7],
+                },
             ));
         }
         Self::checked(points, file)
@@ -130,9 +169,19 @@ impl Trajectory {
 
     /// Parses JSON text: an array of waypoint objects.
     pub fn parse_json(text: &str, file: &str) -> Result<Self, TrajectoryError> {
-        let points: Vec<Waypoint> = serde_json::from_str(text)
-            .map_err(|e| TrajectoryError::Json { file: file.into(), message: e.to_string() })?;
-        Self::checked(points.into_iter().enumerate().map(|(i, p)| (i + 1, p)).collect(), file)
+        let points: Vec<Waypoint> =
+            serde_json::from_str(text).map_err(|e| TrajectoryError::Json {
+                file: file.into(),
+                message: e.to_string(),
+            })?;
+        Self::checked(
+            points
+                .into_iter()
+                .enumerate()
+                .map(|(i, p)| (i + 1, p))
+                .collect(),
+            file,
+        )
     }
 
     fn checked(points: Vec<(usize, Waypoint)>, file: &str) -> Result<Self, TrajectoryError> {
@@ -147,21 +196,34 @@ impl Trajectory {
                 column: column.into(),
                 message,
             };
-            for (name, v) in [("t_s", p.t_s), ("x_m", p.x_m), ("y_m", p.y_m), ("z_m", p.z_m)] {
+            for (name, v) in [
+                ("t_s", p.t_s),
+                ("x_m", p.x_m),
+                ("y_m", p.y_m),
+                ("z_m", p.z_m),
+            ] {
                 if !v.is_finite() {
                     return Err(bad(name, format!("{v} is not finite")));
                 }
             }
             if p.t_s < prev {
-                return Err(bad("t_s", format!("time goes back ({} s after {} s)", p.t_s, prev)));
+                return Err(bad(
+                    "t_s",
+                    format!("time goes back ({} s after {} s)", p.t_s, prev),
+                ));
             }
             prev = p.t_s;
             let norm = (p.qw * p.qw + p.qx * p.qx + p.qy * p.qy + p.qz * p.qz).sqrt();
             if !(norm - 1.0).abs().le(&1e-3) {
-                return Err(bad("qw", format!("the quaternion is not unit length (norm {norm})")));
+                return Err(bad(
+                    "qw",
+                    format!("the quaternion is not unit length (norm {norm})"),
+                ));
             }
         }
-        Ok(Self { points: points.into_iter().map(|(_, p)| p).collect() })
+        Ok(Self {
+            points: points.into_iter().map(|(_, p)| p).collect(),
+        })
     }
 
     /// Duration, s.
@@ -199,17 +261,34 @@ mod tests {
     fn errors_name_line_and_column() {
         let text = "t_s,x_m,y_m,z_m,qw,qx,qy,qz\n0,0,0,0,1,0,0,0\n0.001,0,abc,0,1,0,0,0\n";
         let e = Trajectory::parse_csv(text, "f.csv").unwrap_err();
-        assert_eq!(e.to_string(), "f.csv:3: column `y_m`: \"abc\" is not a finite number");
+        assert_eq!(
+            e.to_string(),
+            "f.csv:3: column `y_m`: \"abc\" is not a finite number"
+        );
         let text = "t_s,x_m,y_m,z_m,qw,qx,qy,qz\n0,0,0,0,1,0,0,0\n-1,0,0,0,1,0,0,0\n";
         let e = Trajectory::parse_csv(text, "f.csv").unwrap_err();
-        assert!(e.to_string().starts_with("f.csv:3: column `t_s`: time goes back"), "{e}");
+        assert!(
+            e.to_string()
+                .starts_with("f.csv:3: column `t_s`: time goes back"),
+            "{e}"
+        );
         let e = Trajectory::parse_csv("t,x\n", "f.csv").unwrap_err();
         assert!(matches!(e, TrajectoryError::Header { .. }));
         let text = "t_s,x_m,y_m,z_m,qw,qx,qy,qz\n0,0,0,0,2,0,0,0\n";
-        assert!(Trajectory::parse_csv(text, "f.csv").unwrap_err().to_string().contains("not unit length"));
+        assert!(
+            Trajectory::parse_csv(text, "f.csv")
+                .unwrap_err()
+                .to_string()
+                .contains("not unit length")
+        );
         let json = r#"[{"t_s":0,"x_m":0,"y_m":0,"z_m":0.1,"qw":1,"qx":0,"qy":0,"qz":0}]"#;
-        assert_eq!(Trajectory::parse_json(json, "f.json").unwrap().points.len(), 1);
-        let round = Trajectory::parse_csv(&Trajectory::parse_json(json, "f").unwrap().to_csv(), "g").unwrap();
+        assert_eq!(
+            Trajectory::parse_json(json, "f.json").unwrap().points.len(),
+            1
+        );
+        let round =
+            Trajectory::parse_csv(&Trajectory::parse_json(json, "f").unwrap().to_csv(), "g")
+                .unwrap();
         assert_eq!(round.points[0].z_m, 0.1);
     }
 }

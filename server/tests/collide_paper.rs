@@ -269,7 +269,10 @@ fn deep_penetration_far_face_pairs_only_without_culling() {
         let mut bvh = surf.backend();
         let mut hist = History::new(&inst, HistoryMode::ForceRate);
         let (mut ws, mut out) = (Workspace::new(), ContactOutput::default());
-        let opts = DetectOptions { culling, ..DetectOptions::default() };
+        let opts = DetectOptions {
+            culling,
+            ..DetectOptions::default()
+        };
         for x in [-0.2 * MM, 3.0 * MM] {
             detect(
                 &mut bvh,

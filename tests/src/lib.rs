@@ -21,17 +21,29 @@ pub struct TestServer {
 
 impl TestServer {
     /// Loads `scene` (embedded name or path) and serves it on a free loopback port.
-    pub async fn start(scene: &str, options: SimOptions, serve_options: ServeOptions) -> anyhow::Result<Self> {
+    pub async fn start(
+        scene: &str,
+        options: SimOptions,
+        serve_options: ServeOptions,
+    ) -> anyhow::Result<Self> {
         let (scene, _) = Scene::load(scene)?;
         Self::start_scene(scene, options, serve_options).await
     }
 
     /// Serves an already parsed scene.
-    pub async fn start_scene(scene: Scene, options: SimOptions, serve_options: ServeOptions) -> anyhow::Result<Self> {
+    pub async fn start_scene(
+        scene: Scene,
+        options: SimOptions,
+        serve_options: ServeOptions,
+    ) -> anyhow::Result<Self> {
         let sim = tokio::task::spawn_blocking(move || Simulation::start(scene, options)).await??;
         let server = serve("127.0.0.1:0".parse()?, serve_options).await?;
         server.set_simulation(sim.clone()).await;
-        Ok(Self { url: format!("http://{}", server.addr), sim, server: Some(server) })
+        Ok(Self {
+            url: format!("http://{}", server.addr),
+            sim,
+            server: Some(server),
+        })
     }
 
     /// A connected client.
@@ -55,8 +67,17 @@ pub fn pose(t_s: f64, sequence: u64, position: [f64; 3], q: [f64; 4]) -> pb::Pos
     pb::PoseSample {
         t_s,
         sequence,
-        position_m: Some(pb::Vec3 { x: position[0], y: position[1], z: position[2] }),
-        orientation: Some(pb::Quaternion { w: q[0], x: q[1], y: q[2], z: q[3] }),
+        position_m: Some(pb::Vec3 {
+            x: position[0],
+            y: position[1],
+            z: position[2],
+        }),
+        orientation: Some(pb::Quaternion {
+            w: q[0],
+            x: q[1],
+            y: q[2],
+            z: q[3],
+        }),
     }
 }
 
@@ -75,8 +96,12 @@ impl Haptic {
         token: Option<&str>,
     ) -> Result<Self, tonic::Status> {
         let (tx, rx) = tokio::sync::mpsc::channel(16);
-        let req = fissure_cli::replay::haptic_request(tokio_stream::wrappers::ReceiverStream::new(rx), instrument, token)
-            .map_err(|e| tonic::Status::invalid_argument(e.to_string()))?;
+        let req = fissure_cli::replay::haptic_request(
+            tokio_stream::wrappers::ReceiverStream::new(rx),
+            instrument,
+            token,
+        )
+        .map_err(|e| tonic::Status::invalid_argument(e.to_string()))?;
         let rx = client.haptic(req).await?.into_inner();
         Ok(Self { tx, rx })
     }
@@ -84,7 +109,10 @@ impl Haptic {
     /// Sends one pose and waits for its force sample.
     pub async fn send(&mut self, pose: pb::PoseSample) -> anyhow::Result<pb::ForceSample> {
         self.tx.send(pose).await?;
-        self.rx.message().await?.ok_or_else(|| anyhow::anyhow!("the haptic stream ended"))
+        self.rx
+            .message()
+            .await?
+            .ok_or_else(|| anyhow::anyhow!("the haptic stream ended"))
     }
 
     /// Closes the stream and waits until the server ends it.

@@ -12,7 +12,11 @@ const FLAT_DOWN: [f64; 4] = [0.5, -0.5, 0.5, 0.5];
 const TOUCH_Z: f64 = 0.04 + 0.00075;
 
 fn stepped() -> SimOptions {
-    SimOptions { stepped: Some(true), stepped_clients: 1, ..SimOptions::default() }
+    SimOptions {
+        stepped: Some(true),
+        stepped_clients: 1,
+        ..SimOptions::default()
+    }
 }
 
 /// (a) A spatula face pushed 2 mm into the cube: the force opposes the push and
@@ -42,7 +46,10 @@ async fn pushed_face_force_matches_direct_solve() -> anyhow::Result<()> {
     assert!(force.z > 0.0, "force {force:?} does not oppose the push");
     // Mostly along the push: the contact holds all three components (no slip),
     // so the Poisson bulge under an off-centre patch adds a smaller lateral part.
-    assert!(force.z > 3.0 * force.xy().norm(), "force {force:?} is not along the push");
+    assert!(
+        force.z > 3.0 * force.xy().norm(),
+        "force {force:?} is not along the push"
+    );
     assert!(last.contact_count > 0);
 
     // The enforced displacements of the last step, and an independent direct solve.
@@ -56,11 +63,20 @@ async fn pushed_face_force_matches_direct_solve() -> anyhow::Result<()> {
         let p = model.mesh.nodes[node as usize];
         // Under the plate (away from its rim) the displacement is exactly the push.
         if (p.x - x).abs() < 0.004 && p.y > y + 0.001 && p.y < y + 0.029 {
-            assert!((u - Vector3::new(0.0, 0.0, -depth)).norm() < 1e-9, "node {node}: {u:?}");
+            assert!(
+                (u - Vector3::new(0.0, 0.0, -depth)).norm() < 1e-9,
+                "node {node}: {u:?}"
+            );
         }
-        prescribed.push(Prescribed { node, displacement: u });
+        prescribed.push(Prescribed {
+            node,
+            displacement: u,
+        });
     }
-    let material = fem::Material { youngs_modulus_pa: 3000.0, poisson_ratio: 0.45 };
+    let material = fem::Material {
+        youngs_modulus_pa: 3000.0,
+        poisson_ratio: 0.45,
+    };
     let mut direct = fem::build_solver(
         fem::Strategy::Direct,
         &model.mesh,
@@ -71,7 +87,10 @@ async fn pushed_face_force_matches_direct_solve() -> anyhow::Result<()> {
     let solution = direct.solve(&prescribed)?;
     let expected: Vector3<f64> = -solution.reactions.iter().sum::<Vector3<f64>>();
     let err = (force - expected).norm() / expected.norm();
-    assert!(err < 0.01, "force {force:?} vs direct {expected:?}: relative error {err:.2e}");
+    assert!(
+        err < 0.01,
+        "force {force:?} vs direct {expected:?}: relative error {err:.2e}"
+    );
     haptic.close().await;
     server.stop().await
 }
@@ -86,8 +105,13 @@ async fn claims_are_exclusive() -> anyhow::Result<()> {
     let first = Haptic::open(&mut client, "left", None).await?;
     let err = Haptic::open(&mut client, "left", None).await.unwrap_err();
     assert_eq!(err.code(), tonic::Code::AlreadyExists, "{err}");
-    assert!(err.message().contains("left") && err.message().contains("already claimed"), "{err}");
-    let err = Haptic::open(&mut client, "scalpel", None).await.unwrap_err();
+    assert!(
+        err.message().contains("left") && err.message().contains("already claimed"),
+        "{err}"
+    );
+    let err = Haptic::open(&mut client, "scalpel", None)
+        .await
+        .unwrap_err();
     assert_eq!(err.code(), tonic::Code::NotFound, "{err}");
     assert!(err.message().contains("left, right"), "{err}");
     // The other instrument is free.
@@ -106,19 +130,37 @@ async fn nan_pose_is_rejected_and_stream_continues() -> anyhow::Result<()> {
     let server = TestServer::start("cube", SimOptions::default(), ServeOptions::default()).await?;
     let mut client = server.client().await?;
     let mut haptic = Haptic::open(&mut client, "left", None).await?;
-    let ok = haptic.send(pose(0.0, 1, [0.011, 0.005, 0.05], FLAT_DOWN)).await?;
+    let ok = haptic
+        .send(pose(0.0, 1, [0.011, 0.005, 0.05], FLAT_DOWN))
+        .await?;
     assert!(ok.rejection.is_none());
-    let bad = haptic.send(pose(0.001, 2, [0.011, f64::NAN, 0.05], FLAT_DOWN)).await?;
+    let bad = haptic
+        .send(pose(0.001, 2, [0.011, f64::NAN, 0.05], FLAT_DOWN))
+        .await?;
     let rejection = bad.rejection.expect("NaN pose must be rejected");
     assert_eq!(rejection.code, tonic::Code::InvalidArgument as i32);
-    assert!(rejection.message.contains("position_m.y"), "{}", rejection.message);
-    let bad_q = haptic.send(pose(0.001, 2, [0.011, 0.005, 0.05], [0.0, 0.0, 0.0, 0.0])).await?;
-    assert_eq!(bad_q.rejection.expect("zero quaternion").code, tonic::Code::InvalidArgument as i32);
+    assert!(
+        rejection.message.contains("position_m.y"),
+        "{}",
+        rejection.message
+    );
+    let bad_q = haptic
+        .send(pose(0.001, 2, [0.011, 0.005, 0.05], [0.0, 0.0, 0.0, 0.0]))
+        .await?;
+    assert_eq!(
+        bad_q.rejection.expect("zero quaternion").code,
+        tonic::Code::InvalidArgument as i32
+    );
     // The rejected pose did not advance the sequence: 2 is accepted now.
-    let next = haptic.send(pose(0.002, 2, [0.011, 0.005, 0.05], FLAT_DOWN)).await?;
+    let next = haptic
+        .send(pose(0.002, 2, [0.011, 0.005, 0.05], FLAT_DOWN))
+        .await?;
     assert!(next.rejection.is_none(), "{:?}", next.rejection);
     assert_eq!(next.sequence, 2);
-    let stats = client.get_stats(fissure_proto::v1::GetStatsRequest {}).await?.into_inner();
+    let stats = client
+        .get_stats(fissure_proto::v1::GetStatsRequest {})
+        .await?
+        .into_inner();
     assert_eq!(stats.rejected_poses, 2);
     haptic.close().await;
     server.stop().await
@@ -131,32 +173,51 @@ async fn health_serving_once_loaded() -> anyhow::Result<()> {
     use tonic_health::pb::HealthCheckRequest;
     use tonic_health::pb::health_check_response::ServingStatus;
     use tonic_health::pb::health_client::HealthClient;
-    let server = fissure_server::service::serve("127.0.0.1:0".parse()?, ServeOptions::default()).await?;
+    let server =
+        fissure_server::service::serve("127.0.0.1:0".parse()?, ServeOptions::default()).await?;
     let url = format!("http://{}", server.addr);
-    let channel = tonic::transport::Channel::from_shared(url.clone())?.connect().await?;
+    let channel = tonic::transport::Channel::from_shared(url.clone())?
+        .connect()
+        .await?;
     let mut health = HealthClient::new(channel);
-    let req = || HealthCheckRequest { service: "fissure.v1.Fissure".into() };
+    let req = || HealthCheckRequest {
+        service: "fissure.v1.Fissure".into(),
+    };
     let status = health.check(req()).await?.into_inner().status;
     assert_eq!(status, ServingStatus::NotServing as i32);
     // Calls before the scene is loaded are UNAVAILABLE, not errors of the client.
     let mut client = fissure_cli::replay::connect(&url).await?;
-    let err = client.get_scene(fissure_proto::v1::GetSceneRequest {}).await.unwrap_err();
+    let err = client
+        .get_scene(fissure_proto::v1::GetSceneRequest {})
+        .await
+        .unwrap_err();
     assert_eq!(err.code(), tonic::Code::Unavailable);
 
     let (scene, _) = fissure_server::scene::Scene::load("cube")?;
-    let sim = tokio::task::spawn_blocking(move || fissure_server::sim::Simulation::start(scene, SimOptions::default()))
-        .await??;
+    let sim = tokio::task::spawn_blocking(move || {
+        fissure_server::sim::Simulation::start(scene, SimOptions::default())
+    })
+    .await??;
     server.set_simulation(sim.clone()).await;
     let status = health.check(req()).await?.into_inner().status;
     assert_eq!(status, ServingStatus::Serving as i32);
-    let scene = client.get_scene(fissure_proto::v1::GetSceneRequest {}).await?.into_inner();
+    let scene = client
+        .get_scene(fissure_proto::v1::GetSceneRequest {})
+        .await?
+        .into_inner();
     assert_eq!(scene.name, "cube");
     assert_eq!(scene.units, "SI");
     assert_eq!(scene.instruments.len(), 2);
-    let surface = client.get_surface(fissure_proto::v1::GetSurfaceRequest {}).await?.into_inner();
+    let surface = client
+        .get_surface(fissure_proto::v1::GetSurfaceRequest {})
+        .await?
+        .into_inner();
     let model = scene.model.expect("model size");
     assert_eq!(surface.triangles.len() as u32, 3 * model.surface_triangles);
-    assert_eq!(surface.rest_positions_m.len() as u32, 3 * model.surface_vertices);
+    assert_eq!(
+        surface.rest_positions_m.len() as u32,
+        3 * model.surface_vertices
+    );
     server.shutdown().await?;
     tokio::task::spawn_blocking(move || sim.shutdown()).await?;
     Ok(())

@@ -57,7 +57,9 @@ struct Args {
 async fn main() -> anyhow::Result<()> {
     let args = Args::parse();
     tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::try_new(&args.log).context("invalid --log filter")?)
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_new(&args.log).context("invalid --log filter")?,
+        )
         .with_writer(std::io::stderr)
         .init();
     if !args.listen.ip().is_loopback() && !args.allow_remote {
@@ -73,8 +75,16 @@ async fn main() -> anyhow::Result<()> {
         )),
         _ => None,
     };
-    let (scene, _) = Scene::load(&args.scene).with_context(|| format!("loading scene {:?}", args.scene))?;
-    let server = serve(args.listen, ServeOptions { token: args.token.clone(), tls }).await?;
+    let (scene, _) =
+        Scene::load(&args.scene).with_context(|| format!("loading scene {:?}", args.scene))?;
+    let server = serve(
+        args.listen,
+        ServeOptions {
+            token: args.token.clone(),
+            tls,
+        },
+    )
+    .await?;
     tracing::info!(addr = %server.addr, scene = %scene.name, "listening; loading the scene");
     let options = SimOptions {
         stepped: args.stepped.then_some(true),

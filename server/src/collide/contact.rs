@@ -98,7 +98,10 @@ pub const DEFAULT_SKIN_M: f64 = 1e-7;
 
 impl Default for DetectOptions {
     fn default() -> Self {
-        Self { culling: true, skin_m: DEFAULT_SKIN_M }
+        Self {
+            culling: true,
+            skin_m: DEFAULT_SKIN_M,
+        }
     }
 }
 
@@ -277,7 +280,11 @@ pub fn detect_many(
             .place(&tool.pose, &mut ws.origins, &mut ws.dirs);
     }
     ws.offsets.push(ws.origins.len());
-    let skin = if opts.skin_m.is_finite() { opts.skin_m.max(0.0) } else { 0.0 };
+    let skin = if opts.skin_m.is_finite() {
+        opts.skin_m.max(0.0)
+    } else {
+        0.0
+    };
     if skin > 0.0 {
         for (o, d) in ws.origins.iter_mut().zip(&ws.dirs) {
             *o += d * skin;

@@ -6,13 +6,13 @@
 
 pub mod adjacency;
 pub mod blocks;
-pub mod io;
-pub mod quality;
-pub mod validate;
 pub mod from_surface;
+pub mod io;
 pub mod phantom;
+pub mod quality;
 pub mod sdf;
 pub mod stuffing;
+pub mod validate;
 pub mod winding;
 
 use nalgebra::{Point3, Vector3};

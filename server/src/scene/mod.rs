@@ -31,13 +31,20 @@ pub enum SceneError {
     Unknown { name: String, known: String },
     /// The file could not be read.
     #[error("cannot read scene file {path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
     /// TOML syntax or an unknown/mistyped key (the message gives line and column).
     #[error("scene {origin}: {message}")]
     Parse { origin: String, message: String },
     /// A value is out of range or inconsistent.
     #[error("scene {origin}: field `{field}`: {reason}")]
-    Invalid { origin: String, field: String, reason: String },
+    Invalid {
+        origin: String,
+        field: String,
+        reason: String,
+    },
 }
 
 /// A scene: everything the server models.
@@ -140,12 +147,14 @@ impl Region {
     /// model and answer `false` here.
     pub fn contains(&self, p: [f64; 3]) -> bool {
         match self {
-            Region::Box { box_min_m: lo, box_max_m: hi } => {
-                (0..3).all(|i| p[i] >= lo[i] && p[i] <= hi[i])
-            }
-            Region::Sphere { centre_m: c, radius_m: r } => {
-                (0..3).map(|i| (p[i] - c[i]).powi(2)).sum::<f64>() <= r * r
-            }
+            Region::Box {
+                box_min_m: lo,
+                box_max_m: hi,
+            } => (0..3).all(|i| p[i] >= lo[i] && p[i] <= hi[i]),
+            Region::Sphere {
+                centre_m: c,
+                radius_m: r,
+            } => (0..3).map(|i| (p[i] - c[i]).powi(2)).sum::<f64>() <= r * r,
             Region::Landmark { .. } => false,
         }
     }
@@ -174,7 +183,11 @@ pub struct SolverSpec {
 
 impl Default for SolverSpec {
     fn default() -> Self {
-        Self { strategy: Strategy::Compliance, tolerance: 1e-6, max_iterations: 30 }
+        Self {
+            strategy: Strategy::Compliance,
+            tolerance: 1e-6,
+            max_iterations: 30,
+        }
     }
 }
 
@@ -366,11 +379,17 @@ impl Scene {
         if !path.is_file() {
             return Err(SceneError::Unknown {
                 name: name_or_path.to_owned(),
-                known: EMBEDDED.iter().map(|(n, _)| *n).collect::<Vec<_>>().join(", "),
+                known: EMBEDDED
+                    .iter()
+                    .map(|(n, _)| *n)
+                    .collect::<Vec<_>>()
+                    .join(", "),
             });
         }
-        let text = std::fs::read_to_string(path)
-            .map_err(|source| SceneError::Io { path: path.to_owned(), source })?;
+        let text = std::fs::read_to_string(path).map_err(|source| SceneError::Io {
+            path: path.to_owned(),
+            source,
+        })?;
         let mut scene = Self::parse(&text, &path.display().to_string())?;
         if let ModelSpec::File { path: mesh } = &mut scene.model {
             if mesh.is_relative() {
@@ -382,8 +401,10 @@ impl Scene {
 
     /// Parses and validates scene text; `origin` names it in errors.
     pub fn parse(text: &str, origin: &str) -> Result<Scene, SceneError> {
-        let scene: Scene = toml::from_str(text)
-            .map_err(|e| SceneError::Parse { origin: origin.to_owned(), message: e.to_string() })?;
+        let scene: Scene = toml::from_str(text).map_err(|e| SceneError::Parse {
+            origin: origin.to_owned(),
+            message: e.to_string(),
+        })?;
         scene.validate(origin)?;
         Ok(scene)
     }
@@ -399,7 +420,10 @@ impl Scene {
             if v.is_finite() && v > 0.0 {
                 Ok(())
             } else {
-                Err(bad(field.to_owned(), format!("must be a finite positive number, got {v}")))
+                Err(bad(
+                    field.to_owned(),
+                    format!("must be a finite positive number, got {v}"),
+                ))
             }
         };
         let finite3 = |field: String, v: &[f64]| {
@@ -412,21 +436,36 @@ impl Scene {
         if let ModelSpec::Cube { size_m, cells } = &self.model {
             positive("model.size_m", *size_m)?;
             if !(1..=64).contains(cells) {
-                return Err(bad("model.cells".into(), format!("must be in 1..=64, got {cells}")));
+                return Err(bad(
+                    "model.cells".into(),
+                    format!("must be in 1..=64, got {cells}"),
+                ));
             }
         }
-        positive("material.youngs_modulus_pa", self.material.youngs_modulus_pa)?;
+        positive(
+            "material.youngs_modulus_pa",
+            self.material.youngs_modulus_pa,
+        )?;
         let nu = self.material.poisson_ratio;
         if !(nu.is_finite() && (0.0..0.5).contains(&nu)) {
-            return Err(bad("material.poisson_ratio".into(), format!("must be in [0, 0.5), got {nu}")));
+            return Err(bad(
+                "material.poisson_ratio".into(),
+                format!("must be in [0, 0.5), got {nu}"),
+            ));
         }
         for (i, r) in self.fixed.iter().enumerate() {
             match r {
-                Region::Box { box_min_m, box_max_m } => {
+                Region::Box {
+                    box_min_m,
+                    box_max_m,
+                } => {
                     finite3(format!("fixed[{i}].box_min_m"), box_min_m)?;
                     finite3(format!("fixed[{i}].box_max_m"), box_max_m)?;
                     if (0..3).any(|k| box_min_m[k] > box_max_m[k]) {
-                        return Err(bad(format!("fixed[{i}]"), "box_min_m exceeds box_max_m".into()));
+                        return Err(bad(
+                            format!("fixed[{i}]"),
+                            "box_min_m exceeds box_max_m".into(),
+                        ));
                     }
                 }
                 Region::Sphere { centre_m, radius_m } => {
@@ -438,44 +477,80 @@ impl Scene {
         }
         positive("solver.tolerance", self.solver.tolerance)?;
         if self.solver.max_iterations == 0 {
-            return Err(bad("solver.max_iterations".into(), "must be at least 1".into()));
+            return Err(bad(
+                "solver.max_iterations".into(),
+                "must be at least 1".into(),
+            ));
         }
-        positive("loops.deformation_interval_s", self.loops.deformation_interval_s)?;
+        positive(
+            "loops.deformation_interval_s",
+            self.loops.deformation_interval_s,
+        )?;
         positive("loops.haptic_rate_hz", self.loops.haptic_rate_hz)?;
         positive("loops.safe_force_n", self.loops.safe_force_n)?;
         positive("loops.max_force_n", self.loops.max_force_n)?;
         positive("loops.max_jump_m", self.loops.max_jump_m)?;
         if self.instruments.is_empty() {
-            return Err(bad("instrument".into(), "the scene needs at least one instrument".into()));
+            return Err(bad(
+                "instrument".into(),
+                "the scene needs at least one instrument".into(),
+            ));
         }
         for (i, ins) in self.instruments.iter().enumerate() {
             let f = |name: &str| format!("instrument[{i}].{name}");
-            if ins.name.is_empty() || !ins.name.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_') {
-                return Err(bad(f("name"), format!("must be non-empty letters, digits, '-' or '_', got {:?}", ins.name)));
+            if ins.name.is_empty()
+                || !ins
+                    .name
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+            {
+                return Err(bad(
+                    f("name"),
+                    format!(
+                        "must be non-empty letters, digits, '-' or '_', got {:?}",
+                        ins.name
+                    ),
+                ));
             }
             if self.instruments[..i].iter().any(|o| o.name == ins.name) {
-                return Err(bad(f("name"), format!("duplicate instrument name {:?}", ins.name)));
+                return Err(bad(
+                    f("name"),
+                    format!("duplicate instrument name {:?}", ins.name),
+                ));
             }
             positive(&f("thickness_m"), ins.thickness_m)?;
             positive(&f("width_m"), ins.width_m)?;
             positive(&f("length_m"), ins.length_m)?;
             if !(1..=4096).contains(&ins.nodes_per_face) {
-                return Err(bad(f("nodes_per_face"), format!("must be in 1..=4096, got {}", ins.nodes_per_face)));
+                return Err(bad(
+                    f("nodes_per_face"),
+                    format!("must be in 1..=4096, got {}", ins.nodes_per_face),
+                ));
             }
             match ins.shape {
-                ShapeKind::Trapezoid => positive(&f("base_width_m"), ins.base_width_m.unwrap_or(f64::NAN))?,
-                ShapeKind::Curved => positive(&f("bend_radius_m"), ins.bend_radius_m.unwrap_or(f64::NAN))?,
+                ShapeKind::Trapezoid => {
+                    positive(&f("base_width_m"), ins.base_width_m.unwrap_or(f64::NAN))?
+                }
+                ShapeKind::Curved => {
+                    positive(&f("bend_radius_m"), ins.bend_radius_m.unwrap_or(f64::NAN))?
+                }
                 ShapeKind::Flat => {}
             }
             finite3(f("home_position_m"), &ins.home_position_m)?;
             let q = ins.home_orientation;
             let norm = q.iter().map(|c| c * c).sum::<f64>().sqrt();
             if !(norm.is_finite() && (norm - 1.0).abs() < 1e-3) {
-                return Err(bad(f("home_orientation"), format!("must be a unit quaternion (w, x, y, z), got {q:?}")));
+                return Err(bad(
+                    f("home_orientation"),
+                    format!("must be a unit quaternion (w, x, y, z), got {q:?}"),
+                ));
             }
         }
         if let Some(skull) = &self.skull {
-            for (name, s) in [("containing", &skull.containing), ("excluding", &skull.excluding)] {
+            for (name, s) in [
+                ("containing", &skull.containing),
+                ("excluding", &skull.excluding),
+            ] {
                 if let Some(s) = s {
                     finite3(format!("skull.{name}.centre_m"), &s.centre_m)?;
                     positive(&format!("skull.{name}.radius_m"), s.radius_m)?;
@@ -487,7 +562,10 @@ impl Scene {
 
     /// The instrument named `name`.
     pub fn instrument(&self, name: &str) -> Option<(usize, &InstrumentSpec)> {
-        self.instruments.iter().enumerate().find(|(_, i)| i.name == name)
+        self.instruments
+            .iter()
+            .enumerate()
+            .find(|(_, i)| i.name == name)
     }
 }
 
@@ -511,14 +589,20 @@ mod tests {
         let bad = text.replace("poisson_ratio = 0.45", "poisson_ratio = 0.5");
         assert_ne!(bad, text);
         let err = Scene::parse(&bad, "x.toml").unwrap_err().to_string();
-        assert!(err.contains("material.poisson_ratio") && err.contains("x.toml"), "{err}");
+        assert!(
+            err.contains("material.poisson_ratio") && err.contains("x.toml"),
+            "{err}"
+        );
         let bad = text.replace("thickness_m = ", "thickness_m = -");
         let err = Scene::parse(&bad, "x.toml").unwrap_err().to_string();
         assert!(err.contains("instrument[0].thickness_m"), "{err}");
         let bad = text.replace("[material]", "[material]\ncolour = 1");
         let err = Scene::parse(&bad, "x.toml").unwrap_err().to_string();
         assert!(err.contains("colour") && err.contains("line"), "{err}");
-        assert!(matches!(Scene::load("no-such-scene"), Err(SceneError::Unknown { .. })));
+        assert!(matches!(
+            Scene::load("no-such-scene"),
+            Err(SceneError::Unknown { .. })
+        ));
         assert_eq!(scene.name, "cube");
     }
 }

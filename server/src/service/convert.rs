@@ -1,25 +1,38 @@
 //! Conversions between engine values and `fissure.v1` messages.
 
 use crate::scene::Scene;
+use crate::sim::ForceOut;
 use crate::sim::engine::Model;
 use crate::sim::pose::RawPose;
 use crate::sim::snapshot::{Frame, InstrumentReaction};
 use crate::sim::stats::{LatencySummary, StatsSummary};
-use crate::sim::ForceOut;
 use fissure_proto::v1 as pb;
 use nalgebra::Vector3;
 
 /// A vector message from an engine vector.
 pub fn vec3(v: &Vector3<f64>) -> pb::Vec3 {
-    pb::Vec3 { x: v.x, y: v.y, z: v.z }
+    pb::Vec3 {
+        x: v.x,
+        y: v.y,
+        z: v.z,
+    }
 }
 
 fn arr3(v: [f64; 3]) -> pb::Vec3 {
-    pb::Vec3 { x: v[0], y: v[1], z: v[2] }
+    pb::Vec3 {
+        x: v[0],
+        y: v[1],
+        z: v[2],
+    }
 }
 
 fn quat(q: [f64; 4]) -> pb::Quaternion {
-    pb::Quaternion { w: q[0], x: q[1], y: q[2], z: q[3] }
+    pb::Quaternion {
+        w: q[0],
+        x: q[1],
+        y: q[2],
+        z: q[3],
+    }
 }
 
 /// The description of a loaded scene.
@@ -51,7 +64,11 @@ pub fn scene_description(scene: &Scene, model: &Model) -> pb::SceneDescription {
                 length_m: ins.length_m,
                 nodes_per_face: ins.nodes_per_face,
                 rim_nodes: model.rim_node_count(i) as u32,
-                handle_m: Some(pb::Vec3 { x: 0.0, y: 0.0, z: 0.0 }),
+                handle_m: Some(pb::Vec3 {
+                    x: 0.0,
+                    y: 0.0,
+                    z: 0.0,
+                }),
                 home_position_m: Some(arr3(ins.home_position_m)),
                 home_orientation: Some(quat(ins.home_orientation)),
             })
@@ -91,15 +108,25 @@ pub fn scene_description(scene: &Scene, model: &Model) -> pb::SceneDescription {
 /// The rest surface.
 pub fn surface(model: &Model) -> pb::SurfaceMesh {
     pb::SurfaceMesh {
-        rest_positions_m: model.rest_surface.iter().flat_map(|p| [p.x, p.y, p.z]).collect(),
+        rest_positions_m: model
+            .rest_surface
+            .iter()
+            .flat_map(|p| [p.x, p.y, p.z])
+            .collect(),
         triangles: model.surface.triangles.iter().flat_map(|t| *t).collect(),
     }
 }
 
 /// A pose message to the engine's raw pose; a missing field is an error naming it.
 pub fn raw_pose(p: &pb::PoseSample) -> Result<RawPose, crate::sim::pose::PoseError> {
-    let pos = p.position_m.as_ref().ok_or(crate::sim::pose::PoseError::Missing("position_m"))?;
-    let q = p.orientation.as_ref().ok_or(crate::sim::pose::PoseError::Missing("orientation"))?;
+    let pos = p
+        .position_m
+        .as_ref()
+        .ok_or(crate::sim::pose::PoseError::Missing("position_m"))?;
+    let q = p
+        .orientation
+        .as_ref()
+        .ok_or(crate::sim::pose::PoseError::Missing("orientation"))?;
     Ok(RawPose {
         t_s: p.t_s,
         sequence: p.sequence,
@@ -131,7 +158,10 @@ pub fn rejection(p: &pb::PoseSample, code: tonic::Code, message: String) -> pb::
         t_s: p.t_s,
         force_n: Some(pb::Vec3::default()),
         torque_nm: Some(pb::Vec3::default()),
-        rejection: Some(pb::PoseRejection { code: code as i32, message }),
+        rejection: Some(pb::PoseRejection {
+            code: code as i32,
+            message,
+        }),
         ..Default::default()
     }
 }
@@ -171,7 +201,12 @@ pub fn frame(f: &Frame, include_positions: bool) -> pb::DeformationFrame {
 }
 
 fn latency(l: &LatencySummary) -> pb::LatencySummary {
-    pb::LatencySummary { count: l.count, p50_us: l.p50_us, p99_us: l.p99_us, max_us: l.max_us }
+    pb::LatencySummary {
+        count: l.count,
+        p50_us: l.p50_us,
+        p99_us: l.p99_us,
+        max_us: l.max_us,
+    }
 }
 
 /// A stats message.

@@ -43,7 +43,10 @@ pub struct FissureService {
 impl FissureService {
     /// A service whose simulation is set later with [`FissureService::set_simulation`].
     pub fn new(token: Option<String>) -> Self {
-        Self { sim: Arc::new(OnceLock::new()), token: token.map(Into::into) }
+        Self {
+            sim: Arc::new(OnceLock::new()),
+            token: token.map(Into::into),
+        }
     }
 
     /// Makes the loaded simulation available to clients.
@@ -52,11 +55,15 @@ impl FissureService {
     }
 
     fn sim(&self) -> Result<&Arc<Simulation>, Status> {
-        self.sim.get().ok_or_else(|| Status::unavailable("the scene is still loading"))
+        self.sim
+            .get()
+            .ok_or_else(|| Status::unavailable("the scene is still loading"))
     }
 
     fn check_token<T>(&self, req: &Request<T>) -> Result<(), Status> {
-        let Some(token) = &self.token else { return Ok(()) };
+        let Some(token) = &self.token else {
+            return Ok(());
+        };
         let given = req
             .metadata()
             .get(AUTHORIZATION_METADATA_KEY)
@@ -80,32 +87,53 @@ type BoxStream<T> = Pin<Box<dyn Stream<Item = Result<T, Status>> + Send>>;
 
 #[tonic::async_trait]
 impl Fissure for FissureService {
-    async fn get_scene(&self, _: Request<pb::GetSceneRequest>) -> Result<Response<pb::SceneDescription>, Status> {
+    async fn get_scene(
+        &self,
+        _: Request<pb::GetSceneRequest>,
+    ) -> Result<Response<pb::SceneDescription>, Status> {
         let sim = self.sim()?;
-        Ok(Response::new(convert::scene_description(sim.scene(), sim.model())))
+        Ok(Response::new(convert::scene_description(
+            sim.scene(),
+            sim.model(),
+        )))
     }
 
-    async fn get_surface(&self, _: Request<pb::GetSurfaceRequest>) -> Result<Response<pb::SurfaceMesh>, Status> {
+    async fn get_surface(
+        &self,
+        _: Request<pb::GetSurfaceRequest>,
+    ) -> Result<Response<pb::SurfaceMesh>, Status> {
         Ok(Response::new(convert::surface(self.sim()?.model())))
     }
 
-    async fn reset(&self, _: Request<pb::ResetRequest>) -> Result<Response<pb::ResetResponse>, Status> {
-        Ok(Response::new(pb::ResetResponse { frame: self.sim()?.reset() }))
+    async fn reset(
+        &self,
+        _: Request<pb::ResetRequest>,
+    ) -> Result<Response<pb::ResetResponse>, Status> {
+        Ok(Response::new(pb::ResetResponse {
+            frame: self.sim()?.reset(),
+        }))
     }
 
     type HapticStream = BoxStream<pb::ForceSample>;
 
-    async fn haptic(&self, req: Request<Streaming<pb::PoseSample>>) -> Result<Response<Self::HapticStream>, Status> {
+    async fn haptic(
+        &self,
+        req: Request<Streaming<pb::PoseSample>>,
+    ) -> Result<Response<Self::HapticStream>, Status> {
         let sim = self.sim()?.clone();
         self.check_token(&req)?;
         let name = req
             .metadata()
             .get(INSTRUMENT_METADATA_KEY)
             .ok_or_else(|| {
-                Status::invalid_argument(format!("the `{INSTRUMENT_METADATA_KEY}` metadata naming the instrument is missing"))
+                Status::invalid_argument(format!(
+                    "the `{INSTRUMENT_METADATA_KEY}` metadata naming the instrument is missing"
+                ))
             })?
             .to_str()
-            .map_err(|_| Status::invalid_argument(format!("`{INSTRUMENT_METADATA_KEY}` is not ASCII")))?
+            .map_err(|_| {
+                Status::invalid_argument(format!("`{INSTRUMENT_METADATA_KEY}` is not ASCII"))
+            })?
             .to_owned();
         let mut claim = sim.claim(&name).map_err(|e| match e {
             ClaimError::Unknown { .. } => Status::not_found(e.to_string()),
@@ -154,7 +182,10 @@ impl Fissure for FissureService {
 
     type WatchStream = BoxStream<pb::DeformationFrame>;
 
-    async fn watch(&self, req: Request<pb::WatchRequest>) -> Result<Response<Self::WatchStream>, Status> {
+    async fn watch(
+        &self,
+        req: Request<pb::WatchRequest>,
+    ) -> Result<Response<Self::WatchStream>, Status> {
         let sim = self.sim()?;
         let include = req.get_ref().include_positions;
         let guard = sim
@@ -168,7 +199,10 @@ impl Fissure for FissureService {
         Ok(Response::new(Box::pin(stream)))
     }
 
-    async fn get_stats(&self, _: Request<pb::GetStatsRequest>) -> Result<Response<pb::Stats>, Status> {
+    async fn get_stats(
+        &self,
+        _: Request<pb::GetStatsRequest>,
+    ) -> Result<Response<pb::Stats>, Status> {
         Ok(Response::new(convert::stats(&self.sim()?.stats())))
     }
 }
@@ -189,7 +223,9 @@ impl RunningServer {
     /// Makes the simulation available and reports SERVING.
     pub async fn set_simulation(&self, sim: Arc<Simulation>) {
         self.service.set_simulation(sim);
-        self.health.set_serving::<FissureServer<FissureService>>().await;
+        self.health
+            .set_serving::<FissureServer<FissureService>>()
+            .await;
     }
 
     /// Stops accepting calls, waits for the server task to end.
@@ -206,10 +242,14 @@ impl RunningServer {
 /// NOT_SERVING until [`RunningServer::set_simulation`].
 pub async fn serve(addr: SocketAddr, options: ServeOptions) -> anyhow::Result<RunningServer> {
     use anyhow::Context;
-    let listener = tokio::net::TcpListener::bind(addr).await.with_context(|| format!("cannot listen on {addr}"))?;
+    let listener = tokio::net::TcpListener::bind(addr)
+        .await
+        .with_context(|| format!("cannot listen on {addr}"))?;
     let addr = listener.local_addr()?;
     let (health, health_service) = tonic_health::server::health_reporter();
-    health.set_not_serving::<FissureServer<FissureService>>().await;
+    health
+        .set_not_serving::<FissureServer<FissureService>>()
+        .await;
     let reflection = tonic_reflection::server::Builder::configure()
         .register_encoded_file_descriptor_set(fissure_proto::FILE_DESCRIPTOR_SET)
         .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
@@ -222,11 +262,17 @@ pub async fn serve(addr: SocketAddr, options: ServeOptions) -> anyhow::Result<Ru
     let mut builder = tonic::transport::Server::builder().tcp_nodelay(true);
     if let Some((cert, key)) = &options.tls {
         builder = builder
-            .tls_config(tonic::transport::ServerTlsConfig::new().identity(tonic::transport::Identity::from_pem(cert, key)))
+            .tls_config(
+                tonic::transport::ServerTlsConfig::new()
+                    .identity(tonic::transport::Identity::from_pem(cert, key)),
+            )
             .context("configuring TLS")?;
     }
     let (tx, rx) = tokio::sync::oneshot::channel::<()>();
-    let router = builder.add_service(health_service).add_service(reflection).add_service(grpc);
+    let router = builder
+        .add_service(health_service)
+        .add_service(reflection)
+        .add_service(grpc);
     let incoming = tokio_stream::wrappers::TcpListenerStream::new(listener).map(|s| {
         if let Ok(s) = &s {
             let _ = s.set_nodelay(true);
@@ -236,5 +282,11 @@ pub async fn serve(addr: SocketAddr, options: ServeOptions) -> anyhow::Result<Ru
     let task = tokio::spawn(router.serve_with_incoming_shutdown(incoming, async move {
         let _ = rx.await;
     }));
-    Ok(RunningServer { addr, service, health, shutdown: Some(tx), task })
+    Ok(RunningServer {
+        addr,
+        service,
+        health,
+        shutdown: Some(tx),
+        task,
+    })
 }

@@ -6,18 +6,20 @@
 //! the scene names it; each instrument's rays are cast only for that
 //! instrument; the force loop of an instrument queries that instrument alone.
 
+use super::SimError;
 use super::local_model::ForceModel;
 use super::snapshot::{Frame, InstrumentReaction, Snapshot, StepTimings};
-use super::SimError;
+use crate::collide::RayBackend;
 use crate::collide::brute::BruteForce;
 use crate::collide::bvh::Bvh;
 use crate::collide::contact::{self, ContactOutput, DetectOptions, Tool, Workspace};
 use crate::collide::history::{HistoryMode as CollideHistoryMode, Stage};
 use crate::collide::instrument::{Instrument, NodeLayout, Plate, RimNodes};
-use crate::collide::RayBackend;
 use crate::fem::{self, DeformationSolver, Prescribed};
 use crate::mesh::{BoundarySurface, TetMesh};
-use crate::scene::{CollisionBackend, CollisionMethod, HistoryMode, LayoutKind, ModelSpec, Region, Scene, ShapeKind};
+use crate::scene::{
+    CollisionBackend, CollisionMethod, HistoryMode, LayoutKind, ModelSpec, Region, Scene, ShapeKind,
+};
 use nalgebra::{DMatrix, Isometry3, Point3, Vector3};
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -51,21 +53,28 @@ fn build_instrument(spec: &crate::scene::InstrumentSpec) -> Result<Instrument, S
             spec.width_m,
             spec.length_m,
         ),
-        ShapeKind::Curved => {
-            Plate::curved(spec.thickness_m, spec.width_m, spec.length_m, spec.bend_radius_m.unwrap_or(f64::INFINITY))
-        }
+        ShapeKind::Curved => Plate::curved(
+            spec.thickness_m,
+            spec.width_m,
+            spec.length_m,
+            spec.bend_radius_m.unwrap_or(f64::INFINITY),
+        ),
     };
     let per_face = spec.nodes_per_face as usize;
     let layout = match spec.layout {
         LayoutKind::WholeFace => NodeLayout::WholeFace { per_face },
-        LayoutKind::Tip => NodeLayout::Tip { per_face, fraction: 0.3 },
+        LayoutKind::Tip => NodeLayout::Tip {
+            per_face,
+            fraction: 0.3,
+        },
     };
     let rim = spec.rim.then(|| RimNodes {
         per_side: ((spec.length_m / spec.width_m * 3.0).round() as usize).clamp(4, 64),
         tip: 5,
         tip_reach: spec.thickness_m.max(0.002),
     });
-    Instrument::new(plate, layout, rim).map_err(|e| SimError::Model(format!("instrument {:?}: {e}", spec.name)))
+    Instrument::new(plate, layout, rim)
+        .map_err(|e| SimError::Model(format!("instrument {:?}: {e}", spec.name)))
 }
 
 impl Model {
@@ -76,10 +85,15 @@ impl Model {
             ModelSpec::VValley => crate::mesh::blocks::v_valley(),
             ModelSpec::UValley => crate::mesh::blocks::u_valley(),
             ModelSpec::Phantom { preset } => {
-                return Err(SimError::Model(format!("phantom preset {preset:?} is not available")));
+                return Err(SimError::Model(format!(
+                    "phantom preset {preset:?} is not available"
+                )));
             }
             ModelSpec::File { path } => {
-                return Err(SimError::Model(format!("mesh file {} cannot be read", path.display())));
+                return Err(SimError::Model(format!(
+                    "mesh file {} cannot be read",
+                    path.display()
+                )));
             }
         };
         let surface = mesh.boundary();
@@ -91,18 +105,37 @@ impl Model {
                 scene.fixed.iter().any(|r| r.contains([p.x, p.y, p.z]))
             })
             .collect();
-        if let Some(Region::Landmark { landmark }) = scene.fixed.iter().find(|r| matches!(r, Region::Landmark { .. })) {
-            return Err(SimError::Model(format!("the model has no landmark named {landmark:?}")));
+        if let Some(Region::Landmark { landmark }) = scene
+            .fixed
+            .iter()
+            .find(|r| matches!(r, Region::Landmark { .. }))
+        {
+            return Err(SimError::Model(format!(
+                "the model has no landmark named {landmark:?}"
+            )));
         }
         if fixed.is_empty() {
-            return Err(SimError::Model("no node lies in the fixed region(s); the model would float".into()));
+            return Err(SimError::Model(
+                "no node lies in the fixed region(s); the model would float".into(),
+            ));
         }
-        let instruments = scene.instruments.iter().map(build_instrument).collect::<Result<_, _>>()?;
+        let instruments = scene
+            .instruments
+            .iter()
+            .map(build_instrument)
+            .collect::<Result<_, _>>()?;
         let history_mode = match scene.collision.history {
             HistoryMode::ForceRate => CollideHistoryMode::ForceRate,
             HistoryMode::Paper => CollideHistoryMode::PaperFaithful,
         };
-        Ok(Self { mesh, surface, rest_surface, fixed, instruments, history_mode })
+        Ok(Self {
+            mesh,
+            surface,
+            rest_surface,
+            fixed,
+            instruments,
+            history_mode,
+        })
     }
 
     /// All flags off for instrument `i`.
@@ -117,7 +150,11 @@ impl Model {
 
     /// Frame 0: the rest state, no contact.
     pub fn rest_snapshot(&self, scene: &Scene) -> Snapshot {
-        let positions: Vec<[f32; 3]> = self.rest_surface.iter().map(|p| [p.x as f32, p.y as f32, p.z as f32]).collect();
+        let positions: Vec<[f32; 3]> = self
+            .rest_surface
+            .iter()
+            .map(|p| [p.x as f32, p.y as f32, p.z as f32])
+            .collect();
         let instruments = scene
             .instruments
             .iter()
@@ -138,7 +175,9 @@ impl Model {
             published: Instant::now(),
             surface: Arc::new(self.rest_surface.clone()),
             force_model: Arc::new(ForceModel::default()),
-            paper_history: (0..self.instruments.len()).map(|i| self.new_history(i)).collect(),
+            paper_history: (0..self.instruments.len())
+                .map(|i| self.new_history(i))
+                .collect(),
             solver_error: None,
             frame_summary: Arc::new(Frame {
                 frame: 0,
@@ -158,14 +197,20 @@ pub fn ray_backend(scene: &Scene, model: &Model, positions: &[Point3<f64>]) -> B
     let tris = &model.surface.triangles;
     let cpu = |method: CollisionMethod| -> Box<dyn RayBackend> {
         match method {
-            CollisionMethod::Brute => Box::new(BruteForce::new(tris, positions).expect("surface checked at load")),
-            CollisionMethod::Bvh => Box::new(Bvh::new(tris, positions).expect("surface checked at load")),
+            CollisionMethod::Brute => {
+                Box::new(BruteForce::new(tris, positions).expect("surface checked at load"))
+            }
+            CollisionMethod::Bvh => {
+                Box::new(Bvh::new(tris, positions).expect("surface checked at load"))
+            }
         }
     };
     match scene.collision.backend {
         CollisionBackend::Cpu => cpu(scene.collision.method),
         CollisionBackend::Gpu => {
-            tracing::warn!("the GPU collision backend is not available in this build; using the CPU backend");
+            tracing::warn!(
+                "the GPU collision backend is not available in this build; using the CPU backend"
+            );
             cpu(scene.collision.method)
         }
     }
@@ -184,7 +229,9 @@ pub struct ContactQuery {
 
 impl std::fmt::Debug for ContactQuery {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("ContactQuery").field("method", &self.backend.method()).finish_non_exhaustive()
+        f.debug_struct("ContactQuery")
+            .field("method", &self.backend.method())
+            .finish_non_exhaustive()
     }
 }
 
@@ -199,7 +246,10 @@ pub struct ContactView<'a> {
 impl ContactView<'_> {
     /// Enforced displacement of a volume node, if in contact.
     pub fn displacement_of(&self, node: u32) -> Option<Vector3<f64>> {
-        self.by_node.binary_search_by_key(&node, |e| e.0).ok().map(|i| self.by_node[i].1)
+        self.by_node
+            .binary_search_by_key(&node, |e| e.0)
+            .ok()
+            .map(|i| self.by_node[i].1)
     }
 
     /// Surface vertices in contact.
@@ -216,13 +266,20 @@ impl ContactQuery {
             fitted: None,
             ws: Workspace::new(),
             out: ContactOutput::default(),
-            opts: DetectOptions { culling: scene.collision.culling, ..DetectOptions::default() },
+            opts: DetectOptions {
+                culling: scene.collision.culling,
+                ..DetectOptions::default()
+            },
             by_node: Vec::new(),
         }
     }
 
     fn fit(&mut self, surface: &Arc<Vec<Point3<f64>>>) {
-        if !self.fitted.as_ref().is_some_and(|f| Arc::ptr_eq(f, surface)) {
+        if !self
+            .fitted
+            .as_ref()
+            .is_some_and(|f| Arc::ptr_eq(f, surface))
+        {
             self.backend.update_positions(surface);
             self.fitted = Some(surface.clone());
         }
@@ -230,7 +287,12 @@ impl ContactQuery {
 
     fn index(&mut self) {
         self.by_node.clear();
-        self.by_node.extend(self.out.enforced.iter().map(|e| (e.volume_node, e.displacement)));
+        self.by_node.extend(
+            self.out
+                .enforced
+                .iter()
+                .map(|e| (e.volume_node, e.displacement)),
+        );
         self.by_node.sort_unstable_by_key(|e| e.0);
     }
 
@@ -265,7 +327,10 @@ impl ContactQuery {
             self.out = ContactOutput::default();
         }
         self.index();
-        ContactView { output: &self.out, by_node: &self.by_node }
+        ContactView {
+            output: &self.out,
+            by_node: &self.by_node,
+        }
     }
 
     /// All instruments in one cast (the deformation loop).
@@ -288,11 +353,21 @@ impl ContactQuery {
             .iter()
             .zip(poses)
             .zip(histories.iter_mut())
-            .map(|((instrument, pose), history)| Tool { instrument, pose: *pose, history })
+            .map(|((instrument, pose), history)| Tool {
+                instrument,
+                pose: *pose,
+                history,
+            })
             .collect();
-        if let Err(e) =
-            contact::detect_many(self.backend.as_mut(), &q, &mut tools, Stage::Deformation, &self.opts, &mut self.ws, &mut self.out)
-        {
+        if let Err(e) = contact::detect_many(
+            self.backend.as_mut(),
+            &q,
+            &mut tools,
+            Stage::Deformation,
+            &self.opts,
+            &mut self.ws,
+            &mut self.out,
+        ) {
             tracing::warn!(error = %e, "collision query failed");
             self.out = ContactOutput::default();
         }
@@ -308,7 +383,9 @@ pub struct Deformer {
 
 impl std::fmt::Debug for Deformer {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Deformer").field("solver", &self.solver.name()).finish_non_exhaustive()
+        f.debug_struct("Deformer")
+            .field("solver", &self.solver.name())
+            .finish_non_exhaustive()
     }
 }
 
@@ -336,7 +413,10 @@ impl Deformer {
         options.iterative.max_outer = scene.solver.max_iterations;
         let solver = fem::build_solver(strategy, &model.mesh, material, &model.fixed, &options)
             .map_err(|e| SimError::Solver(e.to_string()))?;
-        Ok(Self { solver, prescribed: Vec::new() })
+        Ok(Self {
+            solver,
+            prescribed: Vec::new(),
+        })
     }
 
     /// Back to rest (an unconstrained solve gives zero displacement and resets
@@ -348,9 +428,11 @@ impl Deformer {
     /// Solves with the contact output's enforced displacements.
     pub fn step(&mut self, contacts: &ContactOutput) -> Result<StepResult, fem::SolveError> {
         self.prescribed.clear();
-        self.prescribed.extend(
-            contacts.enforced.iter().map(|e| Prescribed { node: e.volume_node, displacement: e.displacement }),
-        );
+        self.prescribed
+            .extend(contacts.enforced.iter().map(|e| Prescribed {
+                node: e.volume_node,
+                displacement: e.displacement,
+            }));
         let solution = self.solver.solve(&self.prescribed)?;
         let displacements = solution.displacements.clone();
         let reactions = solution.reactions.clone();
@@ -358,14 +440,26 @@ impl Deformer {
             Some(local) => force_model_from(local, contacts, &reactions),
             None => ForceModel::default(),
         };
-        Ok(StepResult { displacements, reactions, force_model })
+        Ok(StepResult {
+            displacements,
+            reactions,
+            force_model,
+        })
     }
 }
 
 /// The condensed stiffness `S = C^-1` of the local model, with each node's
 /// owner (the instrument that enforced it).
-fn force_model_from(local: &fem::LocalModel, contacts: &ContactOutput, _reactions: &[Vector3<f64>]) -> ForceModel {
-    let owner_of: HashMap<u32, u16> = contacts.enforced.iter().map(|e| (e.volume_node, e.instrument)).collect();
+fn force_model_from(
+    local: &fem::LocalModel,
+    contacts: &ContactOutput,
+    _reactions: &[Vector3<f64>],
+) -> ForceModel {
+    let owner_of: HashMap<u32, u16> = contacts
+        .enforced
+        .iter()
+        .map(|e| (e.volume_node, e.instrument))
+        .collect();
     let m = local.nodes.len();
     let stiffness = if m == 0 {
         DMatrix::zeros(0, 0)
@@ -373,19 +467,31 @@ fn force_model_from(local: &fem::LocalModel, contacts: &ContactOutput, _reaction
         match local.compliance.clone().cholesky() {
             Some(ch) => ch.inverse(),
             None => {
-                tracing::warn!(nodes = m, "the compliance block is not positive definite; forces held at the step's values");
+                tracing::warn!(
+                    nodes = m,
+                    "the compliance block is not positive definite; forces held at the step's values"
+                );
                 DMatrix::zeros(3 * m, 3 * m)
             }
         }
     };
     ForceModel {
         nodes: local.nodes.clone(),
-        owner: local.nodes.iter().map(|n| owner_of.get(n).copied().unwrap_or(u16::MAX)).collect(),
+        owner: local
+            .nodes
+            .iter()
+            .map(|n| owner_of.get(n).copied().unwrap_or(u16::MAX))
+            .collect(),
         u0: local.displacements.clone(),
         r0: local.reactions.clone(),
         rest: Vec::new(),
         stiffness,
-        index: local.nodes.iter().enumerate().map(|(i, &n)| (n, i)).collect(),
+        index: local
+            .nodes
+            .iter()
+            .enumerate()
+            .map(|(i, &n)| (n, i))
+            .collect(),
     }
 }
 
@@ -410,7 +516,11 @@ impl Model {
             surface.push(self.rest_surface[s] + u);
         }
         let mut force_model = step.force_model;
-        force_model.rest = force_model.nodes.iter().map(|&n| self.mesh.nodes[n as usize]).collect();
+        force_model.rest = force_model
+            .nodes
+            .iter()
+            .map(|&n| self.mesh.nodes[n as usize])
+            .collect();
         let instruments = scene
             .instruments
             .iter()
@@ -433,15 +543,26 @@ impl Model {
                     name: spec.name.clone(),
                     force_n: force,
                     torque_nm: torque,
-                    pairs: contacts.pairs.iter().filter(|p| p.instrument as usize == k).count() as u32,
-                    culled: contacts.cancelled.iter().filter(|p| p.instrument as usize == k).count() as u32,
+                    pairs: contacts
+                        .pairs
+                        .iter()
+                        .filter(|p| p.instrument as usize == k)
+                        .count() as u32,
+                    culled: contacts
+                        .cancelled
+                        .iter()
+                        .filter(|p| p.instrument as usize == k)
+                        .count() as u32,
                     contact_vertices,
                     position_m: handle,
                     orientation: [q.w, q.i, q.j, q.k],
                 }
             })
             .collect();
-        let positions = surface.iter().map(|p| [p.x as f32, p.y as f32, p.z as f32]).collect();
+        let positions = surface
+            .iter()
+            .map(|p| [p.x as f32, p.y as f32, p.z as f32])
+            .collect();
         Snapshot {
             frame,
             sim_time_s,

@@ -168,11 +168,25 @@ mod tests {
     /// r = S u for a linear model, and release a node exactly.
     #[test]
     fn linear_extrapolation_and_release() {
-        let s = DMatrix::from_fn(6, 6, |i, j| if i == j { 4.0 } else if i % 3 == j % 3 { 1.0 } else { 0.0 });
-        let u0 = vec![Vector3::new(0.0, 0.0, -0.001), Vector3::new(0.0, 0.0, -0.001)];
+        let s = DMatrix::from_fn(6, 6, |i, j| {
+            if i == j {
+                4.0
+            } else if i % 3 == j % 3 {
+                1.0
+            } else {
+                0.0
+            }
+        });
+        let u0 = vec![
+            Vector3::new(0.0, 0.0, -0.001),
+            Vector3::new(0.0, 0.0, -0.001),
+        ];
         let uflat = DVector::from_iterator(6, u0.iter().flat_map(|u| u.iter().copied()));
         let r0f = &s * &uflat;
-        let r0 = vec![Vector3::new(r0f[0], r0f[1], r0f[2]), Vector3::new(r0f[3], r0f[4], r0f[5])];
+        let r0 = vec![
+            Vector3::new(r0f[0], r0f[1], r0f[2]),
+            Vector3::new(r0f[3], r0f[4], r0f[5]),
+        ];
         let model = ForceModel {
             nodes: vec![10, 11],
             owner: vec![0, 0],
@@ -188,7 +202,12 @@ mod tests {
         let f = model.instrument_force(0, |n| model.index.get(&n).map(|&i| u0[i]), &h, &mut ws);
         assert!((f.force + r0[0] + r0[1]).norm() < 1e-12);
         // Twice the push: twice the force (linear).
-        let f2 = model.instrument_force(0, |n| model.index.get(&n).map(|&i| 2.0 * u0[i]), &h, &mut ws);
+        let f2 = model.instrument_force(
+            0,
+            |n| model.index.get(&n).map(|&i| 2.0 * u0[i]),
+            &h,
+            &mut ws,
+        );
         assert!((f2.force - 2.0 * f.force).norm() < 1e-12);
         // Node 11 released: the force equals the condensed one-node model
         // (S_cc - S_cf S_ff^-1 S_fc) u_c.

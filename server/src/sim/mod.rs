@@ -69,7 +69,12 @@ pub struct SimOptions {
 
 impl Default for SimOptions {
     fn default() -> Self {
-        Self { stepped: None, stepped_clients: 1, recording: None, max_watchers: 16 }
+        Self {
+            stepped: None,
+            stepped_clients: 1,
+            recording: None,
+            max_watchers: 16,
+        }
     }
 }
 
@@ -84,7 +89,10 @@ pub enum SimError {
     Solver(String),
     /// The recording could not be opened.
     #[error("opening the recording {path}: {source}")]
-    Recording { path: PathBuf, source: std::io::Error },
+    Recording {
+        path: PathBuf,
+        source: std::io::Error,
+    },
 }
 
 /// Why an instrument cannot be claimed.
@@ -174,7 +182,9 @@ pub struct Simulation {
 
 impl std::fmt::Debug for Simulation {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Simulation").field("scene", &self.scene.name).finish_non_exhaustive()
+        f.debug_struct("Simulation")
+            .field("scene", &self.scene.name)
+            .finish_non_exhaustive()
     }
 }
 
@@ -187,8 +197,14 @@ impl Simulation {
         let stepped = options.stepped.unwrap_or(scene.loops.stepped);
         let recorder = match &options.recording {
             Some(path) => Some(
-                recording::Recorder::create(path, &crate::service::convert::scene_description(&scene, &model))
-                    .map_err(|source| SimError::Recording { path: path.clone(), source })?,
+                recording::Recorder::create(
+                    path,
+                    &crate::service::convert::scene_description(&scene, &model),
+                )
+                .map_err(|source| SimError::Recording {
+                    path: path.clone(),
+                    source,
+                })?,
             ),
             None => None,
         };
@@ -267,7 +283,10 @@ impl Simulation {
             self.watchers.fetch_sub(1, Ordering::SeqCst);
             return None;
         }
-        Some(WatcherGuard { sim: self.clone(), rx: self.frames.subscribe() })
+        Some(WatcherGuard {
+            sim: self.clone(),
+            rx: self.frames.subscribe(),
+        })
     }
 
     /// Claims an instrument for one haptic client; released when the claim drops.
@@ -278,7 +297,13 @@ impl Simulation {
         let Some((index, _)) = self.scene.instrument(name) else {
             return Err(ClaimError::Unknown {
                 name: name.to_owned(),
-                known: self.scene.instruments.iter().map(|i| i.name.as_str()).collect::<Vec<_>>().join(", "),
+                known: self
+                    .scene
+                    .instruments
+                    .iter()
+                    .map(|i| i.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", "),
             });
         };
         {
@@ -394,7 +419,8 @@ impl Simulation {
         let dt = self.scene.loops.deformation_interval_s;
         let n = self.scene.instruments.len();
         let mut query = ContactQuery::new(&self.scene, &self.model);
-        let mut paper_history: Vec<engine::History> = (0..n).map(|i| self.model.new_history(i)).collect();
+        let mut paper_history: Vec<engine::History> =
+            (0..n).map(|i| self.model.new_history(i)).collect();
         let mut seen_versions = vec![u64::MAX; n];
         let mut k: u64 = 0;
         let mut last_start = Instant::now();
@@ -415,7 +441,11 @@ impl Simulation {
                     if self.stepped {
                         // Same product as `step_before`.
                         let t_next = (k + 1) as f64 * dt;
-                        let ever = inputs.per_instrument.iter().filter(|s| s.ever_claimed).count();
+                        let ever = inputs
+                            .per_instrument
+                            .iter()
+                            .filter(|s| s.ever_claimed)
+                            .count();
                         let any_active = inputs.per_instrument.iter().any(|s| s.claimed);
                         let ready = ever >= self.options.stepped_clients.max(1)
                             && any_active
@@ -437,11 +467,17 @@ impl Simulation {
                             break;
                         }
                         let wait = if changed {
-                            Duration::from_secs_f64((dt - last_start.elapsed().as_secs_f64()).max(0.0))
+                            Duration::from_secs_f64(
+                                (dt - last_start.elapsed().as_secs_f64()).max(0.0),
+                            )
                         } else {
                             Duration::from_millis(50)
                         };
-                        inputs = self.inputs_changed.wait_timeout(inputs, wait).expect("inputs lock").0;
+                        inputs = self
+                            .inputs_changed
+                            .wait_timeout(inputs, wait)
+                            .expect("inputs lock")
+                            .0;
                     }
                 }
                 if inputs.reset {
@@ -461,7 +497,11 @@ impl Simulation {
                     continue;
                 }
                 k += 1;
-                sim_time = if self.stepped { k as f64 * dt } else { self.started.elapsed().as_secs_f64() };
+                sim_time = if self.stepped {
+                    k as f64 * dt
+                } else {
+                    self.started.elapsed().as_secs_f64()
+                };
                 for i in 0..n {
                     let slot = &mut inputs.per_instrument[i];
                     seen_versions[i] = slot.version;
@@ -500,7 +540,10 @@ impl Simulation {
             // Force-rate mode: a copy of the force loop's latest history (never
             // written back); paper mode, or an instrument at home: the
             // deformation loop's own history, renewed here.
-            let own: Vec<bool> = histories.iter().map(|h| paper_mode || h.is_none()).collect();
+            let own: Vec<bool> = histories
+                .iter()
+                .map(|h| paper_mode || h.is_none())
+                .collect();
             let mut step_histories: Vec<engine::History> = histories
                 .into_iter()
                 .enumerate()
@@ -521,7 +564,11 @@ impl Simulation {
             let solve_us = t1.elapsed().as_secs_f64() * 1e6;
             let total_us = last_start.elapsed().as_secs_f64() * 1e6;
             self.step_latency.record(total_us);
-            let timings = StepTimings { collision_us, solve_us, total_us };
+            let timings = StepTimings {
+                collision_us,
+                solve_us,
+                total_us,
+            };
             let snap = match result {
                 Ok(step) => self.model.snapshot_from(
                     &self.scene,
@@ -609,7 +656,9 @@ pub struct Claim {
 
 impl std::fmt::Debug for Claim {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Claim").field("instrument", &self.name).finish_non_exhaustive()
+        f.debug_struct("Claim")
+            .field("instrument", &self.name)
+            .finish_non_exhaustive()
     }
 }
 
@@ -655,11 +704,18 @@ impl Claim {
         if paper_mode {
             self.history.copy_from(&snap.paper_history[self.index]);
         }
-        let contact = self.query.query(&sim.model, &snap, self.index, &pose.pose, &mut self.history);
+        let contact =
+            self.query
+                .query(&sim.model, &snap, self.index, &pose.pose, &mut self.history);
         let handle = pose.pose.translation.vector;
         let index = self.index as u16;
         let fm = &snap.force_model;
-        let f = fm.instrument_force(index, |node| contact.displacement_of(node), &handle, &mut self.ws);
+        let f = fm.instrument_force(
+            index,
+            |node| contact.displacement_of(node),
+            &handle,
+            &mut self.ws,
+        );
         let mut force = f.force;
         let magnitude = force.norm();
         if magnitude > sim.scene.loops.safe_force_n {
@@ -741,7 +797,10 @@ mod tests {
         for i in 1..100_000u64 {
             let t = i as f64 * 1e-3;
             let k = step_before(t, dt);
-            assert!((k as f64 * dt) < t && ((k + 1) as f64 * dt) >= t, "t = {t}, k = {k}");
+            assert!(
+                (k as f64 * dt) < t && ((k + 1) as f64 * dt) >= t,
+                "t = {t}, k = {k}"
+            );
         }
     }
 }

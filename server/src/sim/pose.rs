@@ -76,10 +76,16 @@ pub fn validate(raw: &RawPose, last: Option<&TimedPose>) -> Result<TimedPose, Po
     }
     if let Some(last) = last {
         if raw.sequence <= last.sequence {
-            return Err(PoseError::SequenceBack { got: raw.sequence, last: last.sequence });
+            return Err(PoseError::SequenceBack {
+                got: raw.sequence,
+                last: last.sequence,
+            });
         }
         if raw.t_s < last.t_s {
-            return Err(PoseError::TimeBack { got: raw.t_s, last: last.t_s });
+            return Err(PoseError::TimeBack {
+                got: raw.t_s,
+                last: last.t_s,
+            });
         }
     }
     let [px, py, pz] = raw.position_m;
@@ -98,7 +104,12 @@ mod tests {
     use super::*;
 
     fn raw(t: f64, seq: u64) -> RawPose {
-        RawPose { t_s: t, sequence: seq, position_m: [0.0, 0.0, 0.1], orientation: [1.0, 0.0, 0.0, 0.0] }
+        RawPose {
+            t_s: t,
+            sequence: seq,
+            position_m: [0.0, 0.0, 0.1],
+            orientation: [1.0, 0.0, 0.0, 0.0],
+        }
     }
 
     #[test]
@@ -113,12 +124,30 @@ mod tests {
         );
         let mut r = raw(0.001, 2);
         r.orientation = [0.0; 4];
-        assert!(matches!(validate(&r, Some(&a)), Err(PoseError::NotUnit { .. })));
+        assert!(matches!(
+            validate(&r, Some(&a)),
+            Err(PoseError::NotUnit { .. })
+        ));
         r.orientation = [1.0005, 0.0, 0.0, 0.0];
-        assert!(validate(&r, Some(&a)).is_ok(), "within tolerance is accepted and normalised");
-        assert!(matches!(validate(&raw(0.001, 1), Some(&a)), Err(PoseError::SequenceBack { .. })));
-        assert!(matches!(validate(&raw(-0.001, 3), Some(&a)), Err(PoseError::TimeBack { .. })));
-        let r = RawPose { t_s: f64::INFINITY, ..raw(0.0, 9) };
-        assert!(matches!(validate(&r, Some(&a)), Err(PoseError::NonFinite { field: "t_s", .. })));
+        assert!(
+            validate(&r, Some(&a)).is_ok(),
+            "within tolerance is accepted and normalised"
+        );
+        assert!(matches!(
+            validate(&raw(0.001, 1), Some(&a)),
+            Err(PoseError::SequenceBack { .. })
+        ));
+        assert!(matches!(
+            validate(&raw(-0.001, 3), Some(&a)),
+            Err(PoseError::TimeBack { .. })
+        ));
+        let r = RawPose {
+            t_s: f64::INFINITY,
+            ..raw(0.0, 9)
+        };
+        assert!(matches!(
+            validate(&r, Some(&a)),
+            Err(PoseError::NonFinite { field: "t_s", .. })
+        ));
     }
 }

@@ -10,8 +10,8 @@ use fissure_proto::v1 as pb;
 use prost::Message;
 use std::io::{BufWriter, Read, Write};
 use std::path::Path;
-use std::sync::mpsc;
 use std::sync::Mutex;
+use std::sync::mpsc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -50,36 +50,42 @@ impl Recorder {
         out.write_all(&header.encode_length_delimited_to_vec())?;
         out.flush()?;
         let (tx, rx) = mpsc::channel::<Msg>();
-        let thread = std::thread::Builder::new().name("recorder".into()).spawn(move || {
-            let mut last_flush = Instant::now();
-            let mut buf = Vec::with_capacity(4096);
-            loop {
-                let msg = match rx.recv_timeout(FLUSH_INTERVAL) {
-                    Ok(m) => Some(m),
-                    Err(mpsc::RecvTimeoutError::Timeout) => None,
-                    Err(mpsc::RecvTimeoutError::Disconnected) => break,
-                };
-                match msg {
-                    Some(Msg::Entry(e)) => {
-                        buf.clear();
-                        e.encode_length_delimited(&mut buf).map_err(std::io::Error::other)?;
-                        out.write_all(&buf)?;
+        let thread = std::thread::Builder::new()
+            .name("recorder".into())
+            .spawn(move || {
+                let mut last_flush = Instant::now();
+                let mut buf = Vec::with_capacity(4096);
+                loop {
+                    let msg = match rx.recv_timeout(FLUSH_INTERVAL) {
+                        Ok(m) => Some(m),
+                        Err(mpsc::RecvTimeoutError::Timeout) => None,
+                        Err(mpsc::RecvTimeoutError::Disconnected) => break,
+                    };
+                    match msg {
+                        Some(Msg::Entry(e)) => {
+                            buf.clear();
+                            e.encode_length_delimited(&mut buf)
+                                .map_err(std::io::Error::other)?;
+                            out.write_all(&buf)?;
+                        }
+                        Some(Msg::Flush(done)) => {
+                            out.flush()?;
+                            let _ = done.send(());
+                        }
+                        None => {}
                     }
-                    Some(Msg::Flush(done)) => {
+                    if last_flush.elapsed() >= FLUSH_INTERVAL {
                         out.flush()?;
-                        let _ = done.send(());
+                        last_flush = Instant::now();
                     }
-                    None => {}
                 }
-                if last_flush.elapsed() >= FLUSH_INTERVAL {
-                    out.flush()?;
-                    last_flush = Instant::now();
-                }
-            }
-            out.flush()?;
-            out.get_ref().sync_all()
-        })?;
-        Ok(Self { tx: Mutex::new(Some(tx)), thread: Mutex::new(Some(thread)) })
+                out.flush()?;
+                out.get_ref().sync_all()
+            })?;
+        Ok(Self {
+            tx: Mutex::new(Some(tx)),
+            thread: Mutex::new(Some(thread)),
+        })
     }
 
     fn send(&self, entry: pb::recording_entry::Entry) {
@@ -106,7 +112,9 @@ impl Recorder {
 
     /// Records a frame summary (without positions).
     pub fn frame(&self, frame: &Frame) {
-        self.send(pb::recording_entry::Entry::Frame(crate::service::convert::frame(frame, false)));
+        self.send(pb::recording_entry::Entry::Frame(
+            crate::service::convert::frame(frame, false),
+        ));
     }
 
     /// Writes everything queued so far to the file.
@@ -123,7 +131,9 @@ impl Recorder {
     pub fn finish(&self) -> std::io::Result<()> {
         drop(self.tx.lock().expect("recorder lock").take());
         match self.thread.lock().expect("recorder lock").take() {
-            Some(t) => t.join().map_err(|_| std::io::Error::other("recorder thread panicked"))?,
+            Some(t) => t
+                .join()
+                .map_err(|_| std::io::Error::other("recorder thread panicked"))?,
             None => Ok(()),
         }
     }
@@ -140,10 +150,18 @@ impl Drop for Recorder {
 pub enum ReadError {
     /// I/O error.
     #[error("reading {path}: {source}")]
-    Io { path: String, source: std::io::Error },
+    Io {
+        path: String,
+        source: std::io::Error,
+    },
     /// A malformed entry.
     #[error("{path}: entry {index} at byte {offset} is malformed: {reason}")]
-    Malformed { path: String, index: usize, offset: usize, reason: String },
+    Malformed {
+        path: String,
+        index: usize,
+        offset: usize,
+        reason: String,
+    },
     /// The file does not start with a header.
     #[error("{path}: not a fissure recording (no header entry)")]
     NoHeader { path: String },
@@ -156,7 +174,10 @@ pub fn read(path: &Path) -> Result<(Vec<pb::RecordingEntry>, bool), ReadError> {
     let mut bytes = Vec::new();
     std::fs::File::open(path)
         .and_then(|mut f| f.read_to_end(&mut bytes))
-        .map_err(|source| ReadError::Io { path: name.clone(), source })?;
+        .map_err(|source| ReadError::Io {
+            path: name.clone(),
+            source,
+        })?;
     let mut entries = Vec::new();
     let mut buf = bytes.as_slice();
     let mut truncated = false;

@@ -31,7 +31,13 @@ struct Ring {
 
 impl Default for LatencyRecorder {
     fn default() -> Self {
-        Self { inner: Mutex::new(Ring { samples: Vec::with_capacity(Self::WINDOW), next: 0, count: 0 }) }
+        Self {
+            inner: Mutex::new(Ring {
+                samples: Vec::with_capacity(Self::WINDOW),
+                next: 0,
+                count: 0,
+            }),
+        }
     }
 }
 
@@ -114,7 +120,10 @@ mod tests {
             r.record(i as f64);
         }
         let s = r.summary();
-        assert_eq!((s.count, s.p50_us, s.p99_us, s.max_us), (100, 50.0, 99.0, 100.0));
+        assert_eq!(
+            (s.count, s.p50_us, s.p99_us, s.max_us),
+            (100, 50.0, 99.0, 100.0)
+        );
         assert_eq!(percentile(&[], 0.5).is_nan(), true);
     }
 }
