@@ -22,6 +22,16 @@ enum Command {
     Demo(fissure_cli::demo::DemoArgs),
     /// Stream a trajectory to a server as one haptic client and write the forces.
     Replay(ReplayArgs),
+    /// Build, convert and inspect brain models.
+    Mesh {
+        #[command(subcommand)]
+        command: fissure_cli::mesh_cmd::MeshCommand,
+    },
+    /// Benchmarks (print a table, or JSON with --json).
+    Bench {
+        #[command(subcommand)]
+        which: Bench,
+    },
     /// Summarise a session recording: duration, peak and mean force per
     /// instrument, time above a safe-force threshold, path length, time in contact.
     Report {
@@ -39,6 +49,29 @@ enum Command {
         /// Server URL.
         #[arg(long, default_value = "http://127.0.0.1:50051")]
         server: String,
+    },
+}
+
+#[derive(Debug, Subcommand)]
+enum Bench {
+    /// Time per deformation step of each solver strategy on a phantom preset,
+    /// with a growing contact set (ms per step).
+    Fem {
+        /// Phantom preset(s) to run (coarse, paper-34k, paper-48k).
+        #[arg(long, default_values_t = ["paper-48k".to_string()])]
+        preset: Vec<String>,
+        /// Contact-set sizes (surface vertices).
+        #[arg(long, value_delimiter = ',', default_values_t = [10usize, 50, 200])]
+        contacts: Vec<usize>,
+        /// Strategies (direct, compliance, corotational, neo-hookean); all by default.
+        #[arg(long, value_delimiter = ',')]
+        strategy: Vec<String>,
+        /// Timed steps per row.
+        #[arg(long, default_value_t = 5)]
+        steps: usize,
+        /// Print JSON rows instead of a table.
+        #[arg(long)]
+        json: bool,
     },
 }
 
@@ -140,6 +173,36 @@ fn main() -> anyhow::Result<()> {
                 anyhow::Ok(())
             })?;
         }
+        Command::Mesh { command } => fissure_cli::mesh_cmd::run(command)?,
+        Command::Bench { which } => match which {
+            Bench::Fem {
+                preset,
+                contacts,
+                strategy,
+                steps,
+                json,
+            } => {
+                use fissure_cli::bench_fem::{FemBenchOptions, print, run_fem_bench};
+                let mut opts = FemBenchOptions {
+                    contact_counts: contacts,
+                    steps,
+                    ..Default::default()
+                };
+                if !strategy.is_empty() {
+                    opts.strategies = strategy
+                        .iter()
+                        .map(|s| s.parse().map_err(|e| anyhow::anyhow!("--strategy: {e}")))
+                        .collect::<anyhow::Result<_>>()?;
+                }
+                let mut rows = Vec::new();
+                for name in &preset {
+                    let phantom = fissure_server::mesh::phantom::preset(name)
+                        .with_context(|| format!("--preset {name}"))?;
+                    rows.extend(run_fem_bench(&phantom.mesh, name, &opts));
+                }
+                print(&rows, json);
+            }
+        },
         Command::Report {
             file,
             threshold_n,

@@ -127,14 +127,21 @@ pub struct CubeOptions {
 }
 
 /// The names [`preset_mesh`] knows.
-pub const PRESETS: &[&str] = &["cube", "v-valley", "u-valley"];
+pub const PRESETS: &[&str] = &[
+    "coarse",
+    "paper-34k",
+    "paper-48k",
+    "cube",
+    "v-valley",
+    "u-valley",
+];
 
 /// The mesh of a named preset.
 pub fn preset_mesh(name: &str, cube: &CubeOptions) -> anyhow::Result<TetMesh> {
     use fissure_server::mesh::blocks;
-    // The single list of presets: brain phantom presets are added here as
-    // further arms (`name => Ok(phantom::preset(name)?.mesh)`), and to PRESETS.
+    // The single list of presets (keep PRESETS in step).
     Ok(match name {
+        "coarse" | "paper-34k" | "paper-48k" => fissure_server::mesh::phantom::preset(name)?.mesh,
         "cube" => {
             if !(cube.size_m > 0.0 && cube.size_m.is_finite()) || cube.cells == 0 {
                 bail!(

@@ -70,6 +70,18 @@ pub const CSV_HEADER: &str = "t_s,x_m,y_m,z_m,qw,qx,qy,qz";
 /// The bundled trajectories, by name: `(name, scene, instrument, csv)`.
 pub const BUNDLED: &[(&str, &str, &str, &str)] = &[
     (
+        "sylvian-open-left",
+        "sylvian",
+        "left",
+        include_str!("../trajectories/sylvian-open-left.csv"),
+    ),
+    (
+        "sylvian-open-right",
+        "sylvian",
+        "right",
+        include_str!("../trajectories/sylvian-open-right.csv"),
+    ),
+    (
         "cube-press-left",
         "cube",
         "left",

@@ -15,13 +15,18 @@ use std::path::{Path, PathBuf};
 
 /// The scenes embedded in the binary, by name.
 pub const EMBEDDED: &[(&str, &str)] = &[
+    ("sylvian", include_str!("../../scenes/sylvian.toml")),
+    (
+        "interhemispheric",
+        include_str!("../../scenes/interhemispheric.toml"),
+    ),
     ("cube", include_str!("../../scenes/cube.toml")),
     ("v-valley", include_str!("../../scenes/v-valley.toml")),
     ("u-valley", include_str!("../../scenes/u-valley.toml")),
 ];
 
 /// The default scene.
-pub const DEFAULT_SCENE: &str = "cube";
+pub const DEFAULT_SCENE: &str = "sylvian";
 
 /// Errors in loading a scene.
 #[derive(Debug, thiserror::Error)]

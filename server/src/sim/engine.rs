@@ -80,40 +80,47 @@ fn build_instrument(spec: &crate::scene::InstrumentSpec) -> Result<Instrument, S
 impl Model {
     /// Builds the mesh, the surface, the fixed set and the instruments.
     pub fn build(scene: &Scene) -> Result<Self, SimError> {
+        let mut landmarks = None;
         let mesh = match &scene.model {
             ModelSpec::Cube { size_m, cells } => crate::mesh::blocks::cube(*size_m, *cells),
             ModelSpec::VValley => crate::mesh::blocks::v_valley(),
             ModelSpec::UValley => crate::mesh::blocks::u_valley(),
             ModelSpec::Phantom { preset } => {
-                return Err(SimError::Model(format!(
-                    "phantom preset {preset:?} is not available"
-                )));
+                let p = crate::mesh::phantom::preset(preset)
+                    .map_err(|e| SimError::Model(e.to_string()))?;
+                landmarks = Some(p.landmarks);
+                p.mesh
             }
             ModelSpec::File { path } => {
-                return Err(SimError::Model(format!(
-                    "mesh file {} cannot be read",
-                    path.display()
-                )));
+                crate::mesh::io::read_volume(path).map_err(|e| SimError::Model(e.to_string()))?
             }
         };
         let surface = mesh.boundary();
         let mut rest_surface = Vec::new();
         surface.gather(&mesh.nodes, &mut rest_surface);
+        let mut regions = Vec::with_capacity(scene.fixed.len());
+        for r in &scene.fixed {
+            regions.push(match r {
+                Region::Landmark { landmark } => match (landmark.as_str(), &landmarks) {
+                    ("brain-stem", Some(l)) => Region::Sphere {
+                        centre_m: l.brain_stem.centre.coords.into(),
+                        radius_m: l.brain_stem.radius,
+                    },
+                    _ => {
+                        return Err(SimError::Model(format!(
+                            "the model has no landmark named {landmark:?} (the phantom has \"brain-stem\")"
+                        )));
+                    }
+                },
+                other => other.clone(),
+            });
+        }
         let fixed: Vec<u32> = (0..mesh.nodes.len() as u32)
             .filter(|&n| {
                 let p = mesh.nodes[n as usize];
-                scene.fixed.iter().any(|r| r.contains([p.x, p.y, p.z]))
+                regions.iter().any(|r| r.contains([p.x, p.y, p.z]))
             })
             .collect();
-        if let Some(Region::Landmark { landmark }) = scene
-            .fixed
-            .iter()
-            .find(|r| matches!(r, Region::Landmark { .. }))
-        {
-            return Err(SimError::Model(format!(
-                "the model has no landmark named {landmark:?}"
-            )));
-        }
         if fixed.is_empty() {
             return Err(SimError::Model(
                 "no node lies in the fixed region(s); the model would float".into(),
