@@ -83,6 +83,24 @@ pub struct Scene {
     /// The skull, when modelled.
     #[serde(default)]
     pub skull: Option<SkullSpec>,
+    /// A region of interest: when present, the FEM runs only on the tissue
+    /// within `distance_m` of it, with the cut surface fixed (a speed option).
+    #[serde(default)]
+    pub roi: Option<RoiSpec>,
+}
+
+/// A region of interest around the working fissure.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RoiSpec {
+    /// A point of the fissure, m.
+    pub centre_m: [f64; 3],
+    /// When given, the distance is measured to the plane through `centre_m`
+    /// with this normal (e.g. the fissure's mid-plane) instead of to the point.
+    #[serde(default)]
+    pub plane_normal: Option<[f64; 3]>,
+    /// Tissue farther than this is cropped away, m.
+    pub distance_m: f64,
 }
 
 /// Which brain model to build.
@@ -549,6 +567,19 @@ impl Scene {
                     f("home_orientation"),
                     format!("must be a unit quaternion (w, x, y, z), got {q:?}"),
                 ));
+            }
+        }
+        if let Some(roi) = &self.roi {
+            finite3("roi.centre_m".into(), &roi.centre_m)?;
+            positive("roi.distance_m", roi.distance_m)?;
+            if let Some(n) = roi.plane_normal {
+                let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+                if !(len.is_finite() && len > 1e-12) {
+                    return Err(bad(
+                        "roi.plane_normal".into(),
+                        format!("must be a non-zero vector, got {n:?}"),
+                    ));
+                }
             }
         }
         if let Some(skull) = &self.skull {

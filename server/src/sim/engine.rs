@@ -95,9 +95,6 @@ impl Model {
                 crate::mesh::io::read_volume(path).map_err(|e| SimError::Model(e.to_string()))?
             }
         };
-        let surface = mesh.boundary();
-        let mut rest_surface = Vec::new();
-        surface.gather(&mesh.nodes, &mut rest_surface);
         let mut regions = Vec::with_capacity(scene.fixed.len());
         for r in &scene.fixed {
             regions.push(match r {
@@ -121,11 +118,36 @@ impl Model {
                 regions.iter().any(|r| r.contains([p.x, p.y, p.z]))
             })
             .collect();
+        let (mesh, fixed) = match &scene.roi {
+            None => (mesh, fixed),
+            Some(roi) => {
+                let centre = nalgebra::Point3::from(roi.centre_m);
+                let at = match roi.plane_normal {
+                    None => fem::roi::RoiCentre::Point(centre),
+                    Some(n) => fem::roi::RoiCentre::Plane {
+                        point: centre,
+                        normal: Vector3::from(n).normalize(),
+                    },
+                };
+                let crop = fem::roi::crop(&mesh, at, roi.distance_m, &fixed)
+                    .map_err(|e| SimError::Model(format!("region of interest: {e}")))?;
+                tracing::info!(
+                    tets = crop.mesh.tets.len(),
+                    of = mesh.tets.len(),
+                    cut_nodes = crop.cut_nodes.len(),
+                    "region of interest cropped"
+                );
+                (crop.mesh, crop.fixed)
+            }
+        };
         if fixed.is_empty() {
             return Err(SimError::Model(
                 "no node lies in the fixed region(s); the model would float".into(),
             ));
         }
+        let surface = mesh.boundary();
+        let mut rest_surface = Vec::new();
+        surface.gather(&mesh.nodes, &mut rest_surface);
         let instruments = scene
             .instruments
             .iter()

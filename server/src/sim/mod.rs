@@ -673,7 +673,8 @@ impl Claim {
     /// with the local model. Blocking in stepped mode (it waits for the frame the
     /// pose's time needs); never blocking otherwise.
     pub fn force_sample(&mut self, raw: &RawPose) -> Result<ForceOut, PoseError> {
-        let t_start = Instant::now();
+        // Compute time excludes the stepped-mode wait for the frame.
+        let mut t_start = Instant::now();
         let sim = self.sim.clone();
         let pose = match pose::validate(raw, self.last.as_ref()) {
             Ok(p) => p,
@@ -696,7 +697,10 @@ impl Claim {
                 inputs.per_instrument[self.index].reached_t = pose.t_s;
             }
             sim.inputs_changed.notify_all();
-            sim.wait_for_frame(step_before(pose.t_s, dt))
+            let before_wait = t_start.elapsed();
+            let snap = sim.wait_for_frame(step_before(pose.t_s, dt));
+            t_start = Instant::now() - before_wait;
+            snap
         } else {
             sim.snapshot()
         };
