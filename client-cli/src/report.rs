@@ -122,8 +122,8 @@ pub fn report(path: &Path, threshold_n: f64) -> anyhow::Result<Report> {
                 .windows(2)
                 .map(|w| {
                     let (a, b) = (
-                        w[0].position_m.clone().unwrap_or_default(),
-                        w[1].position_m.clone().unwrap_or_default(),
+                        w[0].position_m.unwrap_or_default(),
+                        w[1].position_m.unwrap_or_default(),
                     );
                     ((b.x - a.x).powi(2) + (b.y - a.y).powi(2) + (b.z - a.z).powi(2)).sqrt()
                 })

@@ -440,6 +440,17 @@ impl Deformer {
         let mut options = fem::SolverOptions::default();
         options.iterative.tolerance = scene.solver.tolerance;
         options.iterative.max_outer = scene.solver.max_iterations;
+        // The skull is modelled only when the scene names it.
+        options.skull = scene.skull.as_ref().map(|skull| {
+            let sphere = |s: &crate::scene::SphereSpec| fem::skull::Sphere {
+                centre: nalgebra::Point3::from(s.centre_m),
+                radius: s.radius_m,
+            };
+            fem::skull::Skull {
+                containing: skull.containing.as_ref().map(sphere),
+                excluding: skull.excluding.as_ref().map(sphere),
+            }
+        });
         let solver = fem::build_solver(strategy, &model.mesh, material, &model.fixed, &options)
             .map_err(|e| SimError::Solver(e.to_string()))?;
         Ok(Self {

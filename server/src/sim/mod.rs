@@ -609,7 +609,7 @@ impl Simulation {
 /// with `k * dt < t`, or 0. Computed with the same products `k as f64 * dt`
 /// as the deformation loop's step times, so both sides agree to the bit.
 pub fn step_before(t: f64, dt: f64) -> u64 {
-    if !(t > 0.0) {
+    if t.is_nan() || t <= 0.0 {
         return 0;
     }
     let mut k = (t / dt).ceil().max(1.0) as u64 - 1;

@@ -124,6 +124,6 @@ mod tests {
             (s.count, s.p50_us, s.p99_us, s.max_us),
             (100, 50.0, 99.0, 100.0)
         );
-        assert_eq!(percentile(&[], 0.5).is_nan(), true);
+        assert!(percentile(&[], 0.5).is_nan());
     }
 }
