@@ -259,6 +259,13 @@ pub struct CollisionSpec {
     pub history: HistoryMode,
     /// Whether history culling (B1-B3) is applied.
     pub culling: bool,
+    /// Largest depth behind a face at which a collision pair may form, m.
+    /// A triangle farther behind a face than this is reached through the
+    /// tissue (e.g. the far side of a block when the plate tip enters the
+    /// bottom of a narrowing groove edge-first, before either face has a
+    /// history), never a contact of that face. Set it above the model's size
+    /// to reproduce the paper's unbounded rule.
+    pub max_depth_m: f64,
 }
 
 impl Default for CollisionSpec {
@@ -268,6 +275,7 @@ impl Default for CollisionSpec {
             backend: CollisionBackend::Cpu,
             history: HistoryMode::ForceRate,
             culling: true,
+            max_depth_m: 0.01,
         }
     }
 }
@@ -498,6 +506,7 @@ impl Scene {
                 Region::Landmark { .. } => {}
             }
         }
+        positive("collision.max_depth_m", self.collision.max_depth_m)?;
         positive("solver.tolerance", self.solver.tolerance)?;
         if self.solver.max_iterations == 0 {
             return Err(bad(

@@ -44,7 +44,10 @@ pub struct Model {
     history_mode: CollideHistoryMode,
 }
 
-fn build_instrument(spec: &crate::scene::InstrumentSpec) -> Result<Instrument, SimError> {
+fn build_instrument(
+    spec: &crate::scene::InstrumentSpec,
+    max_depth_m: f64,
+) -> Result<Instrument, SimError> {
     let plate = match spec.shape {
         ShapeKind::Flat => Plate::flat(spec.thickness_m, spec.width_m, spec.length_m),
         ShapeKind::Trapezoid => Plate::trapezoid(
@@ -73,8 +76,12 @@ fn build_instrument(spec: &crate::scene::InstrumentSpec) -> Result<Instrument, S
         tip: 5,
         tip_reach: spec.thickness_m.max(0.002),
     });
-    Instrument::new(plate, layout, rim)
-        .map_err(|e| SimError::Model(format!("instrument {:?}: {e}", spec.name)))
+    let mut instrument = Instrument::new(plate, layout, rim)
+        .map_err(|e| SimError::Model(format!("instrument {:?}: {e}", spec.name)))?;
+    for node in &mut instrument.nodes {
+        node.reach = node.reach.min(max_depth_m);
+    }
+    Ok(instrument)
 }
 
 impl Model {
@@ -151,7 +158,7 @@ impl Model {
         let instruments = scene
             .instruments
             .iter()
-            .map(build_instrument)
+            .map(|spec| build_instrument(spec, scene.collision.max_depth_m))
             .collect::<Result<_, _>>()?;
         let history_mode = match scene.collision.history {
             HistoryMode::ForceRate => CollideHistoryMode::ForceRate,
@@ -165,6 +172,16 @@ impl Model {
             instruments,
             history_mode,
         })
+    }
+
+    /// The collision stage's view of the surface at `positions` (m).
+    pub fn contact_query<'a>(&'a self, positions: &'a [Point3<f64>]) -> contact::ContactQuery<'a> {
+        contact::ContactQuery {
+            positions,
+            rest: &self.rest_surface,
+            triangles: &self.surface.triangles,
+            to_volume: &self.surface.to_volume,
+        }
     }
 
     /// All flags off for instrument `i`.
@@ -335,12 +352,7 @@ impl ContactQuery {
         history: &mut History,
     ) -> ContactView<'_> {
         self.fit(&snap.surface);
-        let q = contact::ContactQuery {
-            positions: &snap.surface,
-            rest: &model.rest_surface,
-            triangles: &model.surface.triangles,
-            to_volume: &model.surface.to_volume,
-        };
+        let q = model.contact_query(&snap.surface);
         if let Err(e) = contact::detect(
             self.backend.as_mut(),
             &q,
@@ -371,12 +383,7 @@ impl ContactQuery {
         histories: &mut [History],
     ) -> &ContactOutput {
         self.fit(&snap.surface);
-        let q = contact::ContactQuery {
-            positions: &snap.surface,
-            rest: &model.rest_surface,
-            triangles: &model.surface.triangles,
-            to_volume: &model.surface.to_volume,
-        };
+        let q = model.contact_query(&snap.surface);
         let mut tools: Vec<Tool<'_>> = model
             .instruments
             .iter()

@@ -59,9 +59,9 @@ pub struct ForceWorkspace {
     constrained: Vec<usize>,
     released: Vec<usize>,
     du: Vec<Vector3<f64>>,
+    /// Right-hand side, then the free motion `x` of the released DOFs.
     rhs: DVector<f64>,
     s_ff: DMatrix<f64>,
-    rc: DVector<f64>,
 }
 
 impl ForceModel {
@@ -101,7 +101,6 @@ impl ForceModel {
         let s = &self.stiffness;
         // x = -S_ff^-1 (r0_f + S_fc du_c)
         let nf = ws.released.len();
-        let mut x = DVector::zeros(0);
         if nf > 0 {
             ws.rhs.resize_vertically_mut(3 * nf, 0.0);
             ws.s_ff.resize_mut(3 * nf, 3 * nf, 0.0);
@@ -123,13 +122,18 @@ impl ForceModel {
                     }
                 }
             }
-            x = match ws.s_ff.clone().cholesky() {
-                Some(ch) => ch.solve(&ws.rhs),
-                None => DVector::zeros(3 * nf),
-            };
+            // Factor in place and keep the buffer (no allocation once grown).
+            let s_ff = std::mem::replace(&mut ws.s_ff, DMatrix::zeros(0, 0));
+            match s_ff.cholesky() {
+                Some(ch) => {
+                    ch.solve_mut(&mut ws.rhs);
+                    ws.s_ff = ch.unpack();
+                }
+                None => ws.rhs.fill(0.0),
+            }
         }
+        let x = &ws.rhs;
         // r_c = r0_c + S_cc du_c + S_cf x, summed over this instrument's nodes.
-        ws.rc.resize_vertically_mut(3, 0.0);
         let mut out = InstrumentForce::default();
         for &ci in &ws.constrained {
             if self.owner[ci] != instrument {

@@ -534,6 +534,7 @@ impl Simulation {
             }
             last_start = Instant::now();
             // 2. Collision, FEM, publish.
+            let _step_span = tracing::debug_span!("deformation_step", frame = k).entered();
             let prev = self.snapshot();
             let paper_mode = self.scene.collision.history == HistoryMode::Paper;
             let t0 = Instant::now();
@@ -552,7 +553,8 @@ impl Simulation {
                     _ => paper_history[i].clone(),
                 })
                 .collect();
-            let contacts = query.query_all(&self.model, &prev, &poses, &mut step_histories);
+            let contacts = tracing::debug_span!("collision")
+                .in_scope(|| query.query_all(&self.model, &prev, &poses, &mut step_histories));
             for (i, h) in step_histories.into_iter().enumerate() {
                 if own[i] {
                     paper_history[i] = h;
@@ -560,7 +562,7 @@ impl Simulation {
             }
             let collision_us = t0.elapsed().as_secs_f64() * 1e6;
             let t1 = Instant::now();
-            let result = deformer.step(contacts);
+            let result = tracing::debug_span!("solve").in_scope(|| deformer.step(contacts));
             let solve_us = t1.elapsed().as_secs_f64() * 1e6;
             let total_us = last_start.elapsed().as_secs_f64() * 1e6;
             self.step_latency.record(total_us);
@@ -673,6 +675,7 @@ impl Claim {
     /// with the local model. Blocking in stepped mode (it waits for the frame the
     /// pose's time needs); never blocking otherwise.
     pub fn force_sample(&mut self, raw: &RawPose) -> Result<ForceOut, PoseError> {
+        let _span = tracing::trace_span!("force_sample", instrument = %self.name).entered();
         // Compute time excludes the stepped-mode wait for the frame.
         let mut t_start = Instant::now();
         let sim = self.sim.clone();
