@@ -192,8 +192,8 @@ pub fn parse_datagram(bytes: &[u8]) -> Result<PoseDatagram<'_>, DatagramError> {
         .position(|b| !b.is_ascii_whitespace())
         .ok_or(DatagramError::Empty)?;
     if bytes[first] == b'{' {
-        let j: JsonPose<'_> = serde_json::from_slice(bytes)
-            .map_err(|e| DatagramError::Json(e.to_string()))?;
+        let j: JsonPose<'_> =
+            serde_json::from_slice(bytes).map_err(|e| DatagramError::Json(e.to_string()))?;
         let instrument = match (j.instrument, j.i) {
             (Some(n), None) => InstrumentRef::Name(n),
             (None, Some(i)) => InstrumentRef::Index(i),
@@ -525,11 +525,7 @@ impl Bridge {
         let mut readers = Vec::new();
         for (index, name) in names.iter().enumerate() {
             let (tx, rx) = tokio::sync::mpsc::channel::<pb::PoseSample>(QUEUE);
-            let req = haptic_request(
-                tokio_stream::wrappers::ReceiverStream::new(rx),
-                name,
-                token,
-            )?;
+            let req = haptic_request(tokio_stream::wrappers::ReceiverStream::new(rx), name, token)?;
             let mut inbound = client
                 .haptic(req)
                 .await
@@ -581,8 +577,10 @@ impl Bridge {
                         server_compute_us: sample.server_compute_us,
                     };
                     let message = sample.rejection.as_ref().map(|r| r.message.as_str());
-                    send_answer(&socket, &counters, to, &f, &name, message, &mut bin, &mut json)
-                        .await;
+                    send_answer(
+                        &socket, &counters, to, &f, &name, message, &mut bin, &mut json,
+                    )
+                    .await;
                 }
             }));
         }
@@ -615,7 +613,10 @@ impl Bridge {
                     Err(e) => {
                         let bad = counters.bad.fetch_add(1, Ordering::Relaxed);
                         if bad < 10 || bad.is_power_of_two() {
-                            tracing::warn!("datagram from {from} dropped: {e} ({} so far)", bad + 1);
+                            tracing::warn!(
+                                "datagram from {from} dropped: {e} ({} so far)",
+                                bad + 1
+                            );
                         }
                         continue;
                     }
@@ -675,8 +676,17 @@ impl Bridge {
                     } else {
                         "the instrument's stream is full or closed"
                     };
-                    send_answer(&socket, &counters, to, &f, name, Some(msg), &mut bin, &mut json)
-                        .await;
+                    send_answer(
+                        &socket,
+                        &counters,
+                        to,
+                        &f,
+                        name,
+                        Some(msg),
+                        &mut bin,
+                        &mut json,
+                    )
+                    .await;
                 }
             }
             // Close the streams (releases the claims) and let the readers
@@ -788,7 +798,12 @@ pub async fn run(args: &BridgeArgs) -> anyhow::Result<BridgeStats> {
     let stats = bridge.stop().await?;
     eprintln!(
         "datagrams received {}, bad {}, poses forwarded {}, not forwarded {}, rejected by the server {}, answers sent {}",
-        stats.received, stats.bad, stats.forwarded, stats.not_forwarded, stats.rejected, stats.answered
+        stats.received,
+        stats.bad,
+        stats.forwarded,
+        stats.not_forwarded,
+        stats.rejected,
+        stats.answered
     );
     Ok(stats)
 }
@@ -823,8 +838,14 @@ mod tests {
         let mut v = b;
         v[4] = 2;
         assert_eq!(parse_datagram(&v), Err(DatagramError::Version(2)));
-        assert!(matches!(parse_datagram(b"XY"), Err(DatagramError::Magic(_))));
-        assert!(matches!(parse_datagram(b"FSP1"), Err(DatagramError::Length { got: 4 })));
+        assert!(matches!(
+            parse_datagram(b"XY"),
+            Err(DatagramError::Magic(_))
+        ));
+        assert!(matches!(
+            parse_datagram(b"FSP1"),
+            Err(DatagramError::Length { got: 4 })
+        ));
         assert!(matches!(
             parse_datagram(br#"{"seq":1,"t_s":0,"p":[0,0,0],"q":[1,0,0,0]}"#),
             Err(DatagramError::Json(_))
@@ -845,8 +866,8 @@ mod tests {
         assert_eq!(d.instrument, InstrumentRef::Name("right"));
         assert_eq!((d.sequence, d.t_s), (7, 0.007));
         assert_eq!(d.orientation, [0.0, 1.0, 0.0, 0.0]);
-        let d = parse_datagram(br#"{"i":1,"seq":8,"t_s":0.008,"p":[0,0,0],"q":[1,0,0,0]}"#)
-            .unwrap();
+        let d =
+            parse_datagram(br#"{"i":1,"seq":8,"t_s":0.008,"p":[0,0,0],"q":[1,0,0,0]}"#).unwrap();
         assert_eq!(d.instrument, InstrumentRef::Index(1));
     }
 

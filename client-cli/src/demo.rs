@@ -54,6 +54,13 @@ pub struct DemoArgs {
     /// Image height, px.
     #[arg(long, default_value_t = 640)]
     pub height: u32,
+    /// Camera azimuth about +z from +x, degrees (default: per scene; for
+    /// sylvian 195, from the left into the fissure).
+    #[arg(long, allow_hyphen_values = true)]
+    pub azimuth_deg: Option<f64>,
+    /// Camera elevation above the xy plane, degrees (default: per scene).
+    #[arg(long, allow_hyphen_values = true)]
+    pub elevation_deg: Option<f64>,
     /// Largest number of GIF frames (the frames are thinned evenly).
     #[arg(long, default_value_t = 60)]
     pub gif_frames: usize,
@@ -82,12 +89,13 @@ pub fn pick_trajectories(scene: &str, chosen: &[String]) -> anyhow::Result<Vec<(
     let mut plans: Vec<(String, String)> = Vec::new();
     for c in chosen {
         let Some(b) = BUNDLED.iter().find(|b| b.0 == c) else {
-            bail!(
-                "--trajectory {c:?} is not a bundled trajectory (see `fissure demo --list`)"
-            );
+            bail!("--trajectory {c:?} is not a bundled trajectory (see `fissure demo --list`)");
         };
         if b.1 != scene {
-            bail!("--trajectory {c:?} is made for scene {:?}, not {scene:?}", b.1);
+            bail!(
+                "--trajectory {c:?} is made for scene {:?}, not {scene:?}",
+                b.1
+            );
         }
         if plans.iter().any(|p| p.0 == b.2) {
             bail!("two trajectories for instrument {:?}", b.2);
@@ -174,10 +182,7 @@ pub async fn run(args: &DemoArgs) -> anyhow::Result<DemoReport> {
         .get_surface(pb::GetSurfaceRequest {})
         .await?
         .into_inner();
-    let description = client
-        .get_scene(pb::GetSceneRequest {})
-        .await?
-        .into_inner();
+    let description = client.get_scene(pb::GetSceneRequest {}).await?.into_inner();
     // Watcher: keeps every frame it receives (latest-wins: it may skip some).
     let frames: Arc<Mutex<Vec<pb::DeformationFrame>>> = Arc::new(Mutex::new(Vec::new()));
     let mut watch = client
@@ -262,6 +267,8 @@ pub async fn run(args: &DemoArgs) -> anyhow::Result<DemoReport> {
             height: args.height,
             gif_frames: args.gif_frames,
             quiet: args.quiet,
+            azimuth_deg: args.azimuth_deg,
+            elevation_deg: args.elevation_deg,
         };
         let (description, surface) = (description.clone(), surface.clone());
         let forces = forces.clone();
@@ -336,6 +343,8 @@ struct Pictures {
     height: u32,
     gif_frames: usize,
     quiet: bool,
+    azimuth_deg: Option<f64>,
+    elevation_deg: Option<f64>,
 }
 
 impl Pictures {
@@ -362,7 +371,13 @@ impl Pictures {
         );
         bar.set_prefix("pictures");
         let mut files = Vec::new();
-        let view = SessionView::new(scene, surface);
+        let mut view = SessionView::new(scene, surface);
+        if let Some(a) = self.azimuth_deg {
+            view.camera.azimuth_deg = a;
+        }
+        if let Some(e) = self.elevation_deg {
+            view.camera.elevation_deg = e;
+        }
         // VTU series, one per frame received.
         let dir = self.out.join("vtu");
         std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
@@ -437,8 +452,7 @@ impl Pictures {
             images.push(gif_renderer.render(&view, f, &caption_of(&scene.name, f, range_mm))?);
         }
         let dt = if frames.len() > 1 {
-            (frames[frames.len() - 1].sim_time_s - frames[0].sim_time_s)
-                / (frames.len() - 1) as f64
+            (frames[frames.len() - 1].sim_time_s - frames[0].sim_time_s) / (frames.len() - 1) as f64
         } else {
             0.04
         };

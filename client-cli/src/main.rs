@@ -129,7 +129,11 @@ struct ReplayArgs {
     instrument: Option<String>,
     /// Trajectory: FILE (CSV or JSON, see below), the name of a bundled
     /// trajectory, or NAME=FILE to give an instrument its own (repeatable).
-    #[arg(long, conflicts_with = "recording", required_unless_present = "recording")]
+    #[arg(
+        long,
+        conflicts_with = "recording",
+        required_unless_present = "recording"
+    )]
     trajectory: Vec<String>,
     /// Replay every instrument's accepted poses from a session recording, all
     /// instruments at once (instead of --instrument/--trajectory).
@@ -166,10 +170,9 @@ fn main() -> anyhow::Result<()> {
         Command::Replay(args) => {
             let set = match &args.recording {
                 Some(rec) => fissure_cli::report::trajectories(rec)?,
-                None => fissure_cli::trajectory::resolve(
-                    args.instrument.as_deref(),
-                    &args.trajectory,
-                )?,
+                None => {
+                    fissure_cli::trajectory::resolve(args.instrument.as_deref(), &args.trajectory)?
+                }
             };
             let stem = args
                 .out

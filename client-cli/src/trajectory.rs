@@ -238,7 +238,10 @@ pub fn parse_set_json(text: &str, file: &str) -> Result<TrajectorySet, Trajector
         .map(|(name, pts)| {
             let f = format!("{file} [{name:?}]");
             let t = Trajectory::checked(
-                pts.into_iter().enumerate().map(|(i, p)| (i + 1, p)).collect(),
+                pts.into_iter()
+                    .enumerate()
+                    .map(|(i, p)| (i + 1, p))
+                    .collect(),
                 &f,
             )?;
             Ok((name, t))
@@ -324,7 +327,6 @@ pub fn resolve(
     }
     Ok(out)
 }
-
 
 impl Trajectory {
     /// Reads a CSV or JSON file (by extension), or a bundled trajectory by name.

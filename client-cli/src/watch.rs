@@ -98,7 +98,8 @@ pub fn tissue_colour(t: f64) -> Rgb {
         let ((t0, a), (t1, b)) = (w[0], w[1]);
         if t <= t1 {
             let u = (t - t0) / (t1 - t0);
-            return [0, 1, 2].map(|c| (a[c] as f64 + (b[c] as f64 - a[c] as f64) * u).round() as u8);
+            return [0, 1, 2]
+                .map(|c| (a[c] as f64 + (b[c] as f64 - a[c] as f64) * u).round() as u8);
         }
     }
     TISSUE_MAP[TISSUE_MAP.len() - 1].1
@@ -157,7 +158,10 @@ pub fn pose_of(position: Option<&pb::Vec3>, q: Option<&pb::Quaternion>) -> Isome
 /// The plate of `ins` at handle pose `pose`: its centre pose (the plate runs
 /// from the handle point along local +z) and half extents (thickness / 2,
 /// width / 2, length / 2), m.
-pub fn plate(ins: &pb::InstrumentDescription, pose: &Isometry3<f64>) -> (Isometry3<f64>, Vector3<f64>) {
+pub fn plate(
+    ins: &pb::InstrumentDescription,
+    pose: &Isometry3<f64>,
+) -> (Isometry3<f64>, Vector3<f64>) {
     let centre = pose * Isometry3::translation(0.0, 0.0, 0.5 * ins.length_m);
     (
         centre,
@@ -224,14 +228,14 @@ impl SessionView {
         let p = Point3::new;
         match self.scene.as_str() {
             "sylvian" => CameraPreset {
-                azimuth_deg: 200.0,
-                elevation_deg: 18.0,
-                frame_box: (p(-0.105, -0.022, -0.03), p(-0.05, 0.042, 0.03)),
+                azimuth_deg: 195.0,
+                elevation_deg: 10.0,
+                frame_box: (p(-0.103, -0.012, -0.014), p(-0.06, 0.032, 0.014)),
             },
             "interhemispheric" => CameraPreset {
                 azimuth_deg: -70.0,
-                elevation_deg: 50.0,
-                frame_box: (p(-0.035, -0.04, 0.025), p(0.035, 0.04, 0.095)),
+                elevation_deg: 45.0,
+                frame_box: (p(-0.02, -0.03, 0.03), p(0.02, 0.03, 0.095)),
             },
             "v-valley" | "u-valley" => CameraPreset {
                 azimuth_deg: -90.0,
@@ -271,21 +275,23 @@ impl SessionView {
     ) -> Vec<(Isometry3<f64>, Option<Vector3<f64>>, bool)> {
         self.instruments
             .iter()
-            .map(|ins| match frame.instruments.iter().find(|r| r.name == ins.name) {
-                Some(r) => {
-                    let f = r.force_n.clone().unwrap_or_default();
-                    (
-                        pose_of(r.position_m.as_ref(), r.orientation.as_ref()),
-                        Some(Vector3::new(f.x, f.y, f.z)),
-                        r.contact_vertices > 0,
-                    )
-                }
-                None => (
-                    pose_of(ins.home_position_m.as_ref(), ins.home_orientation.as_ref()),
-                    None,
-                    false,
-                ),
-            })
+            .map(
+                |ins| match frame.instruments.iter().find(|r| r.name == ins.name) {
+                    Some(r) => {
+                        let f = r.force_n.clone().unwrap_or_default();
+                        (
+                            pose_of(r.position_m.as_ref(), r.orientation.as_ref()),
+                            Some(Vector3::new(f.x, f.y, f.z)),
+                            r.contact_vertices > 0,
+                        )
+                    }
+                    None => (
+                        pose_of(ins.home_position_m.as_ref(), ins.home_orientation.as_ref()),
+                        None,
+                        false,
+                    ),
+                },
+            )
             .collect()
     }
 }
@@ -504,7 +510,13 @@ impl FrameRenderer {
                 };
                 let lbl = TextStyle::new(13.0).bold().colour(a.colour).align(h, v);
                 let (x, y) = (p1[0] + 14.0 * ux, p1[1] + 14.0 * uy + TITLE_BAND as f64);
-                draw_text(&mut img, &view.instruments[*i].name, x as f32, y as f32, &lbl);
+                draw_text(
+                    &mut img,
+                    &view.instruments[*i].name,
+                    x as f32,
+                    y as f32,
+                    &lbl,
+                );
             }
         }
         Ok(img)
@@ -575,8 +587,8 @@ impl VtuSeries {
             .extend(self.positions.iter().zip(&view.rest).map(|(p, r)| p - r));
         let name = format!("{}-{:06}.vtu", self.stem, frame.frame);
         let path = self.dir.join(&name);
-        let file = std::fs::File::create(&path)
-            .with_context(|| format!("creating {}", path.display()))?;
+        let file =
+            std::fs::File::create(&path).with_context(|| format!("creating {}", path.display()))?;
         let mut w = std::io::BufWriter::new(file);
         fissure_server::mesh::io::vtu::write_vtu_surface(
             &mut w,
@@ -893,7 +905,9 @@ mod tests {
     #[test]
     fn pvd_lists_files_with_times() {
         let s = pvd(&[(0.0, "a-000000.vtu".into()), (0.02, "a-000001.vtu".into())]);
-        assert!(s.contains("<DataSet timestep=\"0.020000\" group=\"\" part=\"0\" file=\"a-000001.vtu\"/>"));
+        assert!(s.contains(
+            "<DataSet timestep=\"0.020000\" group=\"\" part=\"0\" file=\"a-000001.vtu\"/>"
+        ));
         assert!(s.starts_with("<?xml"));
     }
 }

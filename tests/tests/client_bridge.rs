@@ -68,7 +68,11 @@ async fn binary_datagrams_match_a_direct_stream() -> anyhow::Result<()> {
 
     let last = bridged.last().expect("samples");
     assert!(last.contact_count > 0, "no contact at 2 mm depth");
-    assert!(last.force_n[2] > 0.0, "force {:?} does not oppose the push", last.force_n);
+    assert!(
+        last.force_n[2] > 0.0,
+        "force {:?} does not oppose the push",
+        last.force_n
+    );
 
     // The same poses on a direct stream of a fresh server.
     let server = TestServer::start("cube", stepped(), ServeOptions::default()).await?;
@@ -103,7 +107,9 @@ async fn json_answers_and_bad_input() -> anyhow::Result<()> {
             "{{\"instrument\":\"right\",\"seq\":{seq},\"t_s\":{t},\"p\":[0.029,0.005,{z}],\"q\":[0.5,-0.5,0.5,0.5]}}\n"
         )
     };
-    device.send(line(1, 0.0, TOUCH_Z + 0.001).as_bytes()).await?;
+    device
+        .send(line(1, 0.0, TOUCH_Z + 0.001).as_bytes())
+        .await?;
     let n = recv(&device, &mut buf).await?;
     let v = std::str::from_utf8(&buf[..n])?;
     assert!(v.starts_with("{\"instrument\":\"right\",\"seq\":1,"), "{v}");

@@ -11,6 +11,8 @@ fn args(scene: &str, out: &std::path::Path) -> DemoArgs {
         pacing: Pacing::Fast,
         trajectory: Vec::new(),
         list: false,
+        azimuth_deg: None,
+        elevation_deg: None,
         width: 400,
         height: 300,
         gif_frames: 4,
@@ -26,7 +28,11 @@ fn args(scene: &str, out: &std::path::Path) -> DemoArgs {
 async fn cube_demo_writes_the_results_folder() -> anyhow::Result<()> {
     let dir = tempfile::tempdir()?;
     let report = run(&args("cube", dir.path())).await?;
-    assert!(report.max_displacement_m > 1e-4, "{}", report.max_displacement_m);
+    assert!(
+        report.max_displacement_m > 1e-4,
+        "{}",
+        report.max_displacement_m
+    );
     for name in [
         "forces-left.csv",
         "forces-right.csv",
