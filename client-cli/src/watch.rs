@@ -147,7 +147,7 @@ pub struct SessionView {
 /// The pose of an instrument's handle point from proto fields (identity
 /// rotation when the quaternion is missing or not finite).
 pub fn pose_of(position: Option<&pb::Vec3>, q: Option<&pb::Quaternion>) -> Isometry3<f64> {
-    let p = position.cloned().unwrap_or_default();
+    let p = position.copied().unwrap_or_default();
     let rot = q
         .filter(|q| [q.w, q.x, q.y, q.z].iter().all(|v| v.is_finite()))
         .map(|q| UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q.w, q.x, q.y, q.z)))
@@ -278,7 +278,7 @@ impl SessionView {
             .map(
                 |ins| match frame.instruments.iter().find(|r| r.name == ins.name) {
                     Some(r) => {
-                        let f = r.force_n.clone().unwrap_or_default();
+                        let f = r.force_n.unwrap_or_default();
                         (
                             pose_of(r.position_m.as_ref(), r.orientation.as_ref()),
                             Some(Vector3::new(f.x, f.y, f.z)),
@@ -660,15 +660,13 @@ impl GifBuffer {
 
     /// Whether the next offered frame will be kept (render it only then).
     pub fn wants_next(&self) -> bool {
-        self.seen.is_multiple_of(self.stride)
+        self.seen % self.stride == 0
     }
 
     /// Offers the next frame (`None` when it was not rendered because
     /// [`GifBuffer::wants_next`] said no).
     pub fn push(&mut self, img: Option<Image>) {
-        if self.wants_next()
-            && let Some(img) = img
-        {
+        if let (true, Some(img)) = (self.wants_next(), img) {
             self.frames.push(img);
             if self.frames.len() >= 2 * self.cap {
                 let mut k = 0;
