@@ -1,6 +1,18 @@
 //! `fissure demo`: starts the server in-process on loopback, drives every
 //! instrument of the scene with its bundled trajectory at the same time, and
-//! writes a results folder a person can look at.
+//! writes a results folder a person can look at:
+//!
+//! * `forces-<instrument>.csv` and `forces-<instrument>.png` (force versus
+//!   time: |F| and its components, N);
+//! * `snapshot-1-before.png`, `snapshot-2-during.png`,
+//!   `snapshot-3-after.png`: the surface coloured by displacement (mm) with
+//!   the spatulas and their force arrows (for `sylvian`, seen from the left
+//!   into the opened fissure); `session.gif`, the whole run;
+//! * `vtu/surface-NNNNNN.vtu` with `vtu/surface.pvd` (open in ParaView; point
+//!   data `displacement`, m), one per deformation frame received;
+//! * `surface-deepest.obj`, `surface-final.obj`; `session.fsrec` (the
+//!   recording, for `fissure report` and `fissure replay --recording`);
+//!   `summary.txt` (the table printed at the end).
 
 use crate::replay::{ForceRow, Pacing, connect, forces_csv, replay};
 use crate::trajectory::{BUNDLED, Trajectory};
@@ -28,9 +40,89 @@ pub struct DemoArgs {
     /// `realtime` sends each pose at its timestamp.
     #[arg(long, value_enum, default_value_t = Pacing::Fast)]
     pub pacing: Pacing,
+    /// Bundled trajectory to use (repeatable; one per instrument). By
+    /// default the first bundled trajectory of each of the scene's
+    /// instruments (see `fissure demo --list`).
+    #[arg(long)]
+    pub trajectory: Vec<String>,
+    /// List the scenes with bundled trajectories and exit.
+    #[arg(long)]
+    pub list: bool,
+    /// Image width, px (snapshots; the GIF is at most 640 px wide).
+    #[arg(long, default_value_t = 960)]
+    pub width: u32,
+    /// Image height, px.
+    #[arg(long, default_value_t = 640)]
+    pub height: u32,
+    /// Camera azimuth about +z from +x, degrees (default: per scene; for
+    /// sylvian 195, from the left into the fissure).
+    #[arg(long, allow_hyphen_values = true)]
+    pub azimuth_deg: Option<f64>,
+    /// Camera elevation above the xy plane, degrees (default: per scene).
+    #[arg(long, allow_hyphen_values = true)]
+    pub elevation_deg: Option<f64>,
+    /// Largest number of GIF frames (the frames are thinned evenly).
+    #[arg(long, default_value_t = 60)]
+    pub gif_frames: usize,
+    /// Skip the pictures, the GIF and the VTU series (forces, OBJ,
+    /// recording and summary only).
+    #[arg(long)]
+    pub no_pictures: bool,
     /// Hide the progress bars.
     #[arg(long)]
     pub quiet: bool,
+}
+
+/// The scenes with bundled trajectories, as printed by `fissure demo --list`.
+pub fn list() -> String {
+    let mut s = String::from("scene              instrument  bundled trajectory\n");
+    for (name, scene, instrument, _) in BUNDLED {
+        s.push_str(&format!("{scene:<18} {instrument:<11} {name}\n"));
+    }
+    s
+}
+
+/// Picks one bundled trajectory per instrument of `scene`: those named in
+/// `chosen` (which must belong to the scene), then the first bundled one of
+/// every other instrument.
+pub fn pick_trajectories(scene: &str, chosen: &[String]) -> anyhow::Result<Vec<(String, String)>> {
+    let mut plans: Vec<(String, String)> = Vec::new();
+    for c in chosen {
+        let Some(b) = BUNDLED.iter().find(|b| b.0 == c) else {
+            bail!("--trajectory {c:?} is not a bundled trajectory (see `fissure demo --list`)");
+        };
+        if b.1 != scene {
+            bail!(
+                "--trajectory {c:?} is made for scene {:?}, not {scene:?}",
+                b.1
+            );
+        }
+        if plans.iter().any(|p| p.0 == b.2) {
+            bail!("two trajectories for instrument {:?}", b.2);
+        }
+        plans.push((b.2.to_owned(), b.0.to_owned()));
+    }
+    for (name, instrument) in crate::trajectory::bundled_for(scene) {
+        if !plans.iter().any(|p| p.0 == instrument) {
+            plans.push((instrument.to_owned(), name.to_owned()));
+        }
+    }
+    if plans.is_empty() {
+        bail!(
+            "scene {scene:?} has no bundled trajectories; scenes that have: {}",
+            BUNDLED
+                .iter()
+                .map(|b| b.1)
+                .fold(Vec::<&str>::new(), |mut v, s| {
+                    if !v.contains(&s) {
+                        v.push(s);
+                    }
+                    v
+                })
+                .join(", ")
+        );
+    }
+    Ok(plans)
 }
 
 /// What the demo produced.
@@ -44,20 +136,32 @@ pub struct DemoReport {
     pub frames: usize,
     /// Files written.
     pub files: Vec<PathBuf>,
+    /// Largest surface displacement of the run, m.
+    pub max_displacement_m: f64,
+    /// Wall-clock time of the run (server start to last file), s.
+    pub elapsed_s: f64,
 }
 
 /// Runs the demo.
 pub async fn run(args: &DemoArgs) -> anyhow::Result<DemoReport> {
+    let started = std::time::Instant::now();
+    if args.list {
+        print!("{}", list());
+        return Ok(DemoReport {
+            out: args.out.clone(),
+            forces: Vec::new(),
+            frames: 0,
+            files: Vec::new(),
+            max_displacement_m: 0.0,
+            elapsed_s: 0.0,
+        });
+    }
     let (scene, _) =
         Scene::load(&args.scene).with_context(|| format!("loading scene {:?}", args.scene))?;
-    let plans: Vec<(String, Trajectory)> = BUNDLED
-        .iter()
-        .filter(|b| b.1 == scene.name)
-        .map(|b| Ok((b.2.to_owned(), Trajectory::load(b.0)?)))
+    let plans: Vec<(String, Trajectory)> = pick_trajectories(&scene.name, &args.trajectory)?
+        .into_iter()
+        .map(|(instrument, name)| Ok((instrument, Trajectory::load(&name)?)))
         .collect::<anyhow::Result<_>>()?;
-    if plans.is_empty() {
-        bail!("scene {:?} has no bundled trajectories", scene.name);
-    }
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
     let recording = args.out.join("session.fsrec");
@@ -78,14 +182,9 @@ pub async fn run(args: &DemoArgs) -> anyhow::Result<DemoReport> {
         .get_surface(pb::GetSurfaceRequest {})
         .await?
         .into_inner();
-    // Watcher: keeps the frame with the largest displacement and the last one.
-    let frames: Arc<
-        Mutex<(
-            usize,
-            Option<pb::DeformationFrame>,
-            Option<pb::DeformationFrame>,
-        )>,
-    > = Arc::new(Mutex::new((0, None, None)));
+    let description = client.get_scene(pb::GetSceneRequest {}).await?.into_inner();
+    // Watcher: keeps every frame it receives (latest-wins: it may skip some).
+    let frames: Arc<Mutex<Vec<pb::DeformationFrame>>> = Arc::new(Mutex::new(Vec::new()));
     let mut watch = client
         .watch(pb::WatchRequest {
             include_positions: true,
@@ -95,15 +194,7 @@ pub async fn run(args: &DemoArgs) -> anyhow::Result<DemoReport> {
     let watched = frames.clone();
     let watcher = tokio::spawn(async move {
         while let Ok(Some(f)) = watch.message().await {
-            let mut w = watched.lock().expect("frames lock");
-            w.0 += 1;
-            let bigger =
-                w.1.as_ref()
-                    .is_none_or(|m| f.max_displacement_m > m.max_displacement_m);
-            if bigger {
-                w.1 = Some(f.clone());
-            }
-            w.2 = Some(f);
+            watched.lock().expect("frames lock").push(f);
         }
     });
 
@@ -156,34 +247,228 @@ pub async fn run(args: &DemoArgs) -> anyhow::Result<DemoReport> {
         write(&path, &forces_csv(rows))?;
         files.push(path);
     }
-    let (frame_count, deepest, last) = {
-        let w = frames.lock().expect("frames lock");
-        (w.0, w.1.clone(), w.2.clone())
-    };
-    for (label, frame) in [("deepest", deepest), ("final", last)] {
+    let frames = std::mem::take(&mut *frames.lock().expect("frames lock"));
+    let frame_count = frames.len();
+    let deepest = frames
+        .iter()
+        .max_by(|a, b| a.max_displacement_m.total_cmp(&b.max_displacement_m));
+    let max_displacement_m = deepest.map_or(0.0, |f| f.max_displacement_m);
+    for (label, frame) in [("deepest", deepest), ("final", frames.last())] {
         if let Some(f) = frame {
             let path = args.out.join(format!("surface-{label}.obj"));
-            write(&path, &surface_obj(&surface, &f))?;
+            write(&path, &surface_obj(&surface, f))?;
             files.push(path);
         }
     }
-    let summary = summary_table(&scene_name, &forces, &stats);
+    if !args.no_pictures && !frames.is_empty() {
+        let pictures = Pictures {
+            out: args.out.clone(),
+            width: args.width,
+            height: args.height,
+            gif_frames: args.gif_frames,
+            quiet: args.quiet,
+            azimuth_deg: args.azimuth_deg,
+            elevation_deg: args.elevation_deg,
+        };
+        let (description, surface) = (description.clone(), surface.clone());
+        let forces = forces.clone();
+        files.extend(
+            tokio::task::spawn_blocking(move || {
+                pictures.write(&description, &surface, &frames, &forces)
+            })
+            .await??,
+        );
+    }
+    let mut summary = summary_table(&scene_name, &forces, &stats);
+    summary.push_str(&format!(
+        "largest surface displacement: {:.2} mm; deformation frames received: {frame_count}\n",
+        max_displacement_m * 1e3
+    ));
     let path = args.out.join("summary.txt");
     write(&path, &summary)?;
     files.push(path);
+    let elapsed_s = started.elapsed().as_secs_f64();
     if !args.quiet {
         println!("{summary}");
-        println!("Results in {}:", args.out.display());
-        for f in &files {
-            println!("  {}", f.display());
-        }
+        println!("Results in {} ({elapsed_s:.1} s):", args.out.display());
+        print!("{}", describe_files(&args.out, &files));
     }
     Ok(DemoReport {
         out: args.out.clone(),
         forces,
         frames: frame_count,
         files,
+        max_displacement_m,
+        elapsed_s,
     })
+}
+
+/// The list of results printed at the end: one line per kind of file, the
+/// VTU series as one line.
+fn describe_files(out: &Path, files: &[PathBuf]) -> String {
+    let mut s = String::new();
+    let mut vtu = 0;
+    for f in files {
+        let name = f.strip_prefix(out).unwrap_or(f).display().to_string();
+        let what = match f.extension().and_then(|e| e.to_str()).unwrap_or("") {
+            "vtu" => {
+                vtu += 1;
+                continue;
+            }
+            "pvd" => "VTU series index (open in ParaView)",
+            "png" if name.starts_with("snapshot") => "snapshot",
+            "png" => "force versus time",
+            "gif" => "animation of the session",
+            "csv" => "force samples",
+            "obj" => "deformed surface",
+            "fsrec" => "session recording (fissure report / replay --recording)",
+            "txt" => "summary table",
+            _ => "",
+        };
+        s.push_str(&format!("  {:<34} {what}\n", name));
+    }
+    if vtu > 0 {
+        s.push_str(&format!(
+            "  {:<34} {vtu} surface frames with point data `displacement` (m)\n",
+            "vtu/surface-*.vtu"
+        ));
+    }
+    s
+}
+
+/// The pictures and the VTU series of a demo run.
+struct Pictures {
+    out: PathBuf,
+    width: u32,
+    height: u32,
+    gif_frames: usize,
+    quiet: bool,
+    azimuth_deg: Option<f64>,
+    elevation_deg: Option<f64>,
+}
+
+impl Pictures {
+    /// Writes the VTU series, the snapshots, the force plots and the GIF;
+    /// returns the files written.
+    fn write(
+        &self,
+        scene: &pb::SceneDescription,
+        surface: &pb::SurfaceMesh,
+        frames: &[pb::DeformationFrame],
+        forces: &[(String, Vec<ForceRow>)],
+    ) -> anyhow::Result<Vec<PathBuf>> {
+        use crate::render::anim::{GifOptions, save_gif};
+        use crate::render::plot::{InstrumentForces, force_plot};
+        use crate::watch::{FrameRenderer, SessionView, VtuSeries, caption_of, gif_delay_cs};
+        let bar = ProgressBar::new((frames.len() + 8) as u64);
+        if self.quiet {
+            bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+        }
+        bar.set_style(
+            ProgressStyle::with_template("{prefix:>8} [{bar:40}] {percent:>3}% {msg}")
+                .expect("valid template")
+                .progress_chars("=> "),
+        );
+        bar.set_prefix("pictures");
+        let mut files = Vec::new();
+        let mut view = SessionView::new(scene, surface);
+        if let Some(a) = self.azimuth_deg {
+            view.camera.azimuth_deg = a;
+        }
+        if let Some(e) = self.elevation_deg {
+            view.camera.elevation_deg = e;
+        }
+        // VTU series, one per frame received.
+        let dir = self.out.join("vtu");
+        std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+        let mut series = VtuSeries::new(&dir, "surface");
+        bar.set_message("VTU series");
+        for f in frames {
+            files.push(series.write(&view, f)?);
+            bar.inc(1);
+        }
+        files.push(series.finish()?);
+        // One colour scale for every picture: the run's largest displacement.
+        let peak_mm = frames
+            .iter()
+            .map(|f| f.max_displacement_m * 1e3)
+            .fold(0.0, f64::max);
+        let range_mm = crate::render::ticks::nice_range(0.0, peak_mm.max(0.1), 5).1;
+        // Snapshots: the first frame, the first frame at half the peak
+        // displacement, the last frame.
+        bar.set_message("snapshots");
+        let mut renderer = FrameRenderer::new(self.width, self.height)?;
+        let during = frames
+            .iter()
+            .find(|f| f.max_displacement_m * 1e3 >= 0.5 * peak_mm)
+            .unwrap_or(&frames[frames.len() / 2]);
+        for (name, label, frame) in [
+            ("snapshot-1-before.png", "before", &frames[0]),
+            ("snapshot-2-during.png", "during", during),
+            ("snapshot-3-after.png", "after", &frames[frames.len() - 1]),
+        ] {
+            let mut caption = caption_of(&scene.name, frame, range_mm);
+            caption.title = format!("{} \u{2014} {label}", caption.title);
+            let path = self.out.join(name);
+            renderer.render(&view, frame, &caption)?.save_png(&path)?;
+            files.push(path);
+            bar.inc(1);
+        }
+        // Force plots.
+        bar.set_message("force plots");
+        for (name, rows) in forces {
+            let ins = InstrumentForces {
+                name: name.clone(),
+                time: rows.iter().map(|r| r.t_s).collect(),
+                force: rows.iter().map(|r| r.force_n).collect(),
+            };
+            let path = self.out.join(format!("forces-{name}.png"));
+            force_plot(
+                &format!("{} \u{2014} force on the {name} spatula", scene.name),
+                &[ins],
+                true,
+                None,
+            )
+            .save_png(&path)?;
+            files.push(path);
+            bar.inc(1);
+        }
+        // The animation: evenly thinned frames at most 640 px wide.
+        bar.set_message("animation");
+        let stride = frames.len().div_ceil(self.gif_frames.max(2)).max(1);
+        let (gw, gh) = if self.width > 640 {
+            (640, (self.height * 640 / self.width).max(240))
+        } else {
+            (self.width, self.height)
+        };
+        let mut gif_renderer = FrameRenderer::new(gw, gh)?;
+        let mut images = Vec::new();
+        let picked: Vec<&pb::DeformationFrame> = frames
+            .iter()
+            .step_by(stride)
+            .chain(frames.last().filter(|_| (frames.len() - 1) % stride != 0))
+            .collect();
+        for f in &picked {
+            images.push(gif_renderer.render(&view, f, &caption_of(&scene.name, f, range_mm))?);
+        }
+        let dt = if frames.len() > 1 {
+            (frames[frames.len() - 1].sim_time_s - frames[0].sim_time_s) / (frames.len() - 1) as f64
+        } else {
+            0.04
+        };
+        let path = self.out.join("session.gif");
+        save_gif(
+            &images,
+            &path,
+            &GifOptions {
+                delay_cs: gif_delay_cs(dt * stride as f64),
+                ..Default::default()
+            },
+        )?;
+        files.push(path);
+        bar.finish_and_clear();
+        Ok(files)
+    }
 }
 
 fn write(path: &Path, text: &str) -> anyhow::Result<()> {

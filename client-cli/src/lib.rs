@@ -1,11 +1,13 @@
-//! Client logic of the `fissure` command: trajectories, replay, the demo, mesh
-//! tools, rendering and benchmarks. The binary (`main.rs`) only parses arguments.
+//! Client logic of the `fissure` command: trajectories, replay, the UDP
+//! bridge, the watcher, the demo, mesh tools, rendering and benchmarks. The binary (`main.rs`) only parses arguments.
 
 pub mod bench_collision;
 pub mod bench_fem;
+pub mod bridge;
 pub mod demo;
 pub mod mesh_cmd;
 pub mod render;
 pub mod replay;
 pub mod report;
 pub mod trajectory;
+pub mod watch;

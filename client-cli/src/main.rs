@@ -20,8 +20,17 @@ enum Command {
     /// Start a server in-process, drive both spatulas with the bundled
     /// trajectories and write a results folder.
     Demo(fissure_cli::demo::DemoArgs),
-    /// Stream a trajectory to a server as one haptic client and write the forces.
+    /// Stream trajectories to a server as haptic clients (one per instrument)
+    /// and write the forces per instrument.
+    #[command(after_help = REPLAY_HELP)]
     Replay(ReplayArgs),
+    /// Bridge UDP pose datagrams of haptic device programs to the server's
+    /// haptic streams; force datagrams go back to the sender.
+    #[command(after_help = BRIDGE_HELP)]
+    Bridge(fissure_cli::bridge::BridgeArgs),
+    /// Subscribe to deformation frames; write a VTU series (+ .pvd for
+    /// ParaView), PNG images and an animated GIF.
+    Watch(fissure_cli::watch::WatchArgs),
     /// Build, convert and inspect brain models.
     Mesh {
         #[command(subcommand)]
@@ -75,28 +84,68 @@ enum Bench {
     },
 }
 
+const REPLAY_HELP: &str = "\
+Trajectory files (s, m, unit quaternion w x y z; the pose of the instrument's
+handle point in the scene frame):
+  one instrument   CSV `t_s,x_m,y_m,z_m,qw,qx,qy,qz`, or JSON
+                   [{\"t_s\":0,\"x_m\":..,\"y_m\":..,\"z_m\":..,\"qw\":..,\"qx\":..,\"qy\":..,\"qz\":..}, ...]
+  several          CSV `instrument,t_s,x_m,y_m,z_m,qw,qx,qy,qz` (rows may interleave),
+                   or JSON {\"left\": [waypoints...], \"right\": [...]}
+Errors name the file, the line and the column.
+
+Examples:
+  fissure replay --instrument left --trajectory sylvian-open-left
+  fissure replay --trajectory left=l.csv --trajectory right=r.json --pacing fast
+  fissure replay --trajectory both.csv --out run/forces.csv   (writes run/forces-left.csv, ...)
+
+Stepped mode is the server's: start it with `fissure-server --stepped
+--stepped-clients N` and the deformation steps follow the pose timestamps,
+so `--pacing fast` gives the same forces every run, whatever the speed.";
+
+const BRIDGE_HELP: &str = "\
+Pose datagram (binary, little-endian, 80 bytes):
+  0 magic b\"FSP1\" | 4 u8 version=1 | 5 u8 instrument index | 6 u16 reserved=0
+  8 u64 sequence | 16 f64 t_s (s) | 24 3xf64 position (m) | 48 4xf64 quaternion w,x,y,z
+Force datagram back to the sender (112 bytes):
+  0 magic b\"FSF1\" | 4 u8 version=1 | 5 u8 instrument | 6 u16 status (0 ok, 1 rejected,
+  2 not forwarded) | 8 u64 sequence | 16 f64 t_s | 24 3xf64 force (N) | 48 3xf64 torque (N m)
+  72 u32 contact count | 76 u32 safety flags | 80 u64 model frame | 88 f64 model age (s)
+  96 f64 server compute (us) | 104 u64 reserved
+JSON form (one object per datagram):
+  {\"instrument\":\"left\",\"seq\":7,\"t_s\":0.007,\"p\":[x,y,z],\"q\":[w,x,y,z]}   (or \"i\":0)
+  answered by one line {\"instrument\":..,\"seq\":..,\"status\":\"ok\",\"f\":[..],\"torque\":[..],...}
+Instrument indices follow the order of --instrument, or the scene's order.
+Sequence numbers must increase and times must not go back, per instrument.";
+
 #[derive(Debug, clap::Args)]
 struct ReplayArgs {
     /// Server URL.
     #[arg(long, default_value = "http://127.0.0.1:50051")]
     server: String,
-    /// Instrument to claim (as named by the scene). Required with --trajectory.
-    #[arg(long, required_unless_present = "recording", requires = "trajectory")]
-    instrument: Option<String>,
-    /// Trajectory: a CSV file (`t_s,x_m,y_m,z_m,qw,qx,qy,qz`; s, m, unit
-    /// quaternion), a JSON file (array of objects with those keys), or the name
-    /// of a bundled trajectory.
+    /// Instrument to claim (as named by the scene), with one --trajectory
+    /// FILE. Without it, name instruments in --trajectory NAME=FILE or use a
+    /// file of several instruments.
     #[arg(long, conflicts_with = "recording")]
-    trajectory: Option<String>,
+    instrument: Option<String>,
+    /// Trajectory: FILE (CSV or JSON, see below), the name of a bundled
+    /// trajectory, or NAME=FILE to give an instrument its own (repeatable).
+    #[arg(
+        long,
+        conflicts_with = "recording",
+        required_unless_present = "recording"
+    )]
+    trajectory: Vec<String>,
     /// Replay every instrument's accepted poses from a session recording, all
     /// instruments at once (instead of --instrument/--trajectory).
     #[arg(long)]
     recording: Option<PathBuf>,
-    /// Output CSV of force samples (N, N m, us). With --recording, one file per
-    /// instrument named `<stem>-<instrument>.csv`.
+    /// Output CSV of force samples (N, N m, us). With several instruments,
+    /// one file per instrument named `<stem>-<instrument>.csv` beside it.
     #[arg(long, default_value = "forces.csv")]
     out: PathBuf,
-    /// Pose pacing.
+    /// Pose pacing: `realtime` sends each pose at its timestamp; `fast` sends
+    /// the next pose as soon as the previous force came back. (Stepped,
+    /// reproducible stepping is a server mode: `fissure-server --stepped`.)
     #[arg(long, value_enum, default_value_t = Pacing::Realtime)]
     pacing: Pacing,
     /// Bearer token for the claim (also FISSURE_TOKEN).
@@ -119,28 +168,30 @@ fn main() -> anyhow::Result<()> {
             rt.block_on(fissure_cli::demo::run(&args))?;
         }
         Command::Replay(args) => {
-            let plans: Vec<(String, Trajectory, PathBuf)> =
-                match (&args.recording, &args.trajectory, &args.instrument) {
-                    (Some(rec), _, _) => {
-                        let stem = args
-                            .out
-                            .file_stem()
-                            .and_then(|s| s.to_str())
-                            .unwrap_or("forces")
-                            .to_owned();
-                        fissure_cli::report::trajectories(rec)?
-                            .into_iter()
-                            .map(|(name, t)| {
-                                let out = args.out.with_file_name(format!("{stem}-{name}.csv"));
-                                (name, t, out)
-                            })
-                            .collect()
-                    }
-                    (None, Some(t), Some(i)) => {
-                        vec![(i.clone(), Trajectory::load(t)?, args.out.clone())]
-                    }
-                    _ => anyhow::bail!("give --instrument and --trajectory, or --recording"),
-                };
+            let set = match &args.recording {
+                Some(rec) => fissure_cli::report::trajectories(rec)?,
+                None => {
+                    fissure_cli::trajectory::resolve(args.instrument.as_deref(), &args.trajectory)?
+                }
+            };
+            let stem = args
+                .out
+                .file_stem()
+                .and_then(|s| s.to_str())
+                .unwrap_or("forces")
+                .to_owned();
+            let several = set.len() > 1;
+            let plans: Vec<(String, Trajectory, PathBuf)> = set
+                .into_iter()
+                .map(|(name, t)| {
+                    let out = if several || args.recording.is_some() {
+                        args.out.with_file_name(format!("{stem}-{name}.csv"))
+                    } else {
+                        args.out.clone()
+                    };
+                    (name, t, out)
+                })
+                .collect();
             rt.block_on(async {
                 let mut tasks = Vec::new();
                 for (name, trajectory, out) in plans {
@@ -172,6 +223,12 @@ fn main() -> anyhow::Result<()> {
                 }
                 anyhow::Ok(())
             })?;
+        }
+        Command::Bridge(args) => {
+            rt.block_on(fissure_cli::bridge::run(&args))?;
+        }
+        Command::Watch(args) => {
+            rt.block_on(fissure_cli::watch::run(&args))?;
         }
         Command::Mesh { command } => fissure_cli::mesh_cmd::run(command)?,
         Command::Bench { which } => match which {

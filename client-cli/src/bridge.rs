@@ -1,0 +1,935 @@
+//! `fissure bridge`: a UDP bridge for haptic device programs that do not
+//! speak gRPC. It holds one haptic stream per instrument to the server,
+//! forwards each pose datagram it receives to the instrument's stream and
+//! sends the force sample that answers it back to the datagram's sender, in
+//! the sender's format (binary or JSON).
+//!
+//! # Datagram format
+//!
+//! One pose per datagram. All numbers little-endian; f64 is IEEE 754
+//! binary64. Units: s, m, N, N m.
+//!
+//! **Binary pose** (device -> bridge), [`POSE_LEN`] = 80 bytes:
+//!
+//! | offset | type      | field                                                  |
+//! |-------:|-----------|--------------------------------------------------------|
+//! | 0      | [u8; 4]   | magic `b"FSP1"`                                        |
+//! | 4      | u8        | version = 1                                            |
+//! | 5      | u8        | instrument index (order of `--instrument`, or the scene's) |
+//! | 6      | u16       | reserved, 0                                            |
+//! | 8      | u64       | sequence, strictly increasing per instrument           |
+//! | 16     | f64       | t_s, s, non-decreasing per instrument                  |
+//! | 24     | 3 x f64   | position of the handle point x, y, z, m (scene frame)  |
+//! | 48     | 4 x f64   | orientation quaternion w, x, y, z (unit within 1e-3)   |
+//!
+//! **Binary force** (bridge -> device), [`FORCE_LEN`] = 112 bytes:
+//!
+//! | offset | type      | field                                                  |
+//! |-------:|-----------|--------------------------------------------------------|
+//! | 0      | [u8; 4]   | magic `b"FSF1"`                                        |
+//! | 4      | u8        | version = 1                                            |
+//! | 5      | u8        | instrument index                                       |
+//! | 6      | u16       | status: 0 ok, 1 pose rejected by the server, 2 not forwarded (unknown instrument, stream down or full) |
+//! | 8      | u64       | sequence of the pose answered                          |
+//! | 16     | f64       | t_s of the pose answered, s                            |
+//! | 24     | 3 x f64   | force on the instrument, N (scene frame)               |
+//! | 48     | 3 x f64   | torque about the handle point, N m                     |
+//! | 72     | u32       | contact count (surface vertices)                       |
+//! | 76     | u32       | safety flags (`fissure.v1.SafetyFlag` bits)            |
+//! | 80     | u64       | model frame (deformation step used)                    |
+//! | 88     | f64       | model age, s                                           |
+//! | 96     | f64       | server compute time, us                                |
+//! | 104    | u64       | reserved, 0                                            |
+//!
+//! **JSON** (one object per datagram, a trailing newline allowed): a
+//! datagram whose first non-blank byte is `{` is read as
+//! `{"instrument": "left", "seq": 7, "t_s": 0.007, "p": [x, y, z],
+//! "q": [w, x, y, z]}` (`"instrument"` may instead be `"i": 0`, the index).
+//! The answer is one line:
+//! `{"instrument":"left","seq":7,"t_s":0.007,"status":"ok","f":[..],"torque":[..],"contacts":3,"flags":0,"model_frame":12,"model_age_s":0.004,"server_us":41.0}`
+//! with `"status"` `"ok"`, `"rejected"` (then `"message"` says why) or
+//! `"not-forwarded"`.
+//!
+//! Datagrams that do not parse are dropped and counted
+//! ([`parse_datagram`] names what is wrong; it never panics).
+//!
+//! # Rate and allocation
+//!
+//! The bridge is sized for 1 kHz per instrument: the receive buffer, the
+//! reply buffers and the queues of pending replies are allocated once; a
+//! sample costs no allocation in the bridge (the gRPC transport below it
+//! manages its own buffers). A pose arriving while the instrument's stream
+//! has [`QUEUE`] poses in flight is answered `not forwarded` at once rather
+//! than queued, so a stalled server never delays the device's loop.
+
+use crate::replay::{connect, haptic_request};
+use anyhow::{Context, bail};
+use fissure_proto::v1 as pb;
+use std::collections::VecDeque;
+use std::io::Write;
+use std::net::SocketAddr;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use tokio::net::UdpSocket;
+
+/// Magic of a binary pose datagram.
+pub const POSE_MAGIC: [u8; 4] = *b"FSP1";
+/// Magic of a binary force datagram.
+pub const FORCE_MAGIC: [u8; 4] = *b"FSF1";
+/// Format version.
+pub const VERSION: u8 = 1;
+/// Length of a binary pose datagram, bytes.
+pub const POSE_LEN: usize = 80;
+/// Length of a binary force datagram, bytes.
+pub const FORCE_LEN: usize = 112;
+/// Largest datagram read, bytes (longer ones are refused).
+pub const MAX_DATAGRAM: usize = 1024;
+/// Poses in flight per instrument before new ones are answered
+/// `not forwarded`.
+pub const QUEUE: usize = 64;
+
+/// Status of a force answer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u16)]
+pub enum Status {
+    /// Served.
+    Ok = 0,
+    /// The server rejected the pose (force zero).
+    Rejected = 1,
+    /// The bridge could not forward the pose (force zero).
+    NotForwarded = 2,
+}
+
+/// Which instrument a datagram is for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum InstrumentRef<'a> {
+    /// Index into the bridge's instruments.
+    Index(u8),
+    /// Name.
+    Name(&'a str),
+}
+
+/// The encoding of a datagram (replies use the pose's).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Format {
+    /// The fixed little-endian layout.
+    Binary,
+    /// One JSON object.
+    Json,
+}
+
+/// A parsed pose datagram (borrows the instrument name from the datagram).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PoseDatagram<'a> {
+    /// Encoding.
+    pub format: Format,
+    /// Instrument.
+    pub instrument: InstrumentRef<'a>,
+    /// Sequence number.
+    pub sequence: u64,
+    /// Time, s.
+    pub t_s: f64,
+    /// Handle position, m.
+    pub position_m: [f64; 3],
+    /// Orientation (w, x, y, z).
+    pub orientation: [f64; 4],
+}
+
+/// Why a datagram was refused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum DatagramError {
+    /// Empty datagram.
+    #[error("empty datagram")]
+    Empty,
+    /// Neither the binary magic nor a JSON object.
+    #[error("bad magic {0:02x?}: expected b\"FSP1\" (binary) or '{{' (JSON)")]
+    Magic([u8; 4]),
+    /// Unsupported binary version.
+    #[error("version {0} is not supported (expected 1)")]
+    Version(u8),
+    /// Wrong binary length.
+    #[error("binary pose datagram of {got} bytes, expected {POSE_LEN}")]
+    Length {
+        /// Bytes received.
+        got: usize,
+    },
+    /// The JSON object is malformed or misses a field.
+    #[error("JSON pose: {0}")]
+    Json(String),
+}
+
+fn f64_at(b: &[u8], at: usize) -> f64 {
+    let mut a = [0u8; 8];
+    a.copy_from_slice(&b[at..at + 8]);
+    f64::from_le_bytes(a)
+}
+
+fn u64_at(b: &[u8], at: usize) -> u64 {
+    let mut a = [0u8; 8];
+    a.copy_from_slice(&b[at..at + 8]);
+    u64::from_le_bytes(a)
+}
+
+#[derive(serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct JsonPose<'a> {
+    #[serde(borrow, default)]
+    instrument: Option<&'a str>,
+    #[serde(default)]
+    i: Option<u8>,
+    seq: u64,
+    t_s: f64,
+    p: [f64; 3],
+    q: [f64; 4],
+}
+
+/// Parses one pose datagram (binary or JSON, see the module doc). Never
+/// panics; values are not range-checked here (the server answers
+/// non-finite values or a non-unit quaternion with a rejection).
+pub fn parse_datagram(bytes: &[u8]) -> Result<PoseDatagram<'_>, DatagramError> {
+    let first = bytes
+        .iter()
+        .position(|b| !b.is_ascii_whitespace())
+        .ok_or(DatagramError::Empty)?;
+    if bytes[first] == b'{' {
+        let j: JsonPose<'_> =
+            serde_json::from_slice(bytes).map_err(|e| DatagramError::Json(e.to_string()))?;
+        let instrument = match (j.instrument, j.i) {
+            (Some(n), None) => InstrumentRef::Name(n),
+            (None, Some(i)) => InstrumentRef::Index(i),
+            _ => {
+                return Err(DatagramError::Json(
+                    "give exactly one of \"instrument\" (name) and \"i\" (index)".into(),
+                ));
+            }
+        };
+        return Ok(PoseDatagram {
+            format: Format::Json,
+            instrument,
+            sequence: j.seq,
+            t_s: j.t_s,
+            position_m: j.p,
+            orientation: j.q,
+        });
+    }
+    if bytes.len() < 4 {
+        let mut m = [0u8; 4];
+        m[..bytes.len()].copy_from_slice(bytes);
+        return Err(DatagramError::Magic(m));
+    }
+    let magic = [bytes[0], bytes[1], bytes[2], bytes[3]];
+    if magic != POSE_MAGIC {
+        return Err(DatagramError::Magic(magic));
+    }
+    if bytes.len() < 5 || bytes[4] != VERSION {
+        return Err(if bytes.len() < 5 {
+            DatagramError::Length { got: bytes.len() }
+        } else {
+            DatagramError::Version(bytes[4])
+        });
+    }
+    if bytes.len() != POSE_LEN {
+        return Err(DatagramError::Length { got: bytes.len() });
+    }
+    Ok(PoseDatagram {
+        format: Format::Binary,
+        instrument: InstrumentRef::Index(bytes[5]),
+        sequence: u64_at(bytes, 8),
+        t_s: f64_at(bytes, 16),
+        position_m: [f64_at(bytes, 24), f64_at(bytes, 32), f64_at(bytes, 40)],
+        orientation: [
+            f64_at(bytes, 48),
+            f64_at(bytes, 56),
+            f64_at(bytes, 64),
+            f64_at(bytes, 72),
+        ],
+    })
+}
+
+/// Encodes a binary pose datagram (for device programs written in Rust and
+/// for tests).
+pub fn encode_pose(
+    instrument: u8,
+    sequence: u64,
+    t_s: f64,
+    position_m: [f64; 3],
+    orientation: [f64; 4],
+) -> [u8; POSE_LEN] {
+    let mut b = [0u8; POSE_LEN];
+    b[0..4].copy_from_slice(&POSE_MAGIC);
+    b[4] = VERSION;
+    b[5] = instrument;
+    b[8..16].copy_from_slice(&sequence.to_le_bytes());
+    b[16..24].copy_from_slice(&t_s.to_le_bytes());
+    for (k, v) in position_m.iter().chain(&orientation).enumerate() {
+        b[24 + 8 * k..32 + 8 * k].copy_from_slice(&v.to_le_bytes());
+    }
+    b
+}
+
+/// A force answer, decoded.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ForceDatagram {
+    /// Instrument index.
+    pub instrument: u8,
+    /// Status.
+    pub status: u16,
+    /// Sequence of the pose answered.
+    pub sequence: u64,
+    /// Time of the pose answered, s.
+    pub t_s: f64,
+    /// Force, N.
+    pub force_n: [f64; 3],
+    /// Torque about the handle point, N m.
+    pub torque_nm: [f64; 3],
+    /// Contact vertices.
+    pub contact_count: u32,
+    /// Safety flags.
+    pub safety_flags: u32,
+    /// Deformation frame used.
+    pub model_frame: u64,
+    /// Model age, s.
+    pub model_age_s: f64,
+    /// Server compute time, us.
+    pub server_compute_us: f64,
+}
+
+/// Encodes a binary force datagram into `out`.
+pub fn encode_force(f: &ForceDatagram, out: &mut [u8; FORCE_LEN]) {
+    out.fill(0);
+    out[0..4].copy_from_slice(&FORCE_MAGIC);
+    out[4] = VERSION;
+    out[5] = f.instrument;
+    out[6..8].copy_from_slice(&f.status.to_le_bytes());
+    out[8..16].copy_from_slice(&f.sequence.to_le_bytes());
+    out[16..24].copy_from_slice(&f.t_s.to_le_bytes());
+    for (k, v) in f.force_n.iter().chain(&f.torque_nm).enumerate() {
+        out[24 + 8 * k..32 + 8 * k].copy_from_slice(&v.to_le_bytes());
+    }
+    out[72..76].copy_from_slice(&f.contact_count.to_le_bytes());
+    out[76..80].copy_from_slice(&f.safety_flags.to_le_bytes());
+    out[80..88].copy_from_slice(&f.model_frame.to_le_bytes());
+    out[88..96].copy_from_slice(&f.model_age_s.to_le_bytes());
+    out[96..104].copy_from_slice(&f.server_compute_us.to_le_bytes());
+}
+
+/// Decodes a binary force datagram (`None` when it is not one).
+pub fn decode_force(b: &[u8]) -> Option<ForceDatagram> {
+    if b.len() != FORCE_LEN || b[0..4] != FORCE_MAGIC || b[4] != VERSION {
+        return None;
+    }
+    let u32_at = |at: usize| u32::from_le_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]]);
+    Some(ForceDatagram {
+        instrument: b[5],
+        status: u16::from_le_bytes([b[6], b[7]]),
+        sequence: u64_at(b, 8),
+        t_s: f64_at(b, 16),
+        force_n: [f64_at(b, 24), f64_at(b, 32), f64_at(b, 40)],
+        torque_nm: [f64_at(b, 48), f64_at(b, 56), f64_at(b, 64)],
+        contact_count: u32_at(72),
+        safety_flags: u32_at(76),
+        model_frame: u64_at(b, 80),
+        model_age_s: f64_at(b, 88),
+        server_compute_us: f64_at(b, 96),
+    })
+}
+
+/// Writes the JSON answer line for `f` into `out` (cleared first; no
+/// allocation once `out` has grown to a line's size). `message` is the
+/// server's rejection text, if any.
+pub fn encode_force_json(
+    f: &ForceDatagram,
+    name: &str,
+    message: Option<&str>,
+    out: &mut Vec<u8>,
+) -> std::io::Result<()> {
+    out.clear();
+    let status = match f.status {
+        0 => "ok",
+        1 => "rejected",
+        _ => "not-forwarded",
+    };
+    write!(out, "{{\"instrument\":")?;
+    write_json_str(out, name)?;
+    write!(
+        out,
+        ",\"seq\":{},\"t_s\":{},\"status\":\"{status}\",\"f\":[{:e},{:e},{:e}],\"torque\":[{:e},{:e},{:e}],\"contacts\":{},\"flags\":{},\"model_frame\":{},\"model_age_s\":{:e},\"server_us\":{:.1}",
+        f.sequence,
+        f.t_s,
+        f.force_n[0],
+        f.force_n[1],
+        f.force_n[2],
+        f.torque_nm[0],
+        f.torque_nm[1],
+        f.torque_nm[2],
+        f.contact_count,
+        f.safety_flags,
+        f.model_frame,
+        f.model_age_s,
+        f.server_compute_us
+    )?;
+    if let Some(m) = message {
+        write!(out, ",\"message\":")?;
+        write_json_str(out, m)?;
+    }
+    writeln!(out, "}}")
+}
+
+fn write_json_str(out: &mut Vec<u8>, s: &str) -> std::io::Result<()> {
+    out.push(b'"');
+    for c in s.chars() {
+        match c {
+            '"' => out.extend_from_slice(b"\\\""),
+            '\\' => out.extend_from_slice(b"\\\\"),
+            c if (c as u32) < 0x20 => write!(out, "\\u{:04x}", c as u32)?,
+            c => {
+                let mut b = [0u8; 4];
+                out.extend_from_slice(c.encode_utf8(&mut b).as_bytes());
+            }
+        }
+    }
+    out.push(b'"');
+    Ok(())
+}
+
+/// Counters of a bridge.
+#[derive(Debug, Default)]
+pub struct Counters {
+    /// Datagrams received.
+    pub received: AtomicU64,
+    /// Datagrams that did not parse.
+    pub bad: AtomicU64,
+    /// Poses forwarded to the server.
+    pub forwarded: AtomicU64,
+    /// Poses answered `not forwarded`.
+    pub not_forwarded: AtomicU64,
+    /// Force answers sent back.
+    pub answered: AtomicU64,
+    /// Poses the server rejected.
+    pub rejected: AtomicU64,
+}
+
+/// A snapshot of [`Counters`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+pub struct BridgeStats {
+    /// Datagrams received.
+    pub received: u64,
+    /// Datagrams that did not parse.
+    pub bad: u64,
+    /// Poses forwarded to the server.
+    pub forwarded: u64,
+    /// Poses answered `not forwarded`.
+    pub not_forwarded: u64,
+    /// Force answers sent back.
+    pub answered: u64,
+    /// Poses the server rejected.
+    pub rejected: u64,
+}
+
+impl Counters {
+    fn snapshot(&self) -> BridgeStats {
+        let l = |a: &AtomicU64| a.load(Ordering::Relaxed);
+        BridgeStats {
+            received: l(&self.received),
+            bad: l(&self.bad),
+            forwarded: l(&self.forwarded),
+            not_forwarded: l(&self.not_forwarded),
+            answered: l(&self.answered),
+            rejected: l(&self.rejected),
+        }
+    }
+}
+
+/// Where the answer of a pose in flight goes.
+#[derive(Debug, Clone, Copy)]
+struct Pending {
+    to: SocketAddr,
+    format: Format,
+}
+
+/// One instrument's haptic stream.
+struct Lane {
+    name: String,
+    tx: tokio::sync::mpsc::Sender<pb::PoseSample>,
+    pending: Arc<Mutex<VecDeque<Pending>>>,
+}
+
+/// A running bridge.
+pub struct Bridge {
+    /// The UDP address it listens on.
+    pub local_addr: SocketAddr,
+    /// Its counters.
+    pub counters: Arc<Counters>,
+    stop: tokio::sync::watch::Sender<bool>,
+    task: tokio::task::JoinHandle<anyhow::Result<()>>,
+}
+
+/// Options of `fissure bridge`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct BridgeArgs {
+    /// Server URL.
+    #[arg(long, default_value = "http://127.0.0.1:50051")]
+    pub server: String,
+    /// UDP address to listen on for pose datagrams.
+    #[arg(long, default_value = "127.0.0.1:50052")]
+    pub listen: SocketAddr,
+    /// Instrument(s) to claim, in index order (repeatable); default: every
+    /// instrument of the scene, in the scene's order.
+    #[arg(long)]
+    pub instrument: Vec<String>,
+    /// Bearer token for the claims (also FISSURE_TOKEN).
+    #[arg(long, env = "FISSURE_TOKEN", hide_env_values = true)]
+    pub token: Option<String>,
+    /// Stop after this long, s (default: until Ctrl-C).
+    #[arg(long)]
+    pub duration_s: Option<f64>,
+}
+
+impl Bridge {
+    /// Connects to `server`, claims `instruments` (every instrument of the
+    /// scene when empty) and listens on `listen`.
+    pub async fn start(
+        server: &str,
+        listen: SocketAddr,
+        instruments: &[String],
+        token: Option<&str>,
+    ) -> anyhow::Result<Self> {
+        let mut client = connect(server).await?;
+        let names: Vec<String> = if instruments.is_empty() {
+            client
+                .get_scene(pb::GetSceneRequest {})
+                .await
+                .context("GetScene")?
+                .into_inner()
+                .instruments
+                .into_iter()
+                .map(|i| i.name)
+                .collect()
+        } else {
+            instruments.to_vec()
+        };
+        if names.is_empty() {
+            bail!("the scene has no instrument to bridge");
+        }
+        if names.len() > 256 {
+            bail!("at most 256 instruments can be bridged (the index is one byte)");
+        }
+        let socket = Arc::new(
+            UdpSocket::bind(listen)
+                .await
+                .with_context(|| format!("binding UDP {listen}"))?,
+        );
+        let local_addr = socket.local_addr()?;
+        let counters = Arc::new(Counters::default());
+        let mut lanes = Vec::new();
+        let mut readers = Vec::new();
+        for (index, name) in names.iter().enumerate() {
+            let (tx, rx) = tokio::sync::mpsc::channel::<pb::PoseSample>(QUEUE);
+            let req = haptic_request(tokio_stream::wrappers::ReceiverStream::new(rx), name, token)?;
+            let mut inbound = client
+                .haptic(req)
+                .await
+                .with_context(|| format!("claiming instrument {name:?}"))?
+                .into_inner();
+            let pending = Arc::new(Mutex::new(VecDeque::with_capacity(QUEUE + 1)));
+            lanes.push(Lane {
+                name: name.clone(),
+                tx,
+                pending: pending.clone(),
+            });
+            let (socket, counters, name) = (socket.clone(), counters.clone(), name.clone());
+            readers.push(tokio::spawn(async move {
+                let mut bin = [0u8; FORCE_LEN];
+                let mut json = Vec::with_capacity(512);
+                loop {
+                    let sample = match inbound.message().await {
+                        Ok(Some(s)) => s,
+                        Ok(None) => break,
+                        Err(e) => {
+                            tracing::warn!("instrument {name}: haptic stream: {e}");
+                            break;
+                        }
+                    };
+                    let Some(to) = pending.lock().expect("pending lock").pop_front() else {
+                        tracing::warn!("instrument {name}: a force sample without a pose");
+                        continue;
+                    };
+                    let v = |v: &Option<pb::Vec3>| v.as_ref().map_or([0.0; 3], |v| [v.x, v.y, v.z]);
+                    let rejected = sample.rejection.is_some();
+                    if rejected {
+                        counters.rejected.fetch_add(1, Ordering::Relaxed);
+                    }
+                    let f = ForceDatagram {
+                        instrument: index as u8,
+                        status: if rejected {
+                            Status::Rejected as u16
+                        } else {
+                            Status::Ok as u16
+                        },
+                        sequence: sample.sequence,
+                        t_s: sample.t_s,
+                        force_n: v(&sample.force_n),
+                        torque_nm: v(&sample.torque_nm),
+                        contact_count: sample.contact_count,
+                        safety_flags: sample.safety_flags,
+                        model_frame: sample.model_frame,
+                        model_age_s: sample.model_age_s,
+                        server_compute_us: sample.server_compute_us,
+                    };
+                    let message = sample.rejection.as_ref().map(|r| r.message.as_str());
+                    send_answer(
+                        &socket, &counters, to, &f, &name, message, &mut bin, &mut json,
+                    )
+                    .await;
+                }
+            }));
+        }
+        let (stop, mut stopped) = tokio::sync::watch::channel(false);
+        let task_counters = counters.clone();
+        let task = tokio::spawn(async move {
+            let counters = task_counters;
+            let mut buf = [0u8; MAX_DATAGRAM + 1];
+            let mut bin = [0u8; FORCE_LEN];
+            let mut json = Vec::with_capacity(512);
+            loop {
+                let (n, from) = tokio::select! {
+                    r = socket.recv_from(&mut buf) => match r {
+                        Ok(x) => x,
+                        // ICMP "port unreachable" of an earlier answer to a
+                        // device that went away: not fatal.
+                        Err(e) if e.kind() == std::io::ErrorKind::ConnectionReset => continue,
+                        Err(e) => return Err(e).context("receiving a datagram"),
+                    },
+                    _ = stopped.changed() => break,
+                };
+                counters.received.fetch_add(1, Ordering::Relaxed);
+                let d = if n > MAX_DATAGRAM {
+                    Err(DatagramError::Length { got: n })
+                } else {
+                    parse_datagram(&buf[..n])
+                };
+                let d = match d {
+                    Ok(d) => d,
+                    Err(e) => {
+                        let bad = counters.bad.fetch_add(1, Ordering::Relaxed);
+                        if bad < 10 || bad.is_power_of_two() {
+                            tracing::warn!(
+                                "datagram from {from} dropped: {e} ({} so far)",
+                                bad + 1
+                            );
+                        }
+                        continue;
+                    }
+                };
+                let index = match d.instrument {
+                    InstrumentRef::Index(i) => Some(i as usize).filter(|&i| i < lanes.len()),
+                    InstrumentRef::Name(n) => lanes.iter().position(|l| l.name == n),
+                };
+                let to = Pending {
+                    to: from,
+                    format: d.format,
+                };
+                let forwarded = match index {
+                    Some(i) => {
+                        let lane = &lanes[i];
+                        let mut pending = lane.pending.lock().expect("pending lock");
+                        // Push first: the answer may come back before
+                        // `try_send` returns.
+                        pending.push_back(to);
+                        match lane.tx.try_send(pose_sample(&d)) {
+                            Ok(()) => true,
+                            Err(_) => {
+                                pending.pop_back();
+                                false
+                            }
+                        }
+                    }
+                    None => false,
+                };
+                if forwarded {
+                    counters.forwarded.fetch_add(1, Ordering::Relaxed);
+                } else {
+                    counters.not_forwarded.fetch_add(1, Ordering::Relaxed);
+                    let f = ForceDatagram {
+                        instrument: match d.instrument {
+                            InstrumentRef::Index(i) => i,
+                            InstrumentRef::Name(_) => index.unwrap_or(255) as u8,
+                        },
+                        status: Status::NotForwarded as u16,
+                        sequence: d.sequence,
+                        t_s: d.t_s,
+                        force_n: [0.0; 3],
+                        torque_nm: [0.0; 3],
+                        contact_count: 0,
+                        safety_flags: 0,
+                        model_frame: 0,
+                        model_age_s: 0.0,
+                        server_compute_us: 0.0,
+                    };
+                    let name = match (index, d.instrument) {
+                        (Some(i), _) => lanes[i].name.as_str(),
+                        (None, InstrumentRef::Name(n)) => n,
+                        (None, InstrumentRef::Index(_)) => "",
+                    };
+                    let msg = if index.is_none() {
+                        "unknown instrument"
+                    } else {
+                        "the instrument's stream is full or closed"
+                    };
+                    send_answer(
+                        &socket,
+                        &counters,
+                        to,
+                        &f,
+                        name,
+                        Some(msg),
+                        &mut bin,
+                        &mut json,
+                    )
+                    .await;
+                }
+            }
+            // Close the streams (releases the claims) and let the readers
+            // answer what is still in flight.
+            drop(lanes);
+            for r in readers {
+                let _ = r.await;
+            }
+            anyhow::Ok(())
+        });
+        Ok(Self {
+            local_addr,
+            counters,
+            stop,
+            task,
+        })
+    }
+
+    /// The counters so far.
+    pub fn stats(&self) -> BridgeStats {
+        self.counters.snapshot()
+    }
+
+    /// Stops listening, closes the haptic streams (releasing the claims)
+    /// and returns the final counters.
+    pub async fn stop(self) -> anyhow::Result<BridgeStats> {
+        let _ = self.stop.send(true);
+        self.task.await.context("the bridge task panicked")??;
+        Ok(self.counters.snapshot())
+    }
+
+    /// Waits until the bridge ends by itself (a receive error).
+    pub async fn wait(&mut self) -> anyhow::Result<()> {
+        (&mut self.task).await.context("the bridge task panicked")?
+    }
+}
+
+fn pose_sample(d: &PoseDatagram<'_>) -> pb::PoseSample {
+    let [x, y, z] = d.position_m;
+    let [w, qx, qy, qz] = d.orientation;
+    pb::PoseSample {
+        t_s: d.t_s,
+        sequence: d.sequence,
+        position_m: Some(pb::Vec3 { x, y, z }),
+        orientation: Some(pb::Quaternion {
+            w,
+            x: qx,
+            y: qy,
+            z: qz,
+        }),
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+async fn send_answer(
+    socket: &UdpSocket,
+    counters: &Counters,
+    to: Pending,
+    f: &ForceDatagram,
+    name: &str,
+    message: Option<&str>,
+    bin: &mut [u8; FORCE_LEN],
+    json: &mut Vec<u8>,
+) {
+    let bytes: &[u8] = match to.format {
+        Format::Binary => {
+            encode_force(f, bin);
+            bin
+        }
+        Format::Json => {
+            if encode_force_json(f, name, message, json).is_err() {
+                return;
+            }
+            json
+        }
+    };
+    match socket.send_to(bytes, to.to).await {
+        Ok(_) => {
+            counters.answered.fetch_add(1, Ordering::Relaxed);
+        }
+        Err(e) => tracing::warn!("answer to {}: {e}", to.to),
+    }
+}
+
+/// Runs `fissure bridge` until Ctrl-C or `--duration-s`.
+pub async fn run(args: &BridgeArgs) -> anyhow::Result<BridgeStats> {
+    let mut bridge = Bridge::start(
+        &args.server,
+        args.listen,
+        &args.instrument,
+        args.token.as_deref(),
+    )
+    .await?;
+    eprintln!(
+        "bridging UDP {} to {} (binary b\"FSP1\" or JSON poses; see `fissure bridge --help`)",
+        bridge.local_addr, args.server
+    );
+    let limit = async {
+        match args.duration_s {
+            Some(d) => tokio::time::sleep(std::time::Duration::from_secs_f64(d.max(0.0))).await,
+            None => std::future::pending().await,
+        }
+    };
+    tokio::select! {
+        r = bridge.wait() => { r?; bail!("the bridge stopped"); }
+        _ = tokio::signal::ctrl_c() => {}
+        _ = limit => {}
+    }
+    let stats = bridge.stop().await?;
+    eprintln!(
+        "datagrams received {}, bad {}, poses forwarded {}, not forwarded {}, rejected by the server {}, answers sent {}",
+        stats.received,
+        stats.bad,
+        stats.forwarded,
+        stats.not_forwarded,
+        stats.rejected,
+        stats.answered
+    );
+    Ok(stats)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn binary_pose_round_trip() {
+        let b = encode_pose(1, 42, 0.5, [0.01, -0.02, 0.03], [1.0, 0.0, 0.0, 0.0]);
+        let d = parse_datagram(&b).unwrap();
+        assert_eq!(d.format, Format::Binary);
+        assert_eq!(d.instrument, InstrumentRef::Index(1));
+        assert_eq!(d.sequence, 42);
+        assert_eq!(d.t_s, 0.5);
+        assert_eq!(d.position_m, [0.01, -0.02, 0.03]);
+        assert_eq!(d.orientation, [1.0, 0.0, 0.0, 0.0]);
+        // The documented offsets.
+        assert_eq!(&b[0..4], b"FSP1");
+        assert_eq!(f64::from_le_bytes(b[32..40].try_into().unwrap()), -0.02);
+    }
+
+    #[test]
+    fn bad_datagrams_are_named() {
+        let b = encode_pose(0, 1, 0.0, [0.0; 3], [1.0, 0.0, 0.0, 0.0]);
+        assert_eq!(parse_datagram(&[]), Err(DatagramError::Empty));
+        assert_eq!(
+            parse_datagram(&b[..79]),
+            Err(DatagramError::Length { got: 79 })
+        );
+        let mut v = b;
+        v[4] = 2;
+        assert_eq!(parse_datagram(&v), Err(DatagramError::Version(2)));
+        assert!(matches!(
+            parse_datagram(b"XY"),
+            Err(DatagramError::Magic(_))
+        ));
+        assert!(matches!(
+            parse_datagram(b"FSP1"),
+            Err(DatagramError::Length { got: 4 })
+        ));
+        assert!(matches!(
+            parse_datagram(br#"{"seq":1,"t_s":0,"p":[0,0,0],"q":[1,0,0,0]}"#),
+            Err(DatagramError::Json(_))
+        ));
+        assert!(matches!(
+            parse_datagram(br#"{"instrument":"left","seq":1,"t_s":0,"p":[0,0],"q":[1,0,0,0]}"#),
+            Err(DatagramError::Json(_))
+        ));
+    }
+
+    #[test]
+    fn json_pose_parses() {
+        let d = parse_datagram(
+            b" {\"instrument\":\"right\",\"seq\":7,\"t_s\":0.007,\"p\":[0.1,0.2,0.3],\"q\":[0,1,0,0]}\n",
+        )
+        .unwrap();
+        assert_eq!(d.format, Format::Json);
+        assert_eq!(d.instrument, InstrumentRef::Name("right"));
+        assert_eq!((d.sequence, d.t_s), (7, 0.007));
+        assert_eq!(d.orientation, [0.0, 1.0, 0.0, 0.0]);
+        let d =
+            parse_datagram(br#"{"i":1,"seq":8,"t_s":0.008,"p":[0,0,0],"q":[1,0,0,0]}"#).unwrap();
+        assert_eq!(d.instrument, InstrumentRef::Index(1));
+    }
+
+    #[test]
+    fn parse_never_panics_on_arbitrary_bytes() {
+        // A deterministic xorshift stream of lengths and bytes, plus every
+        // prefix and single-byte corruption of valid datagrams.
+        let mut s: u64 = 0x9E37_79B9_7F4A_7C15;
+        let mut next = || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            s
+        };
+        let mut buf = [0u8; 200];
+        for _ in 0..20_000 {
+            let n = (next() % 200) as usize;
+            for b in &mut buf[..n] {
+                *b = next() as u8;
+            }
+            let _ = parse_datagram(&buf[..n]);
+        }
+        let bin = encode_pose(0, 1, 0.0, [0.0; 3], [1.0, 0.0, 0.0, 0.0]);
+        let json = br#"{"instrument":"left","seq":1,"t_s":0,"p":[0,0,0],"q":[1,0,0,0]}"#;
+        for v in [&bin[..], &json[..]] {
+            for n in 0..=v.len() {
+                let _ = parse_datagram(&v[..n]);
+            }
+            for k in 0..v.len() {
+                let mut c = v.to_vec();
+                c[k] ^= next() as u8 | 1;
+                let _ = parse_datagram(&c);
+            }
+        }
+    }
+
+    #[test]
+    fn force_encodings() {
+        let f = ForceDatagram {
+            instrument: 1,
+            status: 0,
+            sequence: 9,
+            t_s: 0.009,
+            force_n: [0.1, -0.2, 0.3],
+            torque_nm: [0.0, 1e-4, 0.0],
+            contact_count: 5,
+            safety_flags: 1,
+            model_frame: 3,
+            model_age_s: 0.002,
+            server_compute_us: 35.0,
+        };
+        let mut b = [0u8; FORCE_LEN];
+        encode_force(&f, &mut b);
+        assert_eq!(decode_force(&b), Some(f));
+        let mut json = Vec::new();
+        encode_force_json(&f, "le\"ft", Some("bad\nquat"), &mut json).unwrap();
+        let v: serde_json::Value = serde_json::from_slice(&json).unwrap();
+        assert_eq!(v["instrument"], "le\"ft");
+        assert_eq!(v["f"][1], -0.2);
+        assert_eq!(v["contacts"], 5);
+        assert_eq!(v["status"], "ok");
+        assert_eq!(v["message"], "bad\nquat");
+        assert_eq!(*json.last().unwrap(), b'\n');
+    }
+}

@@ -1,0 +1,131 @@
+#!/usr/bin/env python3
+"""Writes the bundled block and inter-hemispheric trajectories (1 kHz poses).
+
+Run from this folder: `python3 generate.py`. Output: CSV files with the header
+`t_s,x_m,y_m,z_m,qw,qx,qy,qz` (s, m, unit quaternion w x y z); the pose is the
+handle point of the instrument frame (origin at the base centre of the plate,
++z along the length to the tip, +x the outward normal of face A).
+
+Moves are cosine-eased: s(u) = (1 - cos(pi u)) / 2 for u in [0, 1], so the
+velocity is zero at both ends of every move. The exception is the fast-travel
+case, which moves at a constant 0.375 m/s: 7.5 mm per 20 ms deformation step,
+five times the 1.5 mm thickness of the valley scenes' plate.
+"""
+
+import math
+
+RATE_HZ = 1000.0
+TIP_DOWN = (0.0, 1.0, 0.0, 0.0)  # 180 deg about x: tip towards -z, face A +x
+
+
+def ease(u):
+    u = min(max(u, 0.0), 1.0)
+    return 0.5 * (1.0 - math.cos(math.pi * u))
+
+
+def qmul(a, b):
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return (
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    )
+
+
+def about_y(theta):
+    return (math.cos(theta / 2), 0.0, math.sin(theta / 2), 0.0)
+
+
+def rot_y(v, theta):
+    c, s = math.cos(theta), math.sin(theta)
+    return (c * v[0] + s * v[2], v[1], -s * v[0] + c * v[2])
+
+
+def write(name, duration_s, pose_at):
+    n = int(round(duration_s * RATE_HZ))
+    with open(f"{name}.csv", "w") as f:
+        f.write("t_s,x_m,y_m,z_m,qw,qx,qy,qz\n")
+        for i in range(n + 1):
+            t = i / RATE_HZ
+            (x, y, z), q = pose_at(t)
+            f.write(
+                f"{t:.3f},{x:.7f},{y:.7f},{z:.7f},"
+                f"{q[0]:.12f},{q[1]:.12f},{q[2]:.12f},{q[3]:.12f}\n"
+            )
+
+
+def segments(t, keys):
+    """Piecewise eased interpolation of scalar keys [(t0, v0), (t1, v1), ...]."""
+    if t <= keys[0][0]:
+        return keys[0][1]
+    for (t0, v0), (t1, v1) in zip(keys, keys[1:]):
+        if t <= t1:
+            return v0 + (v1 - v0) * ease((t - t0) / (t1 - t0))
+    return keys[-1][1]
+
+
+# Inter-hemispheric fissure: entry (0, 0, 0.058), 25 mm deep along -z, walls
+# facing +-x 3 mm apart. Plate 1 mm thick, 30 mm long, home (0, 0, 0.093): tip
+# 5 mm above the entry. Insert 20 mm (tip 15 mm deep), then push the +x wall
+# 3 mm sideways with face A (2 mm beyond the 1 mm gap), hold.
+def interhemispheric(t):
+    z = segments(t, [(0.2, 0.093), (0.8, 0.073)])
+    x = segments(t, [(0.9, 0.0), (1.5, 0.003)])
+    return (x, 0.0, z), TIP_DOWN
+
+
+write("interhemispheric-open-left", 2.0, interhemispheric)
+
+# V valley: groove along y at x = 30 mm, 24 mm wide at the top (z = 30 mm),
+# its bottom edge at z = 10 mm. Plate 1.5 mm thick, 30 mm long, home (0.030,
+# 0.015, 0.065): tip at z = 35 mm. Insert the tip to z = 10.3 mm: the V is
+# narrower than the plate below z = 11.25 mm, so both faces push both walls
+# (up to 0.7 mm each at the tip), then hold.
+V_TIP_LOW = 0.0103
+
+
+def v_insert(t):
+    z = segments(t, [(0.2, 0.065), (1.2, V_TIP_LOW + 0.030)])
+    return (0.030, 0.015, z), TIP_DOWN
+
+
+write("v-valley-insert-left", 1.6, v_insert)
+
+
+# The fast-travel case: the same insertion at a constant 0.375 m/s (7.5 mm per
+# 20 ms deformation step, 5 plate thicknesses), then hold.
+def v_fast(t):
+    start, z0, z1, v = 0.1, 0.065, V_TIP_LOW + 0.030, 0.375
+    z = max(z1, z0 - v * max(0.0, t - start))
+    return (0.030, 0.015, z), TIP_DOWN
+
+
+write("v-valley-fast-left", 0.6, v_fast)
+
+# U valley: the groove is a half-ellipse 24 mm wide and 20 mm deep (bottom at
+# z = 10 mm). Insert the tip to z = 13 mm (no contact: the groove is 12.6 mm
+# wide there), then rotate the plate about the groove axis (a line along y
+# through the groove's top centre, (0.030, *, 0.030)) by -35 deg, so that the
+# tip swings to +x and face A presses the +x wall, then through to +35 deg so
+# that face B presses the -x wall, and back to upright.
+PIVOT = (0.030, 0.015, 0.030)
+U_TIP = 0.013
+DEG = math.pi / 180.0
+
+
+def u_rotate(t):
+    z = segments(t, [(0.2, 0.065), (1.0, U_TIP + 0.030)])
+    theta = segments(
+        t,
+        [(1.1, 0.0), (1.7, -35 * DEG), (2.0, -35 * DEG), (2.9, 35 * DEG), (3.2, 35 * DEG), (3.8, 0.0)],
+    )
+    handle = (0.030, 0.015, z)
+    rel = tuple(h - p for h, p in zip(handle, PIVOT))
+    r = rot_y(rel, theta)
+    pos = tuple(p + d for p, d in zip(PIVOT, r))
+    return pos, qmul(about_y(theta), TIP_DOWN)
+
+
+write("u-valley-rotate-left", 4.0, u_rotate)
