@@ -2,6 +2,7 @@
 //! tools, rendering and benchmarks. The binary (`main.rs`) only parses arguments.
 
 pub mod bench_collision;
+pub mod bench_loop;
 pub mod bench_fem;
 pub mod demo;
 pub mod mesh_cmd;

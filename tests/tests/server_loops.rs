@@ -25,10 +25,11 @@ fn free_running() -> SimOptions {
     }
 }
 
-/// The left spatula's handle at pose time `t` (s): starts 0.5 mm into the
-/// cube's top and pushes to 2 mm over 0.2 s, then holds.
+/// The left spatula's handle at pose time `t` (s): 0.5 mm into the cube's
+/// top at first, pushing to 2 mm and back once a second (the contact changes
+/// at every deformation step).
 fn pressing(t: f64) -> [f64; 3] {
-    let s = (t / 0.2).min(1.0);
+    let s = 0.5 - 0.5 * (2.0 * std::f64::consts::PI * t).cos();
     [0.011, 0.005, TOUCH_Z - 0.0005 - 0.0015 * s]
 }
 
@@ -53,7 +54,7 @@ async fn paced(
 }
 
 /// A deformation step far slower than the haptic period (the `neo-hookean`
-/// strategy on a 12-cell cube: hundreds of ms a step with contact): force
+/// strategy on a 12-cell cube: up to seconds a step with a new contact): force
 /// samples keep coming at the haptic rate with small server compute times while
 /// the model they use ages, past the staleness limit (10 deformation intervals,
 /// then flagged MODEL_STALE); the force loop never waits for a step.
@@ -78,9 +79,11 @@ async fn force_loop_never_waits_for_a_slow_deformation_step() -> anyhow::Result<
     server.stop().await?;
 
     let step = stats.deformation_step.expect("step latency");
-    // The premise: steps much slower than the haptic period.
+    // The premise: steps much slower than the haptic period (the longest
+    // decides; steps whose contact barely changed converge faster).
+    let slow_us = step.max_us;
     assert!(
-        step.count >= 1 && step.p50_us > 100_000.0,
+        step.count >= 1 && slow_us > 300_000.0,
         "deformation steps are not slow: {step:?}"
     );
     // Every pose answered, in order, none rejected.
@@ -89,12 +92,13 @@ async fn force_loop_never_waits_for_a_slow_deformation_step() -> anyhow::Result<
         assert_eq!(s.sequence, i as u64 + 1);
         assert!(s.rejection.is_none(), "{:?}", s.rejection);
     }
-    // The samples kept the haptic pace: had the force loop waited for steps,
-    // the 1.5 s of poses would have taken at least one more step time.
+    // The samples kept (about) the haptic pace: had the force loop waited for
+    // steps, samples would come about once per step time. The bound leaves
+    // room for a loaded machine (the solver's threads share the cores).
     assert!(
-        wall_s < n as f64 * 1e-3 + 0.5 * step.p50_us * 1e-6,
-        "{n} paced samples took {wall_s:.3} s with steps of {:.3} s",
-        step.p50_us * 1e-6
+        wall_s < 2.0 * n as f64 * 1e-3,
+        "{n} paced samples took {wall_s:.3} s with steps up to {:.3} s",
+        slow_us * 1e-6
     );
     let mut server_us: Vec<f64> = samples.iter().map(|s| s.0.server_compute_us).collect();
     let mut rtt_us: Vec<f64> = samples.iter().map(|s| s.1).collect();
@@ -102,15 +106,19 @@ async fn force_loop_never_waits_for_a_slow_deformation_step() -> anyhow::Result<
     rtt_us.sort_by(f64::total_cmp);
     let server_max = *server_us.last().expect("samples");
     let rtt_p99 = rtt_us[rtt_us.len() * 99 / 100];
-    assert!(
-        server_max < 0.05 * step.p50_us,
-        "a force sample took {server_max:.0} us of server time, steps {:.0} us",
-        step.p50_us
+    eprintln!(
+        "{n} samples in {wall_s:.3} s; server compute p50 {:.0} us, max {server_max:.0} us; \
+         round trip p50 {:.0} us, p99 {rtt_p99:.0} us; steps: {step:?}",
+        server_us[server_us.len() / 2],
+        rtt_us[rtt_us.len() / 2],
     );
     assert!(
-        rtt_p99 < 0.05 * step.p50_us,
-        "round trip p99 {rtt_p99:.0} us, steps {:.0} us",
-        step.p50_us
+        server_max < 0.05 * slow_us,
+        "a force sample took {server_max:.0} us of server time, steps up to {slow_us:.0} us"
+    );
+    assert!(
+        rtt_p99 < 0.05 * slow_us,
+        "round trip p99 {rtt_p99:.0} us, steps up to {slow_us:.0} us"
     );
     // The model ages while a step runs: within a run of samples on the same
     // frame, model_age_s grows with the pose clock, past 10 intervals (stale).
@@ -132,8 +140,8 @@ async fn force_loop_never_waits_for_a_slow_deformation_step() -> anyhow::Result<
     }
     assert!(
         longest > 10.0 * dt,
-        "largest model age {longest} s, expected > {} s",
-        10.0 * dt
+        "largest model age {longest} s, steps up to {} s",
+        slow_us * 1e-6
     );
     for (s, _) in &samples {
         let stale = s.safety_flags & flags::MODEL_STALE != 0;
@@ -165,7 +173,10 @@ async fn force_loop_never_waits_for_a_slow_deformation_step() -> anyhow::Result<
 async fn slow_watcher_skips_frames_fast_watcher_keeps_up() -> anyhow::Result<()> {
     let server = TestServer::start("cube", free_running(), ServeOptions::default()).await?;
     let mut client = server.client().await?;
+    // Each watcher reads until told to stop (then drops its stream).
+    let stop = tokio::sync::watch::Sender::new(false);
     let watch = |mut c: fissure_proto::v1::fissure_client::FissureClient<_>, delay_ms: u64| {
+        let mut stopped = stop.subscribe();
         tokio::spawn(async move {
             let mut stream = c
                 .watch(pb::WatchRequest {
@@ -174,7 +185,12 @@ async fn slow_watcher_skips_frames_fast_watcher_keeps_up() -> anyhow::Result<()>
                 .await?
                 .into_inner();
             let mut seen = Vec::new();
-            while let Some(f) = stream.message().await? {
+            loop {
+                let f = tokio::select! {
+                    f = stream.message() => f?,
+                    _ = stopped.wait_for(|s| *s) => break,
+                };
+                let Some(f) = f else { break };
                 seen.push(f.frame);
                 if delay_ms > 0 {
                     tokio::time::sleep(Duration::from_millis(delay_ms)).await;
@@ -183,7 +199,18 @@ async fn slow_watcher_skips_frames_fast_watcher_keeps_up() -> anyhow::Result<()>
             anyhow::Ok(seen)
         })
     };
-    let slow = watch(server.client().await?, 150);
+    // The slow watcher's HTTP/2 stream window holds about one frame of this
+    // surface: latest-wins is the server's (it sends the latest frame when the
+    // transport has room); frames a client lets pile up in a large receive
+    // window (hyper's default is 2 MiB) are delivered in order from there.
+    let small_window = tonic::transport::Channel::from_shared(server.url.clone())?
+        .initial_stream_window_size(Some(8 * 1024))
+        .connect()
+        .await?;
+    let slow = watch(
+        fissure_proto::v1::fissure_client::FissureClient::new(small_window),
+        150,
+    );
     let fast = watch(server.client().await?, 0);
     let first_frame = server.sim.snapshot().frame;
     let mut haptic = Haptic::open(&mut client, "left", None).await?;
@@ -198,10 +225,10 @@ async fn slow_watcher_skips_frames_fast_watcher_keeps_up() -> anyhow::Result<()>
     // Let the last step reach the watchers.
     tokio::time::sleep(Duration::from_millis(300)).await;
     let last_frame = server.sim.snapshot().frame;
-    let surface_vertices = server.sim.model().rest_surface.len();
-    server.stop().await?;
+    stop.send_replace(true);
     let slow = slow.await??;
     let fast = fast.await??;
+    server.stop().await?;
 
     let published = last_frame - first_frame;
     assert!(published >= 20, "only {published} frames in 1.5 s");
@@ -236,7 +263,6 @@ async fn slow_watcher_skips_frames_fast_watcher_keeps_up() -> anyhow::Result<()>
         Some(last_frame),
         "the fast watcher did not end on the latest frame"
     );
-    assert!(surface_vertices > 0);
     Ok(())
 }
 
