@@ -379,13 +379,7 @@ pub fn table(r: &LoopBenchReport) -> String {
     let mut s = format!(
         "bench loop — scene {} ({} surface triangles, loaded in {:.1} s), free-running\n\
          {} clients at {:.0} Hz (real-time ticks), {} watchers (full frames), {:.2} s\n\n",
-        r.scene,
-        r.surface_triangles,
-        r.load_s,
-        r.clients,
-        r.rate_hz,
-        r.watchers,
-        r.duration_s
+        r.scene, r.surface_triangles, r.load_s, r.clients, r.rate_hz, r.watchers, r.duration_s
     );
     let row = |name: &str, p50: f64, p99: f64, max: f64| {
         format!("{name:<28} {p50:>10.1} {p99:>10.1} {max:>10.1}\n")

@@ -2,8 +2,8 @@
 //! tools, rendering and benchmarks. The binary (`main.rs`) only parses arguments.
 
 pub mod bench_collision;
-pub mod bench_loop;
 pub mod bench_fem;
+pub mod bench_loop;
 pub mod demo;
 pub mod mesh_cmd;
 pub mod render;

@@ -154,8 +154,7 @@ async fn force_loop_never_waits_for_a_slow_deformation_step() -> anyhow::Result<
         );
     }
     // Many samples per frame: about one frame per step time.
-    let frames: std::collections::BTreeSet<u64> =
-        samples.iter().map(|s| s.0.model_frame).collect();
+    let frames: std::collections::BTreeSet<u64> = samples.iter().map(|s| s.0.model_frame).collect();
     assert!(
         frames.len() * 20 < samples.len(),
         "{} frames for {} samples",

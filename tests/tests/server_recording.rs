@@ -153,7 +153,13 @@ async fn recording_round_trip_report_and_replay() -> anyhow::Result<()> {
         let pts = &trajectory.points;
         let path_length: f64 = pts
             .windows(2)
-            .map(|w| magnitude([w[1].x_m - w[0].x_m, w[1].y_m - w[0].y_m, w[1].z_m - w[0].z_m]))
+            .map(|w| {
+                magnitude([
+                    w[1].x_m - w[0].x_m,
+                    w[1].y_m - w[0].y_m,
+                    w[1].z_m - w[0].z_m,
+                ])
+            })
             .sum();
         let peak = live[name]
             .iter()
@@ -183,7 +189,10 @@ async fn recording_round_trip_report_and_replay() -> anyhow::Result<()> {
     // fresh stepped server give the same forces, to the bit.
     let replayed_plans = fissure_cli::report::trajectories(&path)?;
     assert_eq!(
-        replayed_plans.iter().map(|p| p.0.as_str()).collect::<Vec<_>>(),
+        replayed_plans
+            .iter()
+            .map(|p| p.0.as_str())
+            .collect::<Vec<_>>(),
         ["left", "right"]
     );
     let replayed = run(stepped(2, None), &replayed_plans).await?;

@@ -104,7 +104,11 @@ async fn tls_with_self_signed_certificate() -> anyhow::Result<()> {
         },
     )
     .await?;
-    assert!(server.url.starts_with("https://localhost:"), "{}", server.url);
+    assert!(
+        server.url.starts_with("https://localhost:"),
+        "{}",
+        server.url
+    );
     let mut client = tls_client(&server.url, &cert).await?;
     let scene = client.get_scene(pb::GetSceneRequest {}).await?.into_inner();
     assert_eq!(scene.name, "cube");
