@@ -82,6 +82,10 @@ enum Bench {
         #[arg(long)]
         json: bool,
     },
+    /// Force-loop latency under load: an in-process free-running server, one
+    /// haptic client per instrument at 1 kHz on real-time ticks, and watchers;
+    /// round trip, server compute time, missed samples, deformation rate.
+    Loop(fissure_cli::bench_loop::LoopBenchArgs),
 }
 
 const REPLAY_HELP: &str = "\
@@ -259,6 +263,7 @@ fn main() -> anyhow::Result<()> {
                 }
                 print(&rows, json);
             }
+            Bench::Loop(args) => rt.block_on(fissure_cli::bench_loop::main(&args))?,
         },
         Command::Report {
             file,

@@ -12,8 +12,10 @@ use tonic::transport::Channel;
 /// An in-process server.
 #[derive(Debug)]
 pub struct TestServer {
-    /// `http://127.0.0.1:PORT`.
+    /// `http://127.0.0.1:PORT` (`https://localhost:PORT` with TLS).
     pub url: String,
+    /// The address it listens on.
+    pub addr: std::net::SocketAddr,
     /// The simulation behind it.
     pub sim: Arc<Simulation>,
     server: Option<RunningServer>,
@@ -37,10 +39,17 @@ impl TestServer {
         serve_options: ServeOptions,
     ) -> anyhow::Result<Self> {
         let sim = tokio::task::spawn_blocking(move || Simulation::start(scene, options)).await??;
+        let tls = serve_options.tls.is_some();
         let server = serve("127.0.0.1:0".parse()?, serve_options).await?;
         server.set_simulation(sim.clone()).await;
+        let addr = server.addr;
         Ok(Self {
-            url: format!("http://{}", server.addr),
+            url: if tls {
+                format!("https://localhost:{}", addr.port())
+            } else {
+                format!("http://{addr}")
+            },
+            addr,
             sim,
             server: Some(server),
         })
@@ -115,9 +124,42 @@ impl Haptic {
             .ok_or_else(|| anyhow::anyhow!("the haptic stream ended"))
     }
 
+    /// Sends one pose without waiting for its answer.
+    pub async fn push(&mut self, pose: pb::PoseSample) -> anyhow::Result<()> {
+        Ok(self.tx.send(pose).await?)
+    }
+
+    /// Waits for the next force sample.
+    pub async fn next(&mut self) -> anyhow::Result<pb::ForceSample> {
+        self.rx
+            .message()
+            .await?
+            .ok_or_else(|| anyhow::anyhow!("the haptic stream ended"))
+    }
+
     /// Closes the stream and waits until the server ends it.
     pub async fn close(mut self) {
         drop(self.tx);
         while let Ok(Some(_)) = self.rx.message().await {}
+    }
+}
+
+/// Polls `GetStats` until the claimed instruments are exactly `expected` (scene
+/// order), for at most 5 s; returns the last list seen either way.
+pub async fn wait_until_claimed(
+    client: &mut FissureClient<Channel>,
+    expected: &[&str],
+) -> anyhow::Result<Vec<String>> {
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(5);
+    loop {
+        let claimed = client
+            .get_stats(pb::GetStatsRequest {})
+            .await?
+            .into_inner()
+            .claimed;
+        if claimed == expected || std::time::Instant::now() > deadline {
+            return Ok(claimed);
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(10)).await;
     }
 }

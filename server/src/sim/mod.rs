@@ -191,10 +191,13 @@ impl std::fmt::Debug for Simulation {
 impl Simulation {
     /// Builds the model and the solver, publishes the rest state as frame 0 and
     /// starts the deformation thread.
-    pub fn start(scene: Scene, options: SimOptions) -> Result<Arc<Self>, SimError> {
+    pub fn start(mut scene: Scene, options: SimOptions) -> Result<Arc<Self>, SimError> {
         let model = Arc::new(Model::build(&scene)?);
         let deformer = Deformer::new(&scene, &model)?;
         let stepped = options.stepped.unwrap_or(scene.loops.stepped);
+        // The scene as run: GetScene and the recording header report the
+        // effective mode, not the file's.
+        scene.loops.stepped = stepped;
         let recorder = match &options.recording {
             Some(path) => Some(
                 recording::Recorder::create(

@@ -1,0 +1,453 @@
+//! `fissure bench loop`: the force loop under its intended load. An in-process
+//! server (free-running) on a scene, every instrument driven by a haptic client
+//! at the haptic rate, each pose sent on its own tick of the wall clock, and a
+//! number of watchers receiving full deformation frames.
+//!
+//! A client's pose `k` is due at `start + k / rate`; it is sent at its tick
+//! whether or not earlier answers came back (as a haptic device's servo loop
+//! does). Its answer is *missed* when it arrives after tick `k + 1` is due, or
+//! never. Round trips are measured from the actual send instant; the server's
+//! compute time is the one it reports in each sample.
+//!
+//! The poses follow the scene's bundled trajectories, played forwards and
+//! backwards (ping-pong) for as long as the run lasts, with pose times on the
+//! ticks (so contact and a changing surface persist for the whole run).
+
+use crate::replay::{connect, haptic_request};
+use crate::trajectory::{BUNDLED, Trajectory, Waypoint};
+use anyhow::{Context, bail};
+use fissure_proto::v1 as pb;
+use fissure_server::scene::Scene;
+use fissure_server::service::{ServeOptions, serve};
+use fissure_server::sim::stats::percentile;
+use fissure_server::sim::{SimOptions, Simulation};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+/// Options of `fissure bench loop`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct LoopBenchArgs {
+    /// Scene (an embedded name with bundled trajectories).
+    #[arg(long, default_value = fissure_server::scene::DEFAULT_SCENE)]
+    pub scene: String,
+    /// Length of the timed run, s.
+    #[arg(long, default_value_t = 10.0)]
+    pub duration_s: f64,
+    /// Watchers receiving full frames (positions included).
+    #[arg(long, default_value_t = 4)]
+    pub watchers: usize,
+    /// Haptic rate of each client, Hz.
+    #[arg(long, default_value_t = 1000.0)]
+    pub rate_hz: f64,
+    /// Print JSON instead of a table.
+    #[arg(long)]
+    pub json: bool,
+}
+
+impl Default for LoopBenchArgs {
+    fn default() -> Self {
+        Self {
+            scene: fissure_server::scene::DEFAULT_SCENE.to_owned(),
+            duration_s: 10.0,
+            watchers: 4,
+            rate_hz: 1000.0,
+            json: false,
+        }
+    }
+}
+
+/// What one run measured. Times in microseconds unless the name says otherwise.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct LoopBenchReport {
+    /// Scene name.
+    pub scene: String,
+    /// Surface triangles of the model.
+    pub surface_triangles: usize,
+    /// Time to build the model and the solver, s.
+    pub load_s: f64,
+    /// Timed run, s.
+    pub duration_s: f64,
+    /// Haptic rate per client, Hz.
+    pub rate_hz: f64,
+    /// Haptic clients (one per instrument).
+    pub clients: usize,
+    /// Watchers.
+    pub watchers: usize,
+    /// Poses sent, all clients.
+    pub samples_sent: u64,
+    /// Force samples received.
+    pub samples_answered: u64,
+    /// Samples whose answer came after the next tick was due, or never.
+    pub missed_samples: u64,
+    /// Round trip, client side: median, 99th percentile, maximum.
+    pub rtt_p50_us: f64,
+    pub rtt_p99_us: f64,
+    pub rtt_max_us: f64,
+    /// Server-side force computation (as reported per sample).
+    pub server_force_p50_us: f64,
+    pub server_force_p99_us: f64,
+    pub server_force_max_us: f64,
+    /// How late poses left the client after their tick (scheduling of the
+    /// client machine), 99th percentile.
+    pub send_lag_p99_us: f64,
+    /// Deformation frames published per second during the run.
+    pub deform_hz: f64,
+    /// Deformation step time: median and 99th percentile, ms.
+    pub deform_step_p50_ms: f64,
+    pub deform_step_p99_ms: f64,
+    /// Frames published during the run.
+    pub frames_published: u64,
+    /// Frames received, all watchers together.
+    pub frames_delivered: u64,
+    /// Frames received by the slowest watcher.
+    pub frames_delivered_min: u64,
+    /// Largest age of the deformation model behind a force sample, ms.
+    pub model_age_max_ms: f64,
+    /// Largest contact count of a sample.
+    pub contact_count_max: u32,
+    /// Deformation steps that failed during the run.
+    pub failed_steps: u64,
+}
+
+/// One answer as the client saw it.
+#[derive(Debug, Clone, Copy)]
+struct Answer {
+    sequence: u64,
+    arrived: Instant,
+    server_us: f64,
+    model_age_s: f64,
+    contact_count: u32,
+    rejected: bool,
+}
+
+/// Pose `k` of a ping-pong walk over the trajectory's waypoints.
+fn ping_pong(points: &[Waypoint], k: u64) -> &Waypoint {
+    let m = points.len() as u64;
+    if m < 2 {
+        return &points[0];
+    }
+    let j = k % (2 * (m - 1));
+    let i = if j < m { j } else { 2 * (m - 1) - j };
+    &points[i as usize]
+}
+
+/// Runs the benchmark.
+pub async fn run(args: &LoopBenchArgs) -> anyhow::Result<LoopBenchReport> {
+    if !(args.duration_s > 0.0 && args.rate_hz > 0.0) {
+        bail!("--duration-s and --rate-hz must be positive");
+    }
+    let (scene, _) =
+        Scene::load(&args.scene).with_context(|| format!("loading scene {:?}", args.scene))?;
+    let mut plans: Vec<(String, Trajectory)> = Vec::new();
+    for spec in &scene.instruments {
+        if let Some(b) = BUNDLED
+            .iter()
+            .find(|b| b.1 == scene.name && b.2 == spec.name)
+        {
+            plans.push((spec.name.clone(), Trajectory::load(b.0)?));
+        }
+    }
+    if plans.is_empty() {
+        bail!(
+            "scene {:?} has no bundled trajectories to drive its instruments",
+            scene.name
+        );
+    }
+    let options = SimOptions {
+        stepped: Some(false),
+        max_watchers: args.watchers + 1,
+        ..SimOptions::default()
+    };
+    let scene_name = scene.name.clone();
+    let loading = Instant::now();
+    let sim = tokio::task::spawn_blocking(move || Simulation::start(scene, options)).await??;
+    let load_s = loading.elapsed().as_secs_f64();
+    let server = serve("127.0.0.1:0".parse()?, ServeOptions::default()).await?;
+    server.set_simulation(sim.clone()).await;
+    let url = format!("http://{}", server.addr);
+    let result = drive(args, &url, &sim, &plans).await;
+    server.shutdown().await?;
+    tokio::task::spawn_blocking({
+        let sim = sim.clone();
+        move || sim.shutdown()
+    })
+    .await?;
+    let mut report = result?;
+    report.scene = scene_name;
+    report.load_s = load_s;
+    report.surface_triangles = sim.model().surface.triangles.len();
+    Ok(report)
+}
+
+async fn drive(
+    args: &LoopBenchArgs,
+    url: &str,
+    sim: &Arc<Simulation>,
+    plans: &[(String, Trajectory)],
+) -> anyhow::Result<LoopBenchReport> {
+    // Watchers: each on its own connection, full frames; frames are counted
+    // while the clock runs.
+    let counting = Arc::new(AtomicBool::new(false));
+    let mut watchers = Vec::new();
+    for _ in 0..args.watchers {
+        let mut client = connect(url).await?;
+        let mut stream = client
+            .watch(pb::WatchRequest {
+                include_positions: true,
+            })
+            .await?
+            .into_inner();
+        let counting = counting.clone();
+        let count = Arc::new(AtomicU64::new(0));
+        let counter = count.clone();
+        let task = tokio::spawn(async move {
+            let _client = client;
+            while let Ok(Some(_)) = stream.message().await {
+                if counting.load(Ordering::Relaxed) {
+                    counter.fetch_add(1, Ordering::Relaxed);
+                }
+            }
+        });
+        watchers.push((task, count));
+    }
+
+    let period = Duration::from_secs_f64(1.0 / args.rate_hz);
+    let n = (args.duration_s * args.rate_hz).round() as u64;
+    // Streams open and claimed before the clock starts.
+    let mut streams = Vec::new();
+    for (name, trajectory) in plans {
+        let mut client = connect(url).await?;
+        let (tx, rx) = tokio::sync::mpsc::channel::<pb::PoseSample>(4096);
+        let req = haptic_request(tokio_stream::wrappers::ReceiverStream::new(rx), name, None)?;
+        let inbound = client
+            .haptic(req)
+            .await
+            .with_context(|| format!("claiming instrument {name:?}"))?
+            .into_inner();
+        streams.push((client, tx, inbound, trajectory.clone()));
+    }
+    let start = Instant::now() + Duration::from_millis(50);
+    let frame_at_start = {
+        tokio::time::sleep_until(start.into()).await;
+        counting.store(true, Ordering::Relaxed);
+        sim.snapshot().frame
+    };
+    let mut senders = Vec::new();
+    let mut receivers = Vec::new();
+    for (client, tx, mut inbound, trajectory) in streams {
+        receivers.push(tokio::spawn(async move {
+            let _client = client;
+            let mut answers = Vec::with_capacity(n as usize);
+            while let Ok(Some(s)) = inbound.message().await {
+                answers.push(Answer {
+                    sequence: s.sequence,
+                    arrived: Instant::now(),
+                    server_us: s.server_compute_us,
+                    model_age_s: s.model_age_s,
+                    contact_count: s.contact_count,
+                    rejected: s.rejection.is_some(),
+                });
+            }
+            answers
+        }));
+        senders.push(
+            std::thread::Builder::new()
+                .name("bench-haptic-client".into())
+                .spawn(move || {
+                    let mut sent = Vec::with_capacity(n as usize);
+                    for k in 0..n {
+                        let due = start + period.mul_f64(k as f64);
+                        let now = Instant::now();
+                        if due > now {
+                            std::thread::sleep(due - now);
+                        }
+                        let p = ping_pong(&trajectory.points, k);
+                        let mut msg = crate::replay::pose_message(p, k + 1);
+                        msg.t_s = k as f64 * period.as_secs_f64();
+                        sent.push(Instant::now());
+                        if tx.blocking_send(msg).is_err() {
+                            break;
+                        }
+                    }
+                    sent
+                })
+                .context("starting a client thread")?,
+        );
+    }
+    let mut sent_all = Vec::new();
+    for s in senders {
+        sent_all.push(
+            tokio::task::spawn_blocking(move || s.join())
+                .await?
+                .map_err(|_| anyhow::anyhow!("a client thread panicked"))?,
+        );
+    }
+    let end = Instant::now();
+    let frame_at_end = sim.snapshot().frame;
+    counting.store(false, Ordering::Relaxed);
+    let mut answers_all = Vec::new();
+    for r in receivers {
+        answers_all.push(
+            tokio::time::timeout(Duration::from_secs(10), r)
+                .await
+                .context("the server did not end a haptic stream")??,
+        );
+    }
+    let mut delivered = Vec::new();
+    for (task, count) in watchers {
+        task.abort();
+        delivered.push(count.load(Ordering::Relaxed));
+    }
+    let delivered_total: u64 = delivered.iter().sum();
+
+    let mut rtt = Vec::new();
+    let mut server = Vec::new();
+    let mut lag = Vec::new();
+    let mut missed = 0u64;
+    let mut answered = 0u64;
+    let mut sent_total = 0u64;
+    let (mut age_max, mut contact_max) = (0.0f64, 0u32);
+    for (sent, answers) in sent_all.iter().zip(&answers_all) {
+        sent_total += sent.len() as u64;
+        let mut arrival: Vec<Option<&Answer>> = vec![None; sent.len()];
+        for a in answers {
+            let k = a.sequence.wrapping_sub(1) as usize;
+            if k < arrival.len() && !a.rejected {
+                arrival[k] = Some(a);
+            }
+        }
+        for (k, (&at, a)) in sent.iter().zip(&arrival).enumerate() {
+            lag.push(
+                at.saturating_duration_since(start + period.mul_f64(k as f64))
+                    .as_secs_f64()
+                    * 1e6,
+            );
+            let next_due = start + period.mul_f64((k + 1) as f64);
+            match a {
+                Some(a) => {
+                    answered += 1;
+                    rtt.push(a.arrived.saturating_duration_since(at).as_secs_f64() * 1e6);
+                    server.push(a.server_us);
+                    age_max = age_max.max(a.model_age_s);
+                    contact_max = contact_max.max(a.contact_count);
+                    if a.arrived > next_due {
+                        missed += 1;
+                    }
+                }
+                None => missed += 1,
+            }
+        }
+    }
+    for v in [&mut rtt, &mut server, &mut lag] {
+        v.sort_by(f64::total_cmp);
+    }
+    let last = |v: &[f64]| v.last().copied().unwrap_or(f64::NAN);
+    let stats = sim.stats();
+    let duration = end.duration_since(start).as_secs_f64();
+    let frames_published = frame_at_end.saturating_sub(frame_at_start);
+    Ok(LoopBenchReport {
+        duration_s: duration,
+        rate_hz: args.rate_hz,
+        clients: plans.len(),
+        watchers: args.watchers,
+        samples_sent: sent_total,
+        samples_answered: answered,
+        missed_samples: missed,
+        rtt_p50_us: percentile(&rtt, 0.5),
+        rtt_p99_us: percentile(&rtt, 0.99),
+        rtt_max_us: last(&rtt),
+        server_force_p50_us: percentile(&server, 0.5),
+        server_force_p99_us: percentile(&server, 0.99),
+        server_force_max_us: last(&server),
+        send_lag_p99_us: percentile(&lag, 0.99),
+        deform_hz: frames_published as f64 / duration,
+        deform_step_p50_ms: stats.deformation_step.p50_us / 1e3,
+        deform_step_p99_ms: stats.deformation_step.p99_us / 1e3,
+        frames_published,
+        frames_delivered: delivered_total,
+        frames_delivered_min: delivered.iter().copied().min().unwrap_or(0),
+        model_age_max_ms: age_max * 1e3,
+        contact_count_max: contact_max,
+        failed_steps: stats.failed_steps,
+        ..Default::default()
+    })
+}
+
+/// The report as a table.
+pub fn table(r: &LoopBenchReport) -> String {
+    let mut s = format!(
+        "bench loop — scene {} ({} surface triangles, loaded in {:.1} s), free-running\n\
+         {} clients at {:.0} Hz (real-time ticks), {} watchers (full frames), {:.2} s\n\n",
+        r.scene, r.surface_triangles, r.load_s, r.clients, r.rate_hz, r.watchers, r.duration_s
+    );
+    let row = |name: &str, p50: f64, p99: f64, max: f64| {
+        format!("{name:<28} {p50:>10.1} {p99:>10.1} {max:>10.1}\n")
+    };
+    s.push_str(&format!(
+        "{:<28} {:>10} {:>10} {:>10}\n",
+        "latency (us)", "p50", "p99", "max"
+    ));
+    s.push_str(&row(
+        "server force computation",
+        r.server_force_p50_us,
+        r.server_force_p99_us,
+        r.server_force_max_us,
+    ));
+    s.push_str(&row("round trip", r.rtt_p50_us, r.rtt_p99_us, r.rtt_max_us));
+    s.push_str(&format!(
+        "\nsamples sent {}, answered {}, missed {} (answer after the next tick or never)\n\
+         client send lag p99 {:.1} us\n\
+         deformation: {:.1} Hz, step p50 {:.2} ms, p99 {:.2} ms, {} frames, {} failed\n\
+         watchers: {} frames delivered in all, {} to the slowest\n\
+         model age max {:.1} ms, contact count max {}\n",
+        r.samples_sent,
+        r.samples_answered,
+        r.missed_samples,
+        r.send_lag_p99_us,
+        r.deform_hz,
+        r.deform_step_p50_ms,
+        r.deform_step_p99_ms,
+        r.frames_published,
+        r.failed_steps,
+        r.frames_delivered,
+        r.frames_delivered_min,
+        r.model_age_max_ms,
+        r.contact_count_max
+    ));
+    s
+}
+
+/// Runs the benchmark and prints JSON or a table.
+pub async fn main(args: &LoopBenchArgs) -> anyhow::Result<()> {
+    let report = run(args).await?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        print!("{}", table(&report));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ping_pong_walks_forwards_then_back() {
+        let w = |t: f64| Waypoint {
+            t_s: t,
+            x_m: t,
+            y_m: 0.0,
+            z_m: 0.0,
+            qw: 1.0,
+            qx: 0.0,
+            qy: 0.0,
+            qz: 0.0,
+        };
+        let pts: Vec<Waypoint> = (0..4).map(|i| w(i as f64)).collect();
+        let xs: Vec<f64> = (0..9).map(|k| ping_pong(&pts, k).x_m).collect();
+        assert_eq!(xs, [0.0, 1.0, 2.0, 3.0, 2.0, 1.0, 0.0, 1.0, 2.0]);
+        assert_eq!(ping_pong(&pts[..1], 5).x_m, 0.0);
+    }
+}
