@@ -95,8 +95,8 @@ async fn recording_round_trip_report_and_replay() -> anyhow::Result<()> {
         let recorded = &poses[name];
         assert_eq!(recorded.len(), trajectory.points.len(), "{name} poses");
         for (i, (p, w)) in recorded.iter().zip(&trajectory.points).enumerate() {
-            let pos = p.position_m.clone().expect("position");
-            let q = p.orientation.clone().expect("orientation");
+            let pos = p.position_m.expect("position");
+            let q = p.orientation.expect("orientation");
             assert_eq!(p.sequence, i as u64 + 1, "{name}");
             assert_eq!(
                 (p.t_s, pos.x, pos.y, pos.z, q.w, q.x, q.y, q.z),
@@ -109,7 +109,7 @@ async fn recording_round_trip_report_and_replay() -> anyhow::Result<()> {
         let recorded = &forces[name];
         assert_eq!(recorded.len(), rows.len(), "{name} samples");
         for (s, r) in recorded.iter().zip(rows) {
-            let f = s.force_n.clone().expect("force");
+            let f = s.force_n.expect("force");
             assert_eq!(s.sequence, r.sequence, "{name}");
             assert_eq!([f.x, f.y, f.z], r.force_n, "{name} sample {}", r.sequence);
             assert_eq!(s.server_compute_us, r.server_us);

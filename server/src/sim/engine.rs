@@ -415,6 +415,10 @@ impl ContactQuery {
 pub struct Deformer {
     solver: Box<dyn DeformationSolver>,
     prescribed: Vec<Prescribed>,
+    /// Enforced entry -> its index in `prescribed` (None: a fixed node).
+    slot: Vec<Option<usize>>,
+    /// Per volume node: fixed.
+    fixed: Vec<bool>,
 }
 
 impl std::fmt::Debug for Deformer {
@@ -463,6 +467,14 @@ impl Deformer {
         Ok(Self {
             solver,
             prescribed: Vec::new(),
+            slot: Vec::new(),
+            fixed: {
+                let mut mask = vec![false; model.mesh.nodes.len()];
+                for &n in &model.fixed {
+                    mask[n as usize] = true;
+                }
+                mask
+            },
         })
     }
 
@@ -474,15 +486,33 @@ impl Deformer {
 
     /// Solves with the contact output's enforced displacements.
     pub fn step(&mut self, contacts: &ContactOutput) -> Result<StepResult, fem::SolveError> {
+        // A fixed node stays fixed: an enforced displacement there (a face
+        // touching the supported region) is dropped and gets no reaction.
         self.prescribed.clear();
-        self.prescribed
-            .extend(contacts.enforced.iter().map(|e| Prescribed {
-                node: e.volume_node,
-                displacement: e.displacement,
-            }));
+        self.slot.clear();
+        for e in &contacts.enforced {
+            if self
+                .fixed
+                .get(e.volume_node as usize)
+                .copied()
+                .unwrap_or(false)
+            {
+                self.slot.push(None);
+            } else {
+                self.slot.push(Some(self.prescribed.len()));
+                self.prescribed.push(Prescribed {
+                    node: e.volume_node,
+                    displacement: e.displacement,
+                });
+            }
+        }
         let solution = self.solver.solve(&self.prescribed)?;
         let displacements = solution.displacements.clone();
-        let reactions = solution.reactions.clone();
+        let reactions: Vec<Vector3<f64>> = self
+            .slot
+            .iter()
+            .map(|j| j.map_or_else(Vector3::zeros, |j| solution.reactions[j]))
+            .collect();
         let force_model = match self.solver.local_model() {
             Some(local) => force_model_from(local, contacts, &reactions),
             None => ForceModel::default(),
