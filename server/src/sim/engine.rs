@@ -569,6 +569,8 @@ fn force_model_from(
             .enumerate()
             .map(|(i, &n)| (n, i))
             .collect(),
+        // Set by the snapshot that publishes it.
+        frame: 0,
     }
 }
 
@@ -593,6 +595,7 @@ impl Model {
             surface.push(self.rest_surface[s] + u);
         }
         let mut force_model = step.force_model;
+        force_model.frame = frame;
         force_model.rest = force_model
             .nodes
             .iter()

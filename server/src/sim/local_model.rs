@@ -42,6 +42,8 @@ pub struct ForceModel {
     pub stiffness: DMatrix<f64>,
     /// Node -> index in `nodes`.
     pub index: HashMap<u32, usize>,
+    /// The frame that built it (identifies it for the force loop's caches).
+    pub frame: u64,
 }
 
 /// Force and torque of the tissue on one instrument, and how many nodes it holds.
@@ -62,6 +64,11 @@ pub struct ForceWorkspace {
     /// Right-hand side, then the free motion `x` of the released DOFs.
     rhs: DVector<f64>,
     s_ff: DMatrix<f64>,
+    /// Cholesky factor of `S_ff`, for the model of frame `factor_key` and
+    /// the released set `factor_released`.
+    factor: Option<nalgebra::Cholesky<f64, nalgebra::Dyn>>,
+    factor_key: u64,
+    factor_released: Vec<usize>,
 }
 
 impl ForceModel {
@@ -102,8 +109,16 @@ impl ForceModel {
         // x = -S_ff^-1 (r0_f + S_fc du_c)
         let nf = ws.released.len();
         if nf > 0 {
+            // The factor of S_ff depends only on the model and the released
+            // set: keep it while both stay the same (most samples between two
+            // deformation steps), so a sample costs O(c f) here, not O(f^3).
+            let key = self.frame;
+            let cached =
+                ws.factor.is_some() && ws.factor_key == key && ws.factor_released == ws.released;
             ws.rhs.resize_vertically_mut(3 * nf, 0.0);
-            ws.s_ff.resize_mut(3 * nf, 3 * nf, 0.0);
+            if !cached {
+                ws.s_ff.resize_mut(3 * nf, 3 * nf, 0.0);
+            }
             for (a, &fi) in ws.released.iter().enumerate() {
                 for k in 0..3 {
                     let row = 3 * fi + k;
@@ -115,20 +130,25 @@ impl ForceModel {
                         }
                     }
                     ws.rhs[3 * a + k] = -v;
-                    for (b, &fj) in ws.released.iter().enumerate() {
-                        for l in 0..3 {
-                            ws.s_ff[(3 * a + k, 3 * b + l)] = s[(row, 3 * fj + l)];
+                    if !cached {
+                        for (b, &fj) in ws.released.iter().enumerate() {
+                            for l in 0..3 {
+                                ws.s_ff[(3 * a + k, 3 * b + l)] = s[(row, 3 * fj + l)];
+                            }
                         }
                     }
                 }
             }
-            // Factor in place and keep the buffer (no allocation once grown).
-            let s_ff = std::mem::replace(&mut ws.s_ff, DMatrix::zeros(0, 0));
-            match s_ff.cholesky() {
-                Some(ch) => {
-                    ch.solve_mut(&mut ws.rhs);
-                    ws.s_ff = ch.unpack();
-                }
+            if !cached {
+                // Factor in place and keep the buffer (no allocation once grown).
+                let s_ff = std::mem::replace(&mut ws.s_ff, DMatrix::zeros(0, 0));
+                ws.factor = s_ff.cholesky();
+                ws.factor_key = key;
+                ws.factor_released.clear();
+                ws.factor_released.extend_from_slice(&ws.released);
+            }
+            match &ws.factor {
+                Some(ch) => ch.solve_mut(&mut ws.rhs),
                 None => ws.rhs.fill(0.0),
             }
         }
@@ -199,6 +219,7 @@ mod tests {
             rest: vec![nalgebra::Point3::origin(); 2],
             stiffness: s.clone(),
             index: [(10, 0), (11, 1)].into_iter().collect(),
+            frame: 1,
         };
         let mut ws = ForceWorkspace::default();
         let h = Vector3::zeros();
