@@ -243,6 +243,10 @@ mod tests {
         let eff = &scc - &scf * sff.try_inverse().unwrap() * scf.transpose();
         let expect = -(eff * DVector::from_column_slice(u0[0].as_slice()));
         assert!((f1.force - Vector3::new(expect[0], expect[1], expect[2])).norm() < 1e-12);
+        // Same released set again (the cached factor): still the condensed
+        // model, now at twice the push.
+        let f1b = model.instrument_force(0, |n| (n == 10).then_some(2.0 * u0[0]), &h, &mut ws);
+        assert!((f1b.force - 2.0 * f1.force).norm() < 1e-12);
         // Other instruments' nodes contribute nothing to this one's force.
         let f_other = model.instrument_force(1, |_| None, &h, &mut ws);
         assert_eq!(f_other.force, Vector3::zeros());
