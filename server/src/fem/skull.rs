@@ -128,6 +128,10 @@ impl SkullSolver {
     }
 
     fn rounds(&mut self, user: &[Constraint], in_step: &[bool]) -> Result<(), SolveError> {
+        if user.is_empty() {
+            // A reset: start the active set afresh.
+            self.active.clear();
+        }
         self.active.retain(|a| !in_step[a.node as usize]);
         let nu = user.len();
         for _ in 0..self.max_rounds {
