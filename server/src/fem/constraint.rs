@@ -195,7 +195,8 @@ impl StepRows {
         self.sorted.clear();
         self.sorted.extend_from_slice(&self.rows);
         self.cursor.clear();
-        self.cursor.extend_from_slice(&self.start[..self.nodes.len()]);
+        self.cursor
+            .extend_from_slice(&self.start[..self.nodes.len()]);
         for r in &self.sorted {
             let s = self.slot[r.node as usize] as usize;
             self.rows[self.cursor[s]] = *r;
