@@ -7,7 +7,7 @@
 //! steps at increasing indentation depth; `ms_per_step` is their mean.
 
 use fissure_server::fem::compliance::Recover;
-use fissure_server::fem::{Material, Prescribed, SolverOptions, Strategy, build_solver};
+use fissure_server::fem::{Material, Par, Prescribed, SolverOptions, Strategy, build_solver};
 use fissure_server::mesh::TetMesh;
 use nalgebra::{Point3, Vector3};
 use serde::Serialize;
@@ -28,6 +28,8 @@ pub struct FemBenchOptions {
     pub depth_m: f64,
     /// Recovery of `compliance` (the benchmark also reports `Surface`).
     pub compliance_surface_too: bool,
+    /// Parallelism given to the solvers (default: every rayon thread).
+    pub parallelism: Par,
 }
 
 impl Default for FemBenchOptions {
@@ -42,6 +44,7 @@ impl Default for FemBenchOptions {
             },
             depth_m: 1e-3,
             compliance_surface_too: true,
+            parallelism: Par::rayon(0),
         }
     }
 }
@@ -69,6 +72,8 @@ pub struct Row {
     pub iterations: f64,
     /// Timed steps.
     pub steps: usize,
+    /// Threads the solver was given (1: sequential).
+    pub threads: usize,
     /// Error message when a step failed.
     pub error: Option<String>,
 }
@@ -105,6 +110,7 @@ pub fn run_fem_bench(mesh: &TetMesh, preset_name: &str, opts: &FemBenchOptions) 
             &fixed,
             &SolverOptions {
                 recover,
+                parallelism: opts.parallelism,
                 ..Default::default()
             },
         );
@@ -123,6 +129,7 @@ pub fn run_fem_bench(mesh: &TetMesh, preset_name: &str, opts: &FemBenchOptions) 
                     setup_ms,
                     iterations: 0.0,
                     steps: 0,
+                    threads: opts.parallelism.degree(),
                     error: Some(e.to_string()),
                 });
                 continue;
@@ -183,6 +190,7 @@ pub fn run_fem_bench(mesh: &TetMesh, preset_name: &str, opts: &FemBenchOptions) 
                 setup_ms,
                 iterations: iters as f64 / done.max(1) as f64,
                 steps: done,
+                threads: opts.parallelism.degree(),
                 error,
             });
         }
@@ -200,12 +208,20 @@ pub fn print(rows: &[Row], json: bool) {
         return;
     }
     println!(
-        "{:<12} {:>7} {:<20} {:>8} {:>11} {:>13} {:>10} {:>6}  error",
-        "preset", "tets", "strategy", "contact", "ms/step", "first step ms", "setup ms", "iters"
+        "{:<12} {:>7} {:<20} {:>8} {:>11} {:>13} {:>10} {:>6} {:>7}  error",
+        "preset",
+        "tets",
+        "strategy",
+        "contact",
+        "ms/step",
+        "first step ms",
+        "setup ms",
+        "iters",
+        "threads"
     );
     for r in rows {
         println!(
-            "{:<12} {:>7} {:<20} {:>8} {:>11.2} {:>13.2} {:>10.1} {:>6.1}  {}",
+            "{:<12} {:>7} {:<20} {:>8} {:>11.2} {:>13.2} {:>10.1} {:>6.1} {:>7}  {}",
             r.preset,
             r.tets,
             r.strategy,
@@ -214,6 +230,7 @@ pub fn print(rows: &[Row], json: bool) {
             r.first_step_ms,
             r.setup_ms,
             r.iterations,
+            r.threads,
             r.error.as_deref().unwrap_or("")
         );
     }

@@ -10,20 +10,39 @@
 //! a step then builds the small dense compliance block `C = G K0^-1 G^T`,
 //! factors it (dense Cholesky), solves for `lambda`, and recovers
 //! `u = sum_j K0^-1[:, j] r_j` from the node reactions `r_j`. Exact for linear
-//! elasticity. Apart from growing the cache (and the block workspaces when a
-//! step has more contact rows than any before), a step allocates nothing.
+//! elasticity.
+//!
+//! The cache is bounded (least recently used node evicted, see
+//! [`Compliance::set_cache_limit`]; default [`DEFAULT_CACHE_BYTES`]). Apart
+//! from filling the cache for new contact nodes (and growing the block
+//! workspaces when a step has more contact rows than any before), a step
+//! allocates nothing: `server/tests/fem_alloc.rs` counts allocations over
+//! repeated steps with one contact set. The recovery `u = sum_j K0^-1[:, j]
+//! r_j` runs over row blocks (in parallel under the caller's [`Par`]).
 
 use super::assembly::node_vec;
 use super::constraint::{Constraint, StepRows};
 use super::factor::SparseLlt;
 use super::model::Model;
+use super::par::{Par, for_each_chunk};
 use super::{DeformationSolver, LocalModel, Prescribed, Solution, SolveError};
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::llt;
-use faer::{Mat, MatMut, Par};
+use faer::{Mat, MatMut};
 use nalgebra::{DMatrix, Vector3};
 
 const NONE: u32 = u32::MAX;
+
+/// Default memory bound of the column cache, bytes: each cached contact node
+/// holds `3 x 3 x recovered nodes` values (`72 x recovered` bytes; 0.86 MB
+/// on the 12k-node paper phantom with every node recovered).
+pub const DEFAULT_CACHE_BYTES: usize = 512 << 20;
+
+/// The default cache bound in contact nodes for `recovered` recovered nodes:
+/// [`DEFAULT_CACHE_BYTES`] worth, and at least 256.
+pub fn default_cache_limit(recovered: usize) -> usize {
+    (DEFAULT_CACHE_BYTES / (72 * recovered.max(1))).max(256)
+}
 
 /// Which nodes' displacements a `compliance` step recovers.
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -47,6 +66,12 @@ pub struct Compliance {
     cache_slot: Vec<u32>,
     cols: Vec<f64>,
     n_slots: usize,
+    slot_node: Vec<u32>,
+    slot_stamp: Vec<u64>,
+    stamp: u64,
+    cache_limit: usize,
+    missing: Vec<u32>,
+    par: Par,
     rows: StepRows,
     cmat: Mat<f64>,
     chol_buf: MemBuffer,
@@ -54,6 +79,7 @@ pub struct Compliance {
     tmp_rows: Vec<f64>,
     node_reaction: Vec<Vector3<f64>>,
     u_rec: Vec<f64>,
+    full: Vec<f64>,
     solution: Solution,
     local: LocalModel,
     support_reactions: Vec<Vector3<f64>>,
@@ -67,6 +93,7 @@ impl std::fmt::Debug for Compliance {
         f.debug_struct("Compliance")
             .field("recovered_nodes", &self.rec_nodes.len())
             .field("cached_nodes", &self.n_slots)
+            .field("cache_limit", &self.cache_limit)
             .finish()
     }
 }
@@ -140,6 +167,12 @@ impl Compliance {
             cache_slot: vec![NONE; n_nodes],
             cols: Vec::new(),
             n_slots: 0,
+            slot_node: Vec::new(),
+            slot_stamp: Vec::new(),
+            stamp: 0,
+            cache_limit: default_cache_limit(rec_nodes.len()),
+            missing: Vec::new(),
+            par: Par::Seq,
             cmat: Mat::zeros(0, 0),
             chol_buf: MemBuffer::new(llt::factor::cholesky_in_place_scratch::<f64>(
                 0,
@@ -150,6 +183,11 @@ impl Compliance {
             tmp_rows: Vec::new(),
             node_reaction: Vec::new(),
             u_rec: vec![0.0; 3 * rec_nodes.len()],
+            full: if rec_nodes.len() == n_nodes {
+                vec![0.0; 3 * n_nodes]
+            } else {
+                Vec::new()
+            },
             solution: Solution {
                 displacements: vec![Vector3::zeros(); n_nodes],
                 ..Default::default()
@@ -189,6 +227,45 @@ impl Compliance {
         }
         self.cols = Vec::new();
         self.n_slots = 0;
+        self.slot_node = Vec::new();
+        self.slot_stamp = Vec::new();
+    }
+
+    /// Bounds the cache to `nodes` contact nodes (at least 1): when a new
+    /// node needs columns and the cache is full, the least recently used
+    /// node not in the current step gives its slot up. A step with more
+    /// nodes than the bound still caches them all (the cache then holds
+    /// exactly the step's nodes). Shrinking below the current size drops
+    /// the whole cache. Default: [`DEFAULT_CACHE_BYTES`] worth of columns.
+    pub fn set_cache_limit(&mut self, nodes: usize) {
+        self.cache_limit = nodes.max(1);
+        if self.n_slots > self.cache_limit {
+            self.clear_cache();
+        }
+    }
+
+    /// The bound of the cache, in contact nodes.
+    pub fn cache_limit(&self) -> usize {
+        self.cache_limit
+    }
+
+    /// Whether the columns of `node` are cached.
+    pub fn is_cached(&self, node: u32) -> bool {
+        self.cache_slot
+            .get(node as usize)
+            .is_some_and(|&s| s != NONE)
+    }
+
+    /// Parallelism of the dense block factorization and of the recovery
+    /// (the results do not depend on it). Default [`Par::Seq`].
+    pub fn set_parallelism(&mut self, par: Par) {
+        self.par = par;
+        let cap = self.cmat.nrows();
+        self.chol_buf = MemBuffer::new(llt::factor::cholesky_in_place_scratch::<f64>(
+            cap,
+            par,
+            Default::default(),
+        ));
     }
 
     /// Nonzeros of the Cholesky factor of `K0`.
@@ -217,20 +294,24 @@ impl Compliance {
         b
     }
 
-    /// Solves for and caches the columns of the step nodes not yet cached.
+    /// Marks the step's cached nodes as used, then solves for and caches
+    /// the columns of the step nodes not yet cached, evicting the least
+    /// recently used nodes beyond the cache bound.
     fn fill_cache(&mut self) {
-        let missing: Vec<u32> = self
-            .rows
-            .nodes
-            .iter()
-            .copied()
-            .filter(|&n| self.cache_slot[n as usize] == NONE)
-            .collect();
-        if missing.is_empty() {
+        self.stamp += 1;
+        self.missing.clear();
+        for &n in &self.rows.nodes {
+            match self.cache_slot[n as usize] {
+                NONE => self.missing.push(n),
+                s => self.slot_stamp[s as usize] = self.stamp,
+            }
+        }
+        if self.missing.is_empty() {
             return;
         }
         let n_dofs = self.model.pattern.n_dofs;
         let n3 = self.nrec3();
+        let missing = std::mem::take(&mut self.missing);
         // In batches, to bound the dense right-hand-side block.
         for chunk in missing.chunks(64) {
             let ncols = 3 * chunk.len();
@@ -241,19 +322,42 @@ impl Compliance {
                 }
             }
             self.factor.solve_many(&mut block, ncols);
-            self.cols.reserve(ncols * n3);
             for (k, &n) in chunk.iter().enumerate() {
+                let s = self.take_slot();
+                self.cache_slot[n as usize] = s as u32;
+                self.slot_node[s] = n;
+                self.slot_stamp[s] = self.stamp;
                 for a in 0..3 {
                     let col = &block[(3 * k + a) * n_dofs..(3 * k + a + 1) * n_dofs];
-                    for &r in &self.rec_nodes {
+                    let dst = &mut self.cols[(3 * s + a) * n3..(3 * s + a + 1) * n3];
+                    for (d, &r) in dst.chunks_exact_mut(3).zip(&self.rec_nodes) {
                         let r = 3 * r as usize;
-                        self.cols.extend_from_slice(&col[r..r + 3]);
+                        d.copy_from_slice(&col[r..r + 3]);
                     }
                 }
-                self.cache_slot[n as usize] = self.n_slots as u32;
-                self.n_slots += 1;
             }
         }
+        self.missing = missing;
+    }
+
+    /// A free slot: a new one below the bound, else the least recently used
+    /// slot not in the current step, else a new one past the bound.
+    fn take_slot(&mut self) -> usize {
+        if self.n_slots >= self.cache_limit {
+            let lru = (0..self.n_slots)
+                .filter(|&s| self.slot_stamp[s] < self.stamp)
+                .min_by_key(|&s| (self.slot_stamp[s], s));
+            if let Some(s) = lru {
+                self.cache_slot[self.slot_node[s] as usize] = NONE;
+                return s;
+            }
+        }
+        let s = self.n_slots;
+        self.n_slots += 1;
+        self.slot_node.push(NONE);
+        self.slot_stamp.push(0);
+        self.cols.resize(self.n_slots * 3 * self.nrec3(), 0.0);
+        s
     }
 
     /// Validates the step, caches missing columns, builds and factors the
@@ -280,7 +384,7 @@ impl Compliance {
             self.cmat = Mat::zeros(cap, cap);
             self.chol_buf = MemBuffer::new(llt::factor::cholesky_in_place_scratch::<f64>(
                 cap,
-                Par::Seq,
+                self.par,
                 Default::default(),
             ));
             self.lambda.resize(cap, 0.0);
@@ -305,7 +409,7 @@ impl Compliance {
         llt::factor::cholesky_in_place(
             cm,
             Default::default(),
-            Par::Seq,
+            self.par,
             MemStack::new(&mut self.chol_buf),
             Default::default(),
         )
@@ -328,21 +432,51 @@ impl Compliance {
     }
 
     /// Adds `sign * sum_j K0^-1[:, j] r_j` over the step nodes to `out`
-    /// (recovered rows, length `3 x recovered`).
+    /// (recovered rows, length `3 x recovered`), by row blocks that stay in
+    /// cache (in parallel under `Par::Rayon`; each row sums the columns in
+    /// the same order whatever the parallelism).
     fn combine(&self, r: &[Vector3<f64>], sign: f64, out: &mut [f64]) {
         let n3 = self.nrec3();
-        for (k, &n) in self.rows.nodes.iter().enumerate() {
-            let s = self.cache_slot[n as usize] as usize;
-            for a in 0..3 {
-                let c = sign * r[k][a];
-                if c == 0.0 {
-                    continue;
-                }
-                let col = &self.cols[(3 * s + a) * n3..(3 * s + a + 1) * n3];
-                for (o, v) in out.iter_mut().zip(col) {
-                    *o += c * v;
+        let (nodes, slots, cols) = (&self.rows.nodes, &self.cache_slot, &self.cols);
+        for_each_chunk(self.par, out, 1, 4096, |first, o| {
+            for (k, &n) in nodes.iter().enumerate() {
+                let s = slots[n as usize] as usize;
+                for a in 0..3 {
+                    let c = sign * r[k][a];
+                    if c == 0.0 {
+                        continue;
+                    }
+                    let base = (3 * s + a) * n3 + first;
+                    let col = &cols[base..base + o.len()];
+                    for (o, v) in o.iter_mut().zip(col) {
+                        *o += c * v;
+                    }
                 }
             }
+        });
+    }
+
+    /// Adds `sign * K0^-1 (sum_j e_j r_j)` (the response to the node forces
+    /// `r` at the step nodes) to `out`, by whichever is cheaper: combining
+    /// the cached columns (`3 x nodes x recovered` products) or, when every
+    /// node is recovered, one sparse solve (about `2 x` the factor's
+    /// nonzeros). Both are exact.
+    fn add_response(&mut self, r: &[Vector3<f64>], sign: f64, out: &mut [f64]) {
+        let combine_cost = 3 * self.rows.nodes.len() * self.nrec3();
+        if self.full.is_empty() || combine_cost <= 2 * self.factor.factor_nnz() {
+            self.combine(r, sign, out);
+            return;
+        }
+        self.full.fill(0.0);
+        for (k, &n) in self.rows.nodes.iter().enumerate() {
+            let n = 3 * n as usize;
+            for a in 0..3 {
+                self.full[n + a] = sign * r[k][a];
+            }
+        }
+        self.factor.solve(&mut self.full);
+        for (o, v) in out.iter_mut().zip(&self.full) {
+            *o += v;
         }
     }
 
@@ -363,8 +497,13 @@ impl Compliance {
         }
         let mut u = std::mem::take(&mut self.u_rec);
         u.fill(0.0);
-        self.combine(&self.node_reaction, 1.0, &mut u);
+        let nr = std::mem::take(&mut self.node_reaction);
+        self.add_response(&nr, 1.0, &mut u);
+        self.node_reaction = nr;
         self.u_rec = u;
+        if !self.u_rec.iter().all(|v| v.is_finite()) {
+            return Err(SolveError::NonFinite("recovered displacement".into()));
+        }
         // Commit.
         for (i, &n) in self.rec_nodes.iter().enumerate() {
             self.solution.displacements[n as usize] = node_vec(&self.u_rec, i);
@@ -454,7 +593,7 @@ impl Compliance {
             self.node_reaction[self.rows.slot[r.node as usize] as usize] += r.dir * *l;
         }
         let nr = std::mem::take(&mut self.node_reaction);
-        self.combine(&nr, -1.0, b);
+        self.add_response(&nr, -1.0, b);
         self.node_reaction = nr;
     }
 
@@ -475,7 +614,7 @@ impl Compliance {
             self.node_reaction[self.rows.slot[r.node as usize] as usize] += r.dir * *l;
         }
         let nr = std::mem::take(&mut self.node_reaction);
-        self.combine(&nr, 1.0, u);
+        self.add_response(&nr, 1.0, u);
         self.node_reaction = nr;
     }
 }

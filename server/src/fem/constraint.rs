@@ -75,6 +75,8 @@ pub struct StepRows {
     /// Per volume node, its index in `nodes` or `u32::MAX`.
     pub slot: Vec<u32>,
     n_constraints: usize,
+    sorted: Vec<Row>,
+    cursor: Vec<usize>,
 }
 
 const NONE: u32 = u32::MAX;
@@ -182,16 +184,24 @@ impl StepRows {
                 self.nodes.push(r.node);
             }
         }
-        let slot = &self.slot;
-        self.rows.sort_by_key(|r| slot[r.node as usize]);
-        let mut k = 0;
-        for s in 0..self.nodes.len() {
-            self.start.push(k);
-            while k < self.rows.len() && self.slot[self.rows[k].node as usize] == s as u32 {
-                k += 1;
-            }
+        // Counting sort by slot (stable, no allocation once warm).
+        self.start.resize(self.nodes.len() + 1, 0);
+        for r in &self.rows {
+            self.start[self.slot[r.node as usize] as usize + 1] += 1;
         }
-        self.start.push(self.rows.len());
+        for s in 0..self.nodes.len() {
+            self.start[s + 1] += self.start[s];
+        }
+        self.sorted.clear();
+        self.sorted.extend_from_slice(&self.rows);
+        self.cursor.clear();
+        self.cursor
+            .extend_from_slice(&self.start[..self.nodes.len()]);
+        for r in &self.sorted {
+            let s = self.slot[r.node as usize] as usize;
+            self.rows[self.cursor[s]] = *r;
+            self.cursor[s] += 1;
+        }
         // Rows of a node must be orthonormal (at most 3).
         for s in 0..self.nodes.len() {
             let rows = &self.rows[self.start[s]..self.start[s + 1]];

@@ -16,12 +16,14 @@ pub mod element;
 pub mod factor;
 pub mod model;
 pub mod neo_hookean;
+pub mod par;
 pub mod reactions;
 pub mod roi;
 pub mod skull;
 
 pub use constraint::{Constraint, ConstraintKind};
 pub use model::AxisSupport;
+pub use par::Par;
 
 use nalgebra::{DMatrix, Vector3};
 
@@ -112,7 +114,10 @@ pub trait DeformationSolver: Send {
     /// Strategy name as in scene files.
     fn name(&self) -> &'static str;
     /// Solves for static equilibrium under the fixed nodes and `prescribed`.
-    /// On error the previous solution stays available.
+    /// On error (a non-finite or bad input, no convergence, an inverted
+    /// element) the previous solution stays available and no non-finite
+    /// value is ever returned. An empty `prescribed` returns to rest (zero
+    /// displacement) and clears every warm start.
     fn solve(&mut self, prescribed: &[Prescribed]) -> Result<&Solution, SolveError>;
     /// The local model of the last successful step, if the strategy has one.
     fn local_model(&self) -> Option<&LocalModel>;
@@ -198,7 +203,7 @@ impl std::str::FromStr for Strategy {
 }
 
 /// Options of [`build_solver`].
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone)]
 pub struct SolverOptions {
     /// Which nodes `compliance` recovers (default: all).
     pub recover: compliance::Recover,
@@ -209,6 +214,30 @@ pub struct SolverOptions {
     /// The skull spheres, when the scene asks for them (wraps the strategy
     /// in an active set over the surface nodes).
     pub skull: Option<skull::Skull>,
+    /// Parallelism of the per-element loops (`corotational`) and of the
+    /// dense block factorization and recovery (`compliance`,
+    /// `corotational`); the answers do not depend on it beyond round-off.
+    /// Default `Par::rayon(0)`: every thread of the current rayon pool; a
+    /// caller sharing the cores with a latency-critical loop may prefer
+    /// `Par::Seq` or `Par::rayon(n)`.
+    pub parallelism: Par,
+    /// Bound of the `K0^-1` column cache of `compliance` and
+    /// `corotational`, in contact nodes (least recently used evicted);
+    /// `None`: [`compliance::DEFAULT_CACHE_BYTES`] worth of columns.
+    pub cache_nodes: Option<usize>,
+}
+
+impl Default for SolverOptions {
+    fn default() -> Self {
+        Self {
+            recover: compliance::Recover::default(),
+            axis_supports: Vec::new(),
+            iterative: corotational::IterativeOptions::default(),
+            skull: None,
+            parallelism: par::default_par(),
+            cache_nodes: None,
+        }
+    }
 }
 
 /// Builds a deformation solver for `mesh` (positions in m) with `material`,
@@ -231,10 +260,20 @@ pub fn build_solver(
             } else {
                 options.recover.clone()
             };
-            Box::new(compliance::Compliance::new(model, recover)?)
+            let mut c = compliance::Compliance::new(model, recover)?;
+            c.set_parallelism(options.parallelism);
+            if let Some(n) = options.cache_nodes {
+                c.set_cache_limit(n);
+            }
+            Box::new(c)
         }
         Strategy::Corotational => {
-            Box::new(corotational::Corotational::new(model, options.iterative)?)
+            let mut c = corotational::Corotational::new(model, options.iterative)?;
+            c.set_parallelism(options.parallelism);
+            if let Some(n) = options.cache_nodes {
+                c.set_cache_limit(n);
+            }
+            Box::new(c)
         }
         Strategy::NeoHookean => Box::new(neo_hookean::NeoHookean::new(model, options.iterative)?),
     };

@@ -235,7 +235,19 @@ impl NeoHookean {
     fn step<C: Into<Constraint> + Copy>(&mut self, cons: &[C]) -> Result<&Solution, SolveError> {
         self.rows.set(cons, &self.model.support)?;
         self.frame.set(&self.rows);
-        let iterations = self.iterate()?;
+        let iterations = if self.rows.rows.is_empty() {
+            // Nothing enforced: the rest state is the equilibrium (and no
+            // warm start survives).
+            self.u.fill(0.0);
+            self.f.fill(0.0);
+            1
+        } else {
+            let it = self.iterate()?;
+            if !self.u.iter().all(|v| v.is_finite()) {
+                return Err(SolveError::NonFinite("neo-Hookean displacement".into()));
+            }
+            it
+        };
         self.good.copy_from_slice(&self.u);
         for (i, d) in self.solution.displacements.iter_mut().enumerate() {
             *d = node_vec(&self.u, i);

@@ -52,6 +52,7 @@ pub struct SkullSolver {
     rest: Vec<Point3<f64>>,
     candidates: Vec<u32>,
     active: Vec<Active>,
+    active_before: Vec<Active>,
     cons: Vec<Constraint>,
     in_step: Vec<bool>,
     solution: Solution,
@@ -88,6 +89,7 @@ impl SkullSolver {
             rest,
             candidates,
             active: Vec::new(),
+            active_before: Vec::new(),
             cons: Vec::new(),
             in_step: vec![false; n],
             solution: Solution::default(),
@@ -103,7 +105,12 @@ impl SkullSolver {
             }
         }
         let in_step = std::mem::take(&mut self.in_step);
+        self.active_before.clone_from(&self.active);
         let result = self.rounds(user, &in_step);
+        if result.is_err() {
+            // The last good state includes its active set.
+            std::mem::swap(&mut self.active, &mut self.active_before);
+        }
         self.in_step = in_step;
         for c in user {
             if let Some(f) = self.in_step.get_mut(c.node as usize) {
@@ -128,6 +135,10 @@ impl SkullSolver {
     }
 
     fn rounds(&mut self, user: &[Constraint], in_step: &[bool]) -> Result<(), SolveError> {
+        if user.is_empty() {
+            // A reset: start the active set afresh.
+            self.active.clear();
+        }
         self.active.retain(|a| !in_step[a.node as usize]);
         let nu = user.len();
         for _ in 0..self.max_rounds {
