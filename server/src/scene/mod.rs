@@ -208,7 +208,7 @@ impl Default for SolverSpec {
     fn default() -> Self {
         Self {
             strategy: Strategy::Compliance,
-            tolerance: 1e-6,
+            tolerance: crate::fem::corotational::IterativeOptions::INTERACTIVE_TOLERANCE,
             max_iterations: 30,
         }
     }
