@@ -73,6 +73,10 @@ enum Bench {
         #[arg(long)]
         json: bool,
     },
+    /// Collision query time, brute force against the refitted BVH, CPU and GPU
+    /// rows side by side, with two spatulas in the left Sylvian fissure of a
+    /// phantom preset (or on a box of the paper's size): ms per query, speedup.
+    Collision(fissure_cli::bench_collision::CollisionArgs),
 }
 
 #[derive(Debug, clap::Args)]
@@ -202,6 +206,7 @@ fn main() -> anyhow::Result<()> {
                 }
                 print(&rows, json);
             }
+            Bench::Collision(args) => fissure_cli::bench_collision::run(&args)?,
         },
         Command::Report {
             file,

@@ -8,7 +8,8 @@ use bytemuck::{Pod, Zeroable};
 use nalgebra::{Point3, Vector3};
 
 use super::GpuError;
-use super::exact::{self, RayFrame};
+use crate::collide::brute::{cast_line, keep_nearest};
+use crate::collide::ray::{RayTest, WatertightRay};
 use crate::collide::{Hit, NodeHits};
 
 /// Candidates kept per ray and side (the kernels' `K`).
@@ -381,10 +382,7 @@ impl Frame {
         let mut fallbacks = 0;
         for (i, (o, d)) in origins.iter().zip(dirs).enumerate() {
             let w = &self.words[i * OUT_WORDS..(i + 1) * OUT_WORDS];
-            let Some(frame) = RayFrame::new(o, d) else {
-                out.push(NodeHits::default());
-                continue;
-            };
+            let ray = WatertightRay::new(*o, *d);
             let mut hits = NodeHits::default();
             let mut brute: Option<NodeHits> = None;
             for side in 0..2 {
@@ -396,14 +394,14 @@ impl Frame {
                     }
                     let [a, b, c] =
                         self.triangles[tri as usize].map(|k| &self.positions[k as usize]);
-                    if let Some((t, u, v)) = exact::intersect_frame(&frame, a, b, c) {
-                        exact::keep_nearest(
+                    if let Some(h) = ray.intersect(a, b, c) {
+                        keep_nearest(
                             &mut best,
                             Hit {
                                 triangle: tri,
-                                t,
-                                u,
-                                v,
+                                t: h.t,
+                                u: h.u,
+                                v: h.v,
                             },
                         );
                     }
@@ -417,7 +415,13 @@ impl Frame {
                 } else {
                     fallbacks += 1;
                     let all = brute.get_or_insert_with(|| {
-                        exact::cast_ray(&self.triangles, &self.positions, o, d)
+                        cast_line(
+                            &self.triangles,
+                            &self.positions,
+                            RayTest::Watertight,
+                            *o,
+                            *d,
+                        )
                     });
                     if side == 0 { all.behind } else { all.front }
                 };
@@ -439,7 +443,16 @@ impl Frame {
         dirs: &[Vector3<f64>],
         out: &mut Vec<NodeHits>,
     ) {
-        exact::cast_brute(&self.triangles, &self.positions, origins, dirs, out);
+        out.clear();
+        out.extend(origins.iter().zip(dirs).map(|(o, d)| {
+            cast_line(
+                &self.triangles,
+                &self.positions,
+                RayTest::Watertight,
+                *o,
+                *d,
+            )
+        }));
         self.fallbacks += 2 * origins.len() as u64;
     }
 }
