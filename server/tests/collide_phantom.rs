@@ -154,8 +154,9 @@ fn push_into_one_wall_pairs_only_with_that_wall() {
     }));
 }
 
-/// Deep push (the paper's Figure 6 in the fissure): after a shallow contact the
-/// whole plate is 1 mm inside the upper wall. Face B then finds the lobe's
+/// Deep push (the paper's Figure 6 in the fissure): from a shallow contact the
+/// plate moves on, 0.25 mm per force-loop step, until all of it is 1 mm inside
+/// the upper wall. Face B then finds the lobe's
 /// outer surface behind it, facing away from it: without culling these pairs
 /// survive; with culling they are all cancelled, and face A keeps pushing the
 /// wall.
@@ -168,7 +169,11 @@ fn deep_push_far_face_pairs_only_without_culling() {
     let deep = 0.5 * f.width + 1.0 * MM + 0.5 * h;
     let mut far_counts = Vec::new();
     for culling in [false, true] {
-        let (out, infeasible) = fis.push(&[shallow, deep], culling);
+        let steps = ((deep - shallow) / (0.25 * MM)).ceil() as usize;
+        let offsets: Vec<f64> = (0..=steps)
+            .map(|k| shallow + (deep - shallow) * k as f64 / steps as f64)
+            .collect();
+        let (out, infeasible) = fis.push(&offsets, culling);
         let far: Vec<_> = out
             .pairs
             .iter()

@@ -125,6 +125,8 @@ pub struct Bvh {
     /// Per node: box must be recomputed (always all false between updates).
     dirty: Vec<bool>,
     dirty_leaves: Vec<u32>,
+    /// Vertices moved by the current update.
+    moved: Vec<u32>,
     stats: RefitStats,
     test: RayTest,
     needed: usize,
@@ -161,6 +163,7 @@ impl Bvh {
             seen: Vec::new(),
             dirty: Vec::new(),
             dirty_leaves: Vec::new(),
+            moved: Vec::new(),
             stats: RefitStats::default(),
             test,
             needed,
@@ -250,6 +253,8 @@ impl Bvh {
         self.dirty.resize(self.nodes.len(), false);
         self.dirty_leaves.clear();
         self.dirty_leaves.reserve(self.nodes.len());
+        self.moved.clear();
+        self.moved.reserve(self.needed);
     }
 
     /// Emits the subtree of `items` (which start at leaf-order index `first`).
@@ -357,24 +362,35 @@ impl Bvh {
     }
 
     /// Refits the leaves whose vertices moved since the last update, and their
-    /// ancestors (module documentation). No allocation.
+    /// ancestors (module documentation). When more than a quarter of the
+    /// vertices moved, a full refit (a sequential gather) is cheaper than the
+    /// scattered partial one and is done instead. No allocation.
     fn refit_moved(&mut self, positions: &[Point3<f64>]) {
-        self.dirty_leaves.clear();
-        let mut moved = 0;
+        self.moved.clear();
         for (v, (seen, p)) in self.seen.iter_mut().zip(positions).enumerate() {
             let same = seen.x.to_bits() == p.x.to_bits()
                 && seen.y.to_bits() == p.y.to_bits()
                 && seen.z.to_bits() == p.z.to_bits();
-            if same {
-                continue;
+            if !same {
+                *seen = *p;
+                self.moved.push(v as u32);
             }
-            moved += 1;
-            *seen = *p;
+        }
+        let moved = self.moved.len();
+        if 4 * moved > self.needed {
+            self.refit_all(positions);
+            self.stats.moved_vertices = moved;
+            return;
+        }
+        self.dirty_leaves.clear();
+        for &v in &self.moved {
+            let v = v as usize;
+            let p = positions[v];
             let corners =
                 &self.corners[self.corner_start[v] as usize..self.corner_start[v + 1] as usize];
             for &e in corners {
                 let slot = (e / 3) as usize;
-                self.verts[slot][(e % 3) as usize] = *p;
+                self.verts[slot][(e % 3) as usize] = p;
                 let leaf = self.leaf_of[slot] as usize;
                 if !self.dirty[leaf] {
                     self.dirty[leaf] = true;

@@ -105,6 +105,28 @@ impl Device {
         buf
     }
 
+    /// A bind group of `buffers` at bindings `0, 1, ...` of group 0 of `pipeline`.
+    pub fn bind_buffers(
+        &self,
+        label: &str,
+        pipeline: &wgpu::ComputePipeline,
+        buffers: &[&wgpu::Buffer],
+    ) -> wgpu::BindGroup {
+        let entries: Vec<wgpu::BindGroupEntry<'_>> = buffers
+            .iter()
+            .enumerate()
+            .map(|(i, b)| wgpu::BindGroupEntry {
+                binding: i as u32,
+                resource: b.as_entire_binding(),
+            })
+            .collect();
+        self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(label),
+            layout: &pipeline.get_bind_group_layout(0),
+            entries: &entries,
+        })
+    }
+
     pub fn pipeline(&self, module: &wgpu::ShaderModule, entry: &str) -> wgpu::ComputePipeline {
         self.device
             .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
@@ -434,6 +456,26 @@ impl Frame {
             out.push(hits);
         }
         self.fallbacks += fallbacks;
+    }
+
+    /// Answers every ray after a kernel run: the f64 decision over the
+    /// candidates, or, when the run failed (logged, naming `kernel`), the CPU
+    /// reference on the host.
+    pub fn answer(
+        &mut self,
+        run: Result<(), String>,
+        kernel: &str,
+        origins: &[Point3<f64>],
+        dirs: &[Vector3<f64>],
+        out: &mut Vec<NodeHits>,
+    ) {
+        match run {
+            Ok(()) => self.decide(origins, dirs, out),
+            Err(e) => {
+                tracing::error!(error = %e, kernel, "GPU kernel failed, answering on the host");
+                self.decide_on_host(origins, dirs, out);
+            }
+        }
     }
 
     /// Answers every ray with the f64 brute force (used when the device failed).
