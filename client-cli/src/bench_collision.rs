@@ -149,10 +149,9 @@ impl BenchSurface {
     ) -> Self {
         let mid = PLATE[2] * 0.5;
         let n = poses.len().max(1) as f64;
-        let centre = poses
-            .iter()
-            .fold(Vector3::zeros(), |c, p| c + (p * Point3::new(0.0, 0.0, mid)).coords)
-            / n;
+        let centre = poses.iter().fold(Vector3::zeros(), |c, p| {
+            c + (p * Point3::new(0.0, 0.0, mid)).coords
+        }) / n;
         let normal = poses.first().map_or(Vector3::z(), |p| p * Vector3::x());
         let deformed = rest
             .iter()
@@ -576,8 +575,14 @@ mod tests {
         let per = report.rows.len() / 2;
         assert!(per >= 2, "brute and bvh rows for each node count");
         for rows in report.rows.chunks(per) {
-            assert_eq!((rows[0].method.as_str(), rows[0].backend.as_str()), ("brute", "cpu"));
-            assert_eq!((rows[1].method.as_str(), rows[1].backend.as_str()), ("bvh", "cpu"));
+            assert_eq!(
+                (rows[0].method.as_str(), rows[0].backend.as_str()),
+                ("brute", "cpu")
+            );
+            assert_eq!(
+                (rows[1].method.as_str(), rows[1].backend.as_str()),
+                ("bvh", "cpu")
+            );
             for r in rows {
                 assert_eq!(r.matches_brute, Some(true), "{r:?}");
                 assert!(r.pairs > 0, "the spatulas touch the surface: {r:?}");

@@ -1,6 +1,6 @@
-//! Criterion benchmark of one collision query (refit + rays + pairs + culling
-//! + enforced displacements), brute force against the BVH: one spatula pair at
-//! 150 nodes a face lying on a cuboid surface of 2,880 triangles, queries
+//! Criterion benchmark of one collision query (refit, rays, pairs, culling
+//! and enforced displacements), brute force against the BVH: one spatula pair
+//! at 150 nodes a face lying on a cuboid surface of 2,880 triangles, queries
 //! alternating the rest surface and a locally bumped one so that every BVH
 //! query refits. The paper-size figures come from `fissure bench collision`.
 

@@ -9,9 +9,7 @@
 
 use std::time::Instant;
 
-use fissure_server::collide::gpu::{
-    self, GpuBruteForce, GpuBvh, GpuError, GpuMethod, RefitMode,
-};
+use fissure_server::collide::gpu::{self, GpuBruteForce, GpuBvh, GpuError, GpuMethod, RefitMode};
 use fissure_server::collide::ray::watertight;
 use fissure_server::collide::{BruteForce, NodeHits, RayBackend};
 use nalgebra::{Point3, Vector3};
@@ -251,7 +249,9 @@ fn backend_or_cpu_falls_back_on_bad_surface() {
         GpuMethod::Bvh,
         &triangles,
         &positions,
-        || -> Box<dyn RayBackend> { Box::new(BruteForce::new(&[], &[]).expect("an empty surface")) },
+        || -> Box<dyn RayBackend> {
+            Box::new(BruteForce::new(&[], &[]).expect("an empty surface"))
+        },
     );
     assert_eq!(b.backend(), "cpu");
 }

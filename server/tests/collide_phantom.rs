@@ -135,7 +135,11 @@ fn push_into_one_wall_pairs_only_with_that_wall() {
         out.pairs.len()
     );
     for p in &out.pairs {
-        assert_eq!(fis.inst.nodes[p.node as usize].kind, NodeKind::FaceA, "{p:?}");
+        assert_eq!(
+            fis.inst.nodes[p.node as usize].kind,
+            NodeKind::FaceA,
+            "{p:?}"
+        );
         assert!(
             fis.side(p.triangle) > 0.0,
             "pair {p:?} holds a triangle on the far side of the fissure"
@@ -144,14 +148,19 @@ fn push_into_one_wall_pairs_only_with_that_wall() {
             fis.outward(p.triangle).dot(&f.normal) < 0.0,
             "pair {p:?}: the wall faces the gap"
         );
-        assert!(!infeasible.contains(&p.triangle), "infeasible pair survived: {p:?}");
+        assert!(
+            !infeasible.contains(&p.triangle),
+            "infeasible pair survived: {p:?}"
+        );
         // Behind face A by at most the push (plus the wall's facet tilt).
         assert!(p.t <= 0.0 && p.t > -3.0 * MM, "{p:?}");
     }
     // The other wall is untouched.
-    assert!(out.enforced.iter().all(|e| {
-        (fis.pos[e.surface_vertex as usize] - f.entry).dot(&f.normal) > 0.0
-    }));
+    assert!(
+        out.enforced
+            .iter()
+            .all(|e| { (fis.pos[e.surface_vertex as usize] - f.entry).dot(&f.normal) > 0.0 })
+    );
 }
 
 /// Deep push (the paper's Figure 6 in the fissure): from a shallow contact the
@@ -187,16 +196,30 @@ fn deep_push_far_face_pairs_only_without_culling() {
                     && fis.outward(p.triangle).dot(&f.normal) < 0.0
             })
             .count();
-        assert!(wall >= 20, "face A pushes the wall (culling {culling}): {wall}");
+        assert!(
+            wall >= 20,
+            "face A pushes the wall (culling {culling}): {wall}"
+        );
         for p in &far {
             // Far-face pairs hold the lobe's outer surface beyond the wall.
             assert!(fis.side(p.triangle) > deep, "{p:?}");
         }
         if culling {
-            assert!(far.is_empty(), "{} far-face pairs survived culling", far.len());
-            assert!(out.cancelled.len() >= far_counts[0], "every far-face pair is cancelled");
+            assert!(
+                far.is_empty(),
+                "{} far-face pairs survived culling",
+                far.len()
+            );
+            assert!(
+                out.cancelled.len() >= far_counts[0],
+                "every far-face pair is cancelled"
+            );
             assert!(out.pairs.iter().all(|p| !infeasible.contains(&p.triangle)));
-            assert!(out.cancelled.iter().all(|p| infeasible.contains(&p.triangle)));
+            assert!(
+                out.cancelled
+                    .iter()
+                    .all(|p| infeasible.contains(&p.triangle))
+            );
         } else {
             assert!(
                 far.len() >= 20,

@@ -29,7 +29,10 @@ fn home(scene: &Scene, i: usize) -> Isometry3<f64> {
 fn gpu_scene_gives_the_cpu_scenes_contacts() {
     let text = scene_text("v-valley");
     assert!(text.contains("method = \"bvh\"\n"));
-    let gpu_text = text.replace("method = \"bvh\"\n", "method = \"bvh\"\nbackend = \"gpu\"\n");
+    let gpu_text = text.replace(
+        "method = \"bvh\"\n",
+        "method = \"bvh\"\nbackend = \"gpu\"\n",
+    );
     let cpu_scene = Scene::parse(&text, "v-valley").unwrap();
     let gpu_scene = Scene::parse(&gpu_text, "v-valley (gpu)").unwrap();
     assert_eq!(gpu_scene.collision.backend, CollisionBackend::Gpu);
@@ -55,15 +58,21 @@ fn gpu_scene_gives_the_cpu_scenes_contacts() {
     let mut h_gpu = vec![model.new_history(0)];
     let start = home(&cpu_scene, 0);
     let mut touched = 0;
-    // The tip goes from 5 mm above the block (z = 35 mm) to 0.3 mm above the
-    // groove's bottom (z = 10 mm), into the V.
-    let steps = 12;
-    for k in 0..=steps {
-        let down = 0.0247 * k as f64 / steps as f64;
+    // The tip goes from 5 mm above the block (z = 35 mm) to 11.5 mm in 8 steps,
+    // then on to 10.3 mm (0.3 mm above the groove's bottom) in 0.3 mm steps:
+    // the 1.5 mm plate meets the V's walls below z = 11.25 mm.
+    let downs: Vec<f64> = (0..=8)
+        .map(|k| 0.0235 * k as f64 / 8.0)
+        .chain((1..=4).map(|k| 0.0235 + 0.0003 * k as f64))
+        .collect();
+    for (k, &down) in downs.iter().enumerate() {
         let pose = Translation3::new(0.0, 0.0, -down) * start;
         let a = cpu.query_all(&model, &snap, &[pose], &mut h_cpu).clone();
         let b = gpu.query_all(&model, &snap, &[pose], &mut h_gpu).clone();
-        assert_eq!(a, b, "step {k}: GPU scene contacts differ from the CPU scene's");
+        assert_eq!(
+            a, b,
+            "step {k}: GPU scene contacts differ from the CPU scene's"
+        );
         assert_eq!(h_cpu[0].flags(), h_gpu[0].flags(), "step {k}: histories");
         if !a.pairs.is_empty() {
             touched += 1;
@@ -78,5 +87,8 @@ fn gpu_scene_gives_the_cpu_scenes_contacts() {
             .collect();
         snap.surface = Arc::new(surface);
     }
-    assert!(touched >= 2, "the spatula reaches the groove's walls ({touched} steps in contact)");
+    assert!(
+        touched >= 4,
+        "the spatula reaches the groove's walls ({touched} steps in contact)"
+    );
 }

@@ -93,7 +93,6 @@ impl BruteForce {
             needed,
         })
     }
-
 }
 
 impl RayBackend for BruteForce {
