@@ -86,6 +86,10 @@ enum Bench {
     /// haptic client per instrument at 1 kHz on real-time ticks, and watchers;
     /// round trip, server compute time, missed samples, deformation rate.
     Loop(fissure_cli::bench_loop::LoopBenchArgs),
+    /// Collision query time, brute force against the refitted BVH, CPU and GPU
+    /// rows side by side, with two spatulas in the left Sylvian fissure of a
+    /// phantom preset (or on a box of the paper's size): ms per query, speedup.
+    Collision(fissure_cli::bench_collision::CollisionArgs),
 }
 
 const REPLAY_HELP: &str = "\
@@ -264,6 +268,7 @@ fn main() -> anyhow::Result<()> {
                 print(&rows, json);
             }
             Bench::Loop(args) => rt.block_on(fissure_cli::bench_loop::main(&args))?,
+            Bench::Collision(args) => fissure_cli::bench_collision::run(&args)?,
         },
         Command::Report {
             file,

@@ -1,5 +1,6 @@
 //! The wgpu collision backends give the same answers as the f64 brute force
-//! (`collide::gpu::exact`): same triangle ids, `t, u, v` within 1e-9, on grids
+//! (`collide::brute::BruteForce`, the CPU reference): same triangle ids and the
+//! same `t, u, v` bit for bit, on grids
 //! with rays through vertices and edges, parallel rays, degenerate triangles,
 //! near-ties, and closed surfaces deforming over several steps (BVH refit).
 //!
@@ -8,10 +9,9 @@
 
 use std::time::Instant;
 
-use fissure_server::collide::gpu::{
-    self, GpuBruteForce, GpuBvh, GpuError, GpuMethod, RefitMode, exact,
-};
-use fissure_server::collide::{NodeHits, RayBackend};
+use fissure_server::collide::gpu::{self, GpuBruteForce, GpuBvh, GpuError, GpuMethod, RefitMode};
+use fissure_server::collide::ray::watertight;
+use fissure_server::collide::{BruteForce, NodeHits, RayBackend};
 use nalgebra::{Point3, Vector3};
 
 /// Small deterministic generator (SplitMix64), so failures reproduce.
@@ -95,6 +95,19 @@ fn backends(triangles: &[[u32; 3]], positions: &[Point3<f64>]) -> Option<Gpus> {
     })
 }
 
+/// The CPU reference answers (`collide::brute::BruteForce`, watertight test).
+fn reference(
+    triangles: &[[u32; 3]],
+    positions: &[Point3<f64>],
+    origins: &[Point3<f64>],
+    dirs: &[Vector3<f64>],
+) -> Vec<NodeHits> {
+    let mut brute = BruteForce::new(triangles, positions).expect("a valid test surface");
+    let mut out = Vec::new();
+    brute.cast(origins, dirs, &mut out);
+    out
+}
+
 fn assert_same(got: &[NodeHits], want: &[NodeHits], what: &str) {
     assert_eq!(got.len(), want.len(), "{what}: ray count");
     for (i, (g, w)) in got.iter().zip(want).enumerate() {
@@ -106,10 +119,11 @@ fn assert_same(got: &[NodeHits], want: &[NodeHits], what: &str) {
                         a.triangle, b.triangle,
                         "{what}: ray {i} {side}: triangle {a:?} vs reference {b:?}"
                     );
+                    // The host decides with the reference's own f64 code.
                     assert!(
-                        (a.t - b.t).abs() <= 1e-9
-                            && (a.u - b.u).abs() <= 1e-9
-                            && (a.v - b.v).abs() <= 1e-9,
+                        a.t.to_bits() == b.t.to_bits()
+                            && a.u.to_bits() == b.u.to_bits()
+                            && a.v.to_bits() == b.v.to_bits(),
                         "{what}: ray {i} {side}: {a:?} vs reference {b:?}"
                     );
                 }
@@ -119,7 +133,7 @@ fn assert_same(got: &[NodeHits], want: &[NodeHits], what: &str) {
     }
 }
 
-/// Casts with every backend and compares with the f64 brute force.
+/// Casts with every backend and compares with the CPU reference.
 fn check(
     backends: &mut Gpus,
     triangles: &[[u32; 3]],
@@ -128,8 +142,7 @@ fn check(
     dirs: &[Vector3<f64>],
     what: &str,
 ) -> Vec<NodeHits> {
-    let mut want = Vec::new();
-    exact::cast_brute(triangles, positions, origins, dirs, &mut want);
+    let want = reference(triangles, positions, origins, dirs);
     let mut got = Vec::new();
     for b in backends.all() {
         b.cast(origins, dirs, &mut got);
@@ -228,43 +241,17 @@ fn errors_name_the_bad_input() {
     }
 }
 
-/// A CPU stand-in for the fallback: the f64 brute force.
-struct HostBrute {
-    triangles: Vec<[u32; 3]>,
-    positions: Vec<Point3<f64>>,
-}
-
-impl RayBackend for HostBrute {
-    fn method(&self) -> &'static str {
-        "brute"
-    }
-    fn backend(&self) -> &'static str {
-        "cpu"
-    }
-    fn update_positions(&mut self, positions: &[Point3<f64>]) {
-        self.positions = positions.to_vec();
-    }
-    fn cast(&mut self, origins: &[Point3<f64>], dirs: &[Vector3<f64>], out: &mut Vec<NodeHits>) {
-        exact::cast_brute(&self.triangles, &self.positions, origins, dirs, out);
-    }
-}
-
 #[test]
 fn backend_or_cpu_falls_back_on_bad_surface() {
     let positions = vec![Point3::origin(); 3];
     let triangles = vec![[0u32, 1, 9]];
-    let t = triangles.clone();
-    let p = positions.clone();
     let b = gpu::backend_or_cpu(
         GpuMethod::Bvh,
         &triangles,
         &positions,
-        Box::new(move || {
-            Box::new(HostBrute {
-                triangles: t,
-                positions: p,
-            })
-        }),
+        || -> Box<dyn RayBackend> {
+            Box::new(BruteForce::new(&[], &[]).expect("an empty surface"))
+        },
     );
     assert_eq!(b.backend(), "cpu");
 }
@@ -364,7 +351,7 @@ fn grid_vertices_edges_parallel_and_degenerate() {
             .iter()
             .filter(|t| {
                 let [a, b, c] = t.map(|v| &positions[v as usize]);
-                exact::intersect(o, d, a, b, c).is_some()
+                watertight(o, d, a, b, c).is_some()
             })
             .count();
         assert_eq!(
@@ -387,7 +374,7 @@ fn grid_vertices_edges_parallel_and_degenerate() {
     {
         assert!(triangles[..plain].iter().all(|t| {
             let [a, b, c] = t.map(|v| &positions[v as usize]);
-            exact::intersect(o, d, a, b, c).is_none()
+            watertight(o, d, a, b, c).is_none()
         }));
     }
 }
@@ -660,9 +647,8 @@ fn timing_at_paper_size() {
             &mut origins,
             &mut dirs,
         );
-        let mut want = Vec::new();
         let t0 = Instant::now();
-        exact::cast_brute(&triangles, &positions, &origins, &dirs, &mut want);
+        let want = reference(&triangles, &positions, &origins, &dirs);
         let host_ms = t0.elapsed().as_secs_f64() * 1e3;
         let mut got = Vec::new();
         let reps = 20;

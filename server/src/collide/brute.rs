@@ -30,6 +30,37 @@ pub fn keep_nearest(hits: &mut NodeHits, hit: Hit) {
     }
 }
 
+/// Nearest hits behind and in front of the line `origin + t dir` over every
+/// triangle of `triangles` (indices into `positions`, which must cover them):
+/// the reference answer of one source node. Every backend's answer for a line
+/// is this one, bit for bit (the GPU backends call it to settle the rays their
+/// `f32` filter cannot).
+pub fn cast_line(
+    triangles: &[[u32; 3]],
+    positions: &[Point3<f64>],
+    test: RayTest,
+    origin: Point3<f64>,
+    dir: Vector3<f64>,
+) -> NodeHits {
+    let ray = PreparedRay::new(test, origin, dir);
+    let mut hits = NodeHits::default();
+    for (i, tri) in triangles.iter().enumerate() {
+        let [a, b, c] = tri.map(|v| &positions[v as usize]);
+        if let Some(h) = ray.intersect(a, b, c) {
+            keep_nearest(
+                &mut hits,
+                Hit {
+                    triangle: i as u32,
+                    t: h.t,
+                    u: h.u,
+                    v: h.v,
+                },
+            );
+        }
+    }
+    hits
+}
+
 /// Brute-force backend (CPU).
 #[derive(Debug, Clone)]
 pub struct BruteForce {
@@ -62,26 +93,6 @@ impl BruteForce {
             needed,
         })
     }
-
-    fn cast_one(&self, origin: Point3<f64>, dir: Vector3<f64>) -> NodeHits {
-        let ray = PreparedRay::new(self.test, origin, dir);
-        let mut hits = NodeHits::default();
-        for (i, tri) in self.triangles.iter().enumerate() {
-            let [a, b, c] = tri.map(|v| &self.positions[v as usize]);
-            if let Some(h) = ray.intersect(a, b, c) {
-                keep_nearest(
-                    &mut hits,
-                    Hit {
-                        triangle: i as u32,
-                        t: h.t,
-                        u: h.u,
-                        v: h.v,
-                    },
-                );
-            }
-        }
-        hits
-    }
 }
 
 impl RayBackend for BruteForce {
@@ -108,6 +119,8 @@ impl RayBackend for BruteForce {
         let this = &*self;
         out.par_iter_mut()
             .zip(origins[..n].par_iter().zip(dirs[..n].par_iter()))
-            .for_each(|(slot, (o, d))| *slot = this.cast_one(*o, *d));
+            .for_each(|(slot, (o, d))| {
+                *slot = cast_line(&this.triangles, &this.positions, this.test, *o, *d)
+            });
     }
 }

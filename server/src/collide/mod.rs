@@ -10,6 +10,7 @@
 //! * [`ray`]: line-triangle tests with signed `t` (watertight by default).
 //! * [`brute`]: the paper's all-pairs reference backend.
 //! * [`bvh`]: the refitted BVH backend.
+//! * [`placement`]: spatula poses in a fissure of the phantom (landmarks).
 //! * [`history`]: history flags and the renewal modes (force rate or paper).
 //! * [`contact`]: pairs, culling and enforced displacements ([`contact::detect`]).
 //! * [`gpu`]: wgpu backends.
@@ -20,10 +21,11 @@ pub mod contact;
 pub mod gpu;
 pub mod history;
 pub mod instrument;
+pub mod placement;
 pub mod ray;
 
 pub use brute::BruteForce;
-pub use bvh::Bvh;
+pub use bvh::{Bvh, RefitStats};
 pub use contact::{
     ContactError, ContactOutput, ContactQuery, DetectOptions, Enforced, Pair, Tool, Workspace,
     detect, detect_many,
@@ -32,6 +34,7 @@ pub use history::{History, HistoryMode, Stage};
 pub use instrument::{
     Instrument, InstrumentError, NodeKind, NodeLayout, Plate, RimNodes, SourceNode,
 };
+pub use placement::FissurePlacement;
 pub use ray::RayTest;
 
 use nalgebra::{Point3, Vector3};
@@ -95,6 +98,9 @@ pub enum SurfaceError {
     /// A vertex position is NaN or infinite.
     #[error("surface vertex {vertex} has a non-finite coordinate")]
     NonFinite { vertex: usize },
+    /// More triangles than a backend's `u32` tables can index.
+    #[error("{triangles} triangles are more than a backend can index")]
+    TooLarge { triangles: usize },
 }
 
 /// Checks indices and finiteness; returns one more than the largest vertex

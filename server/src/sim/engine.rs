@@ -241,7 +241,8 @@ impl Model {
 /// Builds the ray backend a scene asks for over the given surface positions.
 pub fn ray_backend(scene: &Scene, model: &Model, positions: &[Point3<f64>]) -> Box<dyn RayBackend> {
     let tris = &model.surface.triangles;
-    let cpu = |method: CollisionMethod| -> Box<dyn RayBackend> {
+    let method = scene.collision.method;
+    let cpu = move || -> Box<dyn RayBackend> {
         match method {
             CollisionMethod::Brute => {
                 Box::new(BruteForce::new(tris, positions).expect("surface checked at load"))
@@ -252,12 +253,28 @@ pub fn ray_backend(scene: &Scene, model: &Model, positions: &[Point3<f64>]) -> B
         }
     };
     match scene.collision.backend {
-        CollisionBackend::Cpu => cpu(scene.collision.method),
+        CollisionBackend::Cpu => cpu(),
         CollisionBackend::Gpu => {
-            tracing::warn!(
-                "the GPU collision backend is not available in this build; using the CPU backend"
-            );
-            cpu(scene.collision.method)
+            let gpu_method = match method {
+                CollisionMethod::Brute => crate::collide::gpu::GpuMethod::Brute,
+                CollisionMethod::Bvh => crate::collide::gpu::GpuMethod::Bvh,
+            };
+            // Logs a warning with the reason when it falls back.
+            let backend = crate::collide::gpu::backend_or_cpu(gpu_method, tris, positions, cpu);
+            if backend.backend() == "gpu" {
+                tracing::info!(
+                    scene = %scene.name,
+                    method = backend.method(),
+                    "collision rays cast on the GPU"
+                );
+            } else {
+                tracing::warn!(
+                    scene = %scene.name,
+                    method = backend.method(),
+                    "scene asks for the GPU collision backend; falling back to the CPU backend"
+                );
+            }
+            backend
         }
     }
 }

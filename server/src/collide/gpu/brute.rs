@@ -65,19 +65,7 @@ impl GpuBruteForce {
             &frame.rays_buf,
             &frame.out_buf,
         ];
-        let entries: Vec<wgpu::BindGroupEntry<'_>> = buffers
-            .iter()
-            .enumerate()
-            .map(|(i, b)| wgpu::BindGroupEntry {
-                binding: i as u32,
-                resource: b.as_entire_binding(),
-            })
-            .collect();
-        dev.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("brute"),
-            layout: &pipeline.get_bind_group_layout(0),
-            entries: &entries,
-        })
+        dev.bind_buffers("brute", pipeline, &buffers)
     }
 
     /// Name of the adapter the kernel runs on (`wgpu::AdapterInfo::name`).
@@ -160,13 +148,8 @@ impl RayBackend for GpuBruteForce {
             out.clear();
             return;
         }
-        match self.run(origins, dirs) {
-            Ok(()) => self.frame.decide(origins, dirs, out),
-            Err(e) => {
-                tracing::error!(error = %e, "GPU all-pairs kernel failed, answering on the host");
-                self.frame.decide_on_host(origins, dirs, out);
-            }
-        }
+        let run = self.run(origins, dirs);
+        self.frame.answer(run, "all-pairs", origins, dirs, out);
     }
 }
 

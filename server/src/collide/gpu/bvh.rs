@@ -90,28 +90,11 @@ impl GpuBvh {
                     ..Params::default()
                 };
                 let buf = dev.uniform("refit level", &p);
-                let group = dev.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                    label: Some("refit level"),
-                    layout: &refit_pipeline.get_bind_group_layout(0),
-                    entries: &[
-                        wgpu::BindGroupEntry {
-                            binding: 0,
-                            resource: buf.as_entire_binding(),
-                        },
-                        wgpu::BindGroupEntry {
-                            binding: 1,
-                            resource: frame.positions_buf.as_entire_binding(),
-                        },
-                        wgpu::BindGroupEntry {
-                            binding: 2,
-                            resource: tris.as_entire_binding(),
-                        },
-                        wgpu::BindGroupEntry {
-                            binding: 3,
-                            resource: nodes.as_entire_binding(),
-                        },
-                    ],
-                });
+                let group = dev.bind_buffers(
+                    "refit level",
+                    &refit_pipeline,
+                    &[&buf, &frame.positions_buf, &tris, &nodes],
+                );
                 (buf, group)
             })
             .collect();
@@ -149,19 +132,7 @@ impl GpuBvh {
             &frame.rays_buf,
             &frame.out_buf,
         ];
-        let entries: Vec<wgpu::BindGroupEntry<'_>> = buffers
-            .iter()
-            .enumerate()
-            .map(|(i, b)| wgpu::BindGroupEntry {
-                binding: i as u32,
-                resource: b.as_entire_binding(),
-            })
-            .collect();
-        dev.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("bvh cast"),
-            layout: &pipeline.get_bind_group_layout(0),
-            entries: &entries,
-        })
+        dev.bind_buffers("bvh cast", pipeline, &buffers)
     }
 
     /// Name of the adapter the kernels run on (`wgpu::AdapterInfo::name`).
@@ -313,12 +284,7 @@ impl RayBackend for GpuBvh {
             out.clear();
             return;
         }
-        match self.run(origins, dirs) {
-            Ok(()) => self.frame.decide(origins, dirs, out),
-            Err(e) => {
-                tracing::error!(error = %e, "GPU BVH kernel failed, answering on the host");
-                self.frame.decide_on_host(origins, dirs, out);
-            }
-        }
+        let run = self.run(origins, dirs);
+        self.frame.answer(run, "bvh", origins, dirs, out);
     }
 }

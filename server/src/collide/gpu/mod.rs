@@ -11,8 +11,9 @@
 //! # Equal answers from f32 kernels
 //!
 //! The engine is f64; the kernels run in f32. They do not decide the answer, they
-//! narrow it down, and the host decides in f64 with [`exact::intersect`], the
-//! watertight test of Woop, Benthin and Wald (2013) with a top-left tie rule:
+//! narrow it down, and the host decides in f64 with the CPU pipeline's own test,
+//! [`WatertightRay::intersect`](crate::collide::ray::WatertightRay::intersect)
+//! (Woop, Benthin and Wald 2013, with the tie rule of [`crate::collide::ray`]):
 //!
 //! 1. **Conservative f32 filter.** The kernel evaluates the watertight test's edge
 //!    functions `e_i` in f32 together with a bound `tol_i` of their error, and
@@ -40,21 +41,24 @@
 //!    every hit in such a box is strictly worse than one that is listed or
 //!    dropped, so it is never the answer and `theta` is unaffected.
 //! 3. **f64 decision on the host.** The host evaluates the listed triangles with
-//!    [`exact::intersect`] on the f64 positions and keeps the nearest per side
-//!    (ties in `t`: lower triangle index). The answer is final when the list was
-//!    complete or when its key is `< theta`; otherwise that ray's side is
-//!    answered by the f64 brute force [`exact::cast_ray`]. This happens only
+//!    the watertight test on the f64 positions and keeps the nearest per side
+//!    with [`keep_nearest`](crate::collide::brute::keep_nearest) (ties in `|t|`:
+//!    lower triangle index). The answer is final when the list was complete or
+//!    when its key is `< theta`; otherwise that ray's side is answered by the
+//!    CPU reference [`cast_line`](crate::collide::brute::cast_line). This happens only
 //!    when more than `K` candidates tie within the f32 bounds: a line lying in
 //!    the plane of several triangles (unknown `t`), a line through a vertex
 //!    shared by more than `K` triangles, coincident triangles.
 //!    [`GpuBruteForce::fallbacks`] and [`GpuBvh::fallbacks`] count those sides.
 //!
-//! The answers are therefore exactly those of the f64 brute force over the same
-//! test: same triangle ids, and `t, u, v` computed by the same f64 code. To make
-//! the GPU backends agree with another f64 reference (the CPU pipeline's), that
-//! reference's test must be the one [`exact::intersect_frame`] runs in
-//! `runtime::Frame::decide`; the f32 filter does not depend on the tie rule (it
-//! keeps every triangle the exact line meets, edges and vertices included).
+//! The answers are therefore exactly those of the CPU reference
+//! [`BruteForce`](crate::collide::BruteForce) with the watertight test: same
+//! triangle ids, and `t, u, v` computed by the same f64 code. The f32 filter
+//! does not depend on the tie rule (it keeps every triangle the exact line
+//! meets, edges and vertices included), and the f64 test's rejection of
+//! parallel lines and degenerate triangles only removes hits, none of them
+//! *sure* (a sure candidate's projected area is far above the rejection's
+//! 1e-12 relative tolerance).
 //!
 //! Boxes of the BVH are padded by `64 eps s` and the slab test widens its
 //! interval by `8 eps (|t0| + |t1|)`, so a box test never drops a triangle the
@@ -70,7 +74,6 @@
 
 mod brute;
 mod bvh;
-pub mod exact;
 mod lbvh;
 mod runtime;
 
@@ -139,7 +142,7 @@ pub fn backend_or_cpu(
     method: GpuMethod,
     triangles: &[[u32; 3]],
     positions: &[nalgebra::Point3<f64>],
-    cpu: Box<dyn FnOnce() -> Box<dyn RayBackend>>,
+    cpu: impl FnOnce() -> Box<dyn RayBackend>,
 ) -> Box<dyn RayBackend> {
     let gpu: Result<Box<dyn RayBackend>, GpuError> = match method {
         GpuMethod::Brute => GpuBruteForce::try_new(triangles, positions).map(|b| Box::new(b) as _),

@@ -8,7 +8,8 @@ use bytemuck::{Pod, Zeroable};
 use nalgebra::{Point3, Vector3};
 
 use super::GpuError;
-use super::exact::{self, RayFrame};
+use crate::collide::brute::{cast_line, keep_nearest};
+use crate::collide::ray::{RayTest, WatertightRay};
 use crate::collide::{Hit, NodeHits};
 
 /// Candidates kept per ray and side (the kernels' `K`).
@@ -102,6 +103,28 @@ impl Device {
         });
         self.queue.write_buffer(&buf, 0, bytemuck::bytes_of(params));
         buf
+    }
+
+    /// A bind group of `buffers` at bindings `0, 1, ...` of group 0 of `pipeline`.
+    pub fn bind_buffers(
+        &self,
+        label: &str,
+        pipeline: &wgpu::ComputePipeline,
+        buffers: &[&wgpu::Buffer],
+    ) -> wgpu::BindGroup {
+        let entries: Vec<wgpu::BindGroupEntry<'_>> = buffers
+            .iter()
+            .enumerate()
+            .map(|(i, b)| wgpu::BindGroupEntry {
+                binding: i as u32,
+                resource: b.as_entire_binding(),
+            })
+            .collect();
+        self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(label),
+            layout: &pipeline.get_bind_group_layout(0),
+            entries: &entries,
+        })
     }
 
     pub fn pipeline(&self, module: &wgpu::ShaderModule, entry: &str) -> wgpu::ComputePipeline {
@@ -381,10 +404,7 @@ impl Frame {
         let mut fallbacks = 0;
         for (i, (o, d)) in origins.iter().zip(dirs).enumerate() {
             let w = &self.words[i * OUT_WORDS..(i + 1) * OUT_WORDS];
-            let Some(frame) = RayFrame::new(o, d) else {
-                out.push(NodeHits::default());
-                continue;
-            };
+            let ray = WatertightRay::new(*o, *d);
             let mut hits = NodeHits::default();
             let mut brute: Option<NodeHits> = None;
             for side in 0..2 {
@@ -396,14 +416,14 @@ impl Frame {
                     }
                     let [a, b, c] =
                         self.triangles[tri as usize].map(|k| &self.positions[k as usize]);
-                    if let Some((t, u, v)) = exact::intersect_frame(&frame, a, b, c) {
-                        exact::keep_nearest(
+                    if let Some(h) = ray.intersect(a, b, c) {
+                        keep_nearest(
                             &mut best,
                             Hit {
                                 triangle: tri,
-                                t,
-                                u,
-                                v,
+                                t: h.t,
+                                u: h.u,
+                                v: h.v,
                             },
                         );
                     }
@@ -417,7 +437,13 @@ impl Frame {
                 } else {
                     fallbacks += 1;
                     let all = brute.get_or_insert_with(|| {
-                        exact::cast_ray(&self.triangles, &self.positions, o, d)
+                        cast_line(
+                            &self.triangles,
+                            &self.positions,
+                            RayTest::Watertight,
+                            *o,
+                            *d,
+                        )
                     });
                     if side == 0 { all.behind } else { all.front }
                 };
@@ -432,6 +458,26 @@ impl Frame {
         self.fallbacks += fallbacks;
     }
 
+    /// Answers every ray after a kernel run: the f64 decision over the
+    /// candidates, or, when the run failed (logged, naming `kernel`), the CPU
+    /// reference on the host.
+    pub fn answer(
+        &mut self,
+        run: Result<(), String>,
+        kernel: &str,
+        origins: &[Point3<f64>],
+        dirs: &[Vector3<f64>],
+        out: &mut Vec<NodeHits>,
+    ) {
+        match run {
+            Ok(()) => self.decide(origins, dirs, out),
+            Err(e) => {
+                tracing::error!(error = %e, kernel, "GPU kernel failed, answering on the host");
+                self.decide_on_host(origins, dirs, out);
+            }
+        }
+    }
+
     /// Answers every ray with the f64 brute force (used when the device failed).
     pub fn decide_on_host(
         &mut self,
@@ -439,7 +485,16 @@ impl Frame {
         dirs: &[Vector3<f64>],
         out: &mut Vec<NodeHits>,
     ) {
-        exact::cast_brute(&self.triangles, &self.positions, origins, dirs, out);
+        out.clear();
+        out.extend(origins.iter().zip(dirs).map(|(o, d)| {
+            cast_line(
+                &self.triangles,
+                &self.positions,
+                RayTest::Watertight,
+                *o,
+                *d,
+            )
+        }));
         self.fallbacks += 2 * origins.len() as u64;
     }
 }
