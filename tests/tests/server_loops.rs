@@ -62,6 +62,8 @@ async fn paced(
 async fn force_loop_never_waits_for_a_slow_deformation_step() -> anyhow::Result<()> {
     let (mut scene, _) = Scene::load("cube")?;
     scene.solver.strategy = Strategy::NeoHookean;
+    // A tight tolerance keeps the steps slow (several Newton iterations).
+    scene.solver.tolerance = 1e-10;
     scene.model = ModelSpec::Cube {
         size_m: 0.04,
         cells: 12,
@@ -79,11 +81,11 @@ async fn force_loop_never_waits_for_a_slow_deformation_step() -> anyhow::Result<
     server.stop().await?;
 
     let step = stats.deformation_step.expect("step latency");
-    // The premise: steps much slower than the haptic period (the longest
+    // The premise: steps much slower (over 50x) than the 1 ms haptic period (the longest
     // decides; steps whose contact barely changed converge faster).
     let slow_us = step.max_us;
     assert!(
-        step.count >= 1 && slow_us > 300_000.0,
+        step.count >= 1 && slow_us > 50_000.0,
         "deformation steps are not slow: {step:?}"
     );
     // Every pose answered, in order, none rejected.
