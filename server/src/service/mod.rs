@@ -4,6 +4,12 @@
 //! (health reports `NOT_SERVING` until then). Each haptic stream gets its own
 //! OS thread for its force loop: a 1 kHz loop should not share a scheduler
 //! with watchers' serialisation work.
+//!
+//! Shutdown ([`RunningServer::shutdown`]) ends every open stream first (haptic
+//! and watch streams end with `UNAVAILABLE`, "the server is shutting down"),
+//! so that the graceful HTTP/2 shutdown does not wait on clients that keep
+//! their streams open; connections still open after [`SHUTDOWN_GRACE`] are
+//! dropped.
 
 pub mod convert;
 
@@ -15,6 +21,7 @@ use futures::{Stream, StreamExt};
 use std::net::SocketAddr;
 use std::pin::Pin;
 use std::sync::{Arc, OnceLock};
+use std::time::Duration;
 use tokio_stream::wrappers::{ReceiverStream, WatchStream};
 use tonic::{Request, Response, Status, Streaming};
 
@@ -23,6 +30,10 @@ pub const MAX_DECODING_MESSAGE_BYTES: usize = 64 * 1024;
 
 /// Largest message sent, bytes (a frame of a 16k-vertex surface is ~200 kB).
 pub const MAX_ENCODING_MESSAGE_BYTES: usize = 16 * 1024 * 1024;
+
+/// Longest wait, after the streams are ended, for connections to close at
+/// shutdown before they are dropped.
+pub const SHUTDOWN_GRACE: Duration = Duration::from_secs(5);
 
 /// How clients must authenticate and where the server listens.
 #[derive(Debug, Clone, Default)]
@@ -38,6 +49,12 @@ pub struct ServeOptions {
 pub struct FissureService {
     sim: Arc<OnceLock<Arc<Simulation>>>,
     token: Option<Arc<str>>,
+    /// Becomes true when the server shuts down; open streams end then.
+    stopping: tokio::sync::watch::Sender<bool>,
+}
+
+fn shutting_down() -> Status {
+    Status::unavailable("the server is shutting down")
 }
 
 impl FissureService {
@@ -46,7 +63,14 @@ impl FissureService {
         Self {
             sim: Arc::new(OnceLock::new()),
             token: token.map(Into::into),
+            stopping: tokio::sync::watch::Sender::new(false),
         }
+    }
+
+    /// Ends every open haptic and watch stream (with `UNAVAILABLE`) and makes
+    /// new ones fail the same way.
+    pub fn stop_streams(&self) {
+        self.stopping.send_replace(true);
     }
 
     /// Makes the loaded simulation available to clients.
@@ -122,6 +146,9 @@ impl Fissure for FissureService {
     ) -> Result<Response<Self::HapticStream>, Status> {
         let sim = self.sim()?.clone();
         self.check_token(&req)?;
+        if *self.stopping.borrow() {
+            return Err(shutting_down());
+        }
         let name = req
             .metadata()
             .get(INSTRUMENT_METADATA_KEY)
@@ -143,16 +170,30 @@ impl Fissure for FissureService {
         let mut inbound = req.into_inner();
         let (tx, rx) = tokio::sync::mpsc::channel::<Result<pb::ForceSample, Status>>(64);
         let runtime = tokio::runtime::Handle::current();
+        let mut stopping = self.stopping.subscribe();
         std::thread::Builder::new()
             .name(format!("force-loop-{name}"))
             .spawn(move || {
                 // The claim lives on this thread and is released when it ends.
                 loop {
-                    let msg = match runtime.block_on(inbound.message()) {
-                        Ok(Some(m)) => m,
-                        Ok(None) => break,
-                        Err(status) => {
+                    let next = runtime.block_on(async {
+                        tokio::select! {
+                            m = inbound.message() => Some(m),
+                            _ = stopping.wait_for(|s| *s) => None,
+                        }
+                    });
+                    let msg = match next {
+                        Some(Ok(Some(m))) => m,
+                        Some(Ok(None)) => break,
+                        Some(Err(status)) => {
+                            // E.g. a message over the size limit: the client
+                            // gets the status, the claim is released.
                             tracing::debug!(instrument = %name, %status, "haptic stream ended with an error");
+                            let _ = tx.blocking_send(Err(status));
+                            break;
+                        }
+                        None => {
+                            let _ = tx.try_send(Err(shutting_down()));
                             break;
                         }
                     };
@@ -187,15 +228,24 @@ impl Fissure for FissureService {
         req: Request<pb::WatchRequest>,
     ) -> Result<Response<Self::WatchStream>, Status> {
         let sim = self.sim()?;
+        if *self.stopping.borrow() {
+            return Err(shutting_down());
+        }
         let include = req.get_ref().include_positions;
         let guard = sim
             .watch()
             .ok_or_else(|| Status::resource_exhausted("the server's watcher limit is reached"))?;
         let rx = guard.rx.clone();
-        let stream = WatchStream::new(rx).map(move |frame| {
-            let _keep = &guard;
-            Ok(convert::frame(&frame, include))
-        });
+        let mut stopping = self.stopping.subscribe();
+        let stream = WatchStream::new(rx)
+            .map(move |frame| {
+                let _keep = &guard;
+                Ok(convert::frame(&frame, include))
+            })
+            .take_until(async move {
+                let _ = stopping.wait_for(|s| *s).await;
+            })
+            .chain(futures::stream::once(async { Err(shutting_down()) }));
         Ok(Response::new(Box::pin(stream)))
     }
 
@@ -228,12 +278,23 @@ impl RunningServer {
             .await;
     }
 
-    /// Stops accepting calls, waits for the server task to end.
+    /// Ends the open streams, stops accepting calls and waits (at most
+    /// [`SHUTDOWN_GRACE`]) for the connections to close; then drops them.
     pub async fn shutdown(mut self) -> anyhow::Result<()> {
+        self.service.stop_streams();
         if let Some(tx) = self.shutdown.take() {
             let _ = tx.send(());
         }
-        self.task.await??;
+        match tokio::time::timeout(SHUTDOWN_GRACE, &mut self.task).await {
+            Ok(joined) => joined??,
+            Err(_) => {
+                tracing::warn!(
+                    "connections still open {} s after shutdown; dropping them",
+                    SHUTDOWN_GRACE.as_secs()
+                );
+                self.task.abort();
+            }
+        }
         Ok(())
     }
 }
