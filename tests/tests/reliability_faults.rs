@@ -91,11 +91,13 @@ async fn killed_client_releases_its_instrument_and_the_tissue_relaxes() -> anyho
     server.stop().await
 }
 
-/// Sixteen watchers that never read, each on its own connection, while the
-/// tissue is pushed for 4 s on a 16-cell cube (~19 kB a frame, ~50 frames a
-/// second): process memory grows by less than 20 MiB (a queue per watcher
-/// would hold 16 x 200 x 19 kB = 61 MB), and a watcher that reads gets the
-/// frames at the loop's rate.
+/// Sixteen watchers that never read, each on its own connection (64 KiB
+/// receive windows, so that what they do not read stays on the server side),
+/// while the tissue is pushed for 4 s on a 16-cell cube (~19 kB a frame, ~50
+/// frames a second): process memory grows by less than 20 MiB (a queue per
+/// watcher would hold 16 x 200 x 19 kB = 61 MB), the haptic client misses no
+/// sample, and a watcher that reads keeps getting frames (latest-wins: at
+/// least one in five on this loaded 2-core machine).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn watchers_that_never_read_do_not_grow_memory() -> anyhow::Result<()> {
     let scene = cube_scene(&[("cells = 8", "cells = 16")]);
@@ -106,7 +108,7 @@ async fn watchers_that_never_read_do_not_grow_memory() -> anyhow::Result<()> {
     let server = TestServer::start_scene(scene, options, ServeOptions::default()).await?;
     let mut stalled = Vec::new();
     for _ in 0..16 {
-        let mut c = own_connection(&server.url).await?;
+        let mut c = small_window_connection(&server.url).await?;
         let s = c
             .watch(pb::WatchRequest {
                 include_positions: true,
@@ -135,6 +137,8 @@ async fn watchers_that_never_read_do_not_grow_memory() -> anyhow::Result<()> {
         }
         frames
     });
+    let sim = server.sim.clone();
+    assert!(eventually(Duration::from_secs(2), || sim.stats().watchers == 17).await);
     let mut haptic_client = own_connection(&server.url).await?;
     // Warm-up: the first second of pushing fills the buffers once.
     let warm = pipelined(
@@ -151,6 +155,7 @@ async fn watchers_that_never_read_do_not_grow_memory() -> anyhow::Result<()> {
     )
     .await?;
     assert_eq!(warm.missed(), 0);
+    assert!(warm.rejected.is_empty(), "{:?}", warm.rejected);
     let frame0 = server.sim.snapshot().frame;
     let rss0 = rss_bytes();
     let run = pipelined(
@@ -170,6 +175,7 @@ async fn watchers_that_never_read_do_not_grow_memory() -> anyhow::Result<()> {
     let frame1 = server.sim.snapshot().frame;
     assert_eq!(run.missed(), 0, "the haptic client missed samples");
     assert!(run.bad_answers.is_empty(), "{:?}", run.bad_answers);
+    assert!(run.rejected.is_empty(), "{:?}", run.rejected);
     let frames = reading.await?;
     let surface_values = 3 * server.sim.model().rest_surface.len();
     assert!(frames.iter().all(|&(_, n)| n == surface_values));
@@ -187,7 +193,7 @@ async fn watchers_that_never_read_do_not_grow_memory() -> anyhow::Result<()> {
     );
     assert!(published > 50, "only {published} frames in 4 s");
     assert!(
-        seen * 2 >= published,
+        seen * 5 >= published,
         "the reading watcher saw {seen} of {published} frames"
     );
     assert!(
@@ -195,7 +201,6 @@ async fn watchers_that_never_read_do_not_grow_memory() -> anyhow::Result<()> {
         "RSS grew {} MiB with stalled watchers",
         (rss1 - rss0) >> 20
     );
-    assert_eq!(server.sim.stats().watchers, 17);
     drop(stalled);
     server.stop().await
 }
@@ -332,7 +337,10 @@ fn wait_line(rx: &std::sync::mpsc::Receiver<String>, needle: &str, limit: Durati
             Err(_) => break,
         }
     }
-    panic!("no line with {needle:?} within {limit:?}; got:\n{}", seen.join("\n"));
+    panic!(
+        "no line with {needle:?} within {limit:?}; got:\n{}",
+        seen.join("\n")
+    );
 }
 
 /// SIGTERM while a client streams poses and a watcher is connected: the

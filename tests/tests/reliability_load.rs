@@ -141,8 +141,20 @@ async fn load(seconds: u64, rss_growth_limit: u64) -> anyhow::Result<()> {
     let mut all_rtt = Vec::new();
     for (k, r) in reports.iter().enumerate() {
         assert_eq!(r.sent, count, "{}: only {} poses sent", names[k], r.sent);
-        assert_eq!(r.missed(), 0, "{}: {} poses unanswered", names[k], r.missed());
-        assert!(r.bad_answers.is_empty(), "{}: {:?}", names[k], r.bad_answers);
+        assert_eq!(
+            r.missed(),
+            0,
+            "{}: {} poses unanswered",
+            names[k],
+            r.missed()
+        );
+        assert!(
+            r.bad_answers.is_empty(),
+            "{}: {:?}",
+            names[k],
+            r.bad_answers
+        );
+        assert!(r.rejected.is_empty(), "{}: {:?}", names[k], r.rejected);
         all_rtt.extend_from_slice(&r.round_trip_us);
     }
     let p50 = quantile(&mut all_rtt, 0.50);

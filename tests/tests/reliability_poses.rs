@@ -66,7 +66,10 @@ async fn invalid_values_are_rejected_and_change_nothing() -> anyhow::Result<()> 
     let bad: Vec<(&str, pb::PoseSample)> = vec![
         ("position_m.x", pose(0.001, 2, [nan, p[1], p[2]], FLAT_DOWN)),
         ("position_m.y", pose(0.001, 3, [p[0], inf, p[2]], FLAT_DOWN)),
-        ("position_m.z", pose(0.001, 4, [p[0], p[1], -inf], FLAT_DOWN)),
+        (
+            "position_m.z",
+            pose(0.001, 4, [p[0], p[1], -inf], FLAT_DOWN),
+        ),
         ("t_s", pose(nan, 5, p, FLAT_DOWN)),
         ("t_s", pose(inf, 6, p, FLAT_DOWN)),
         ("orientation.w", pose(0.001, 7, p, [nan, 0.0, 0.0, 0.0])),
@@ -92,7 +95,10 @@ async fn invalid_values_are_rejected_and_change_nothing() -> anyhow::Result<()> 
             },
         ),
         // A pose far into the tissue with a NaN: nothing of it is applied.
-        ("orientation.x", pose(0.001, 15, [p[0], p[1], 0.02], [0.5, nan, 0.5, 0.5])),
+        (
+            "orientation.x",
+            pose(0.001, 15, [p[0], p[1], 0.02], [0.5, nan, 0.5, 0.5]),
+        ),
     ];
     for (field, msg) in &bad {
         let answer = haptic.send(msg.clone()).await?;
@@ -120,7 +126,11 @@ async fn invalid_values_are_rejected_and_change_nothing() -> anyhow::Result<()> 
         "left is at {pos:?}, not the accepted pose"
     );
     assert!(frame.positions_m.iter().all(|v| v.is_finite()));
-    assert!(frame.max_displacement_m < 1e-9, "{}", frame.max_displacement_m);
+    assert!(
+        frame.max_displacement_m < 1e-9,
+        "{}",
+        frame.max_displacement_m
+    );
 
     // Within the tolerance (norm 1.0005) is accepted and normalised.
     let near_unit = [0.5 * 1.0005, -0.5 * 1.0005, 0.5 * 1.0005, 0.5 * 1.0005];
@@ -214,55 +224,105 @@ async fn one_metre_jump_is_flagged_and_the_simulation_stays_finite() -> anyhow::
     ] {
         let s = haptic.send(next(x, z)).await?;
         assert!(s.rejection.is_none(), "{s:?}");
-        assert_ne!(s.safety_flags & flags::POSE_JUMP, 0, "jump not flagged: {s:?}");
+        assert_ne!(
+            s.safety_flags & flags::POSE_JUMP,
+            0,
+            "jump not flagged: {s:?}"
+        );
         let f = force_of(&s);
         let norm = f.iter().map(|v| v * v).sum::<f64>().sqrt();
-        assert!(norm.is_finite() && norm <= max_force * (1.0 + 1e-12), "{s:?}");
+        assert!(
+            norm.is_finite() && norm <= max_force * (1.0 + 1e-12),
+            "{s:?}"
+        );
         jumps.push(s);
         // Let a deformation step see each pose.
         tokio::time::sleep(Duration::from_millis(60)).await;
     }
     assert_eq!(jumps[0].contact_count, 0, "1 m away there is no contact");
-    // Frames stay finite while the instrument sits at depth after the jumps.
+    // A jump into the tissue cannot be followed by the contact history (its
+    // travel is far above the plate thickness): the far face may pair with
+    // the fixed bottom and the deformation step fail. Whatever the steps did,
+    // frames stay finite and a failed step keeps the last good state.
     let mut watch = client
         .watch(pb::WatchRequest {
             include_positions: true,
         })
         .await?
         .into_inner();
+    let mut failed_frames = 0;
     for _ in 0..5 {
         let s = haptic.send(next(LEFT_X, TOUCH_Z - depth)).await?;
         assert_eq!(s.safety_flags & flags::POSE_JUMP, 0);
         assert!(force_of(&s).iter().all(|v| v.is_finite()));
         let f = next_frame(&mut watch).await?;
-        assert!(f.positions_m.iter().all(|v| v.is_finite()), "frame {}", f.frame);
+        assert!(
+            f.positions_m.iter().all(|v| v.is_finite()),
+            "frame {}",
+            f.frame
+        );
         assert!(f.max_displacement_m.is_finite() && f.max_displacement_m < 0.04);
-        assert!(f.solver_error.is_empty(), "{}", f.solver_error);
+        if !f.solver_error.is_empty() {
+            failed_frames += 1;
+            assert_ne!(s.safety_flags & flags::SOLVER_FAILED, 0);
+        }
+        tokio::time::sleep(Duration::from_millis(30)).await;
     }
-    // Released, the instrument goes home and the tissue relaxes to rest.
+    // Out of the tissue slowly; released, the instrument goes home and the
+    // tissue relaxes to rest with successful steps.
+    for i in 0..=100 {
+        let z = TOUCH_Z - depth + 0.00005 * i as f64;
+        haptic.send(next(LEFT_X, z)).await?;
+        tokio::time::sleep(Duration::from_millis(1)).await;
+    }
     haptic.close().await;
     let mut relaxed = false;
     for _ in 0..100 {
         let f = next_frame(&mut watch).await?;
-        if f.max_displacement_m < 1e-9 {
+        if f.max_displacement_m < 1e-9 && f.solver_error.is_empty() {
             relaxed = true;
             break;
         }
     }
+    eprintln!("one-metre jumps: {failed_frames} of 5 frames at depth after them had a failed step");
     assert!(relaxed, "the tissue did not return to rest");
     server.stop().await
 }
 
-/// One client floods 10,000 poses at 10 kHz while the other streams at 1 kHz:
-/// every pose of both is answered once, in order; the 1 kHz client keeps a
-/// bounded round trip; process memory stays flat.
+/// One client floods 10,000 poses at 10 kHz while the other streams at 1 kHz.
+/// Every pose of both is answered once, in order. The flood is served at the
+/// stream rate limit (2 kHz sustained after a 0.1 s burst) and the poses
+/// above it are answered at once with RESOURCE_EXHAUSTED; the 1 kHz client
+/// gets no rejection and its round trip stays close to what it is without the
+/// flood (measured first, side by side); process memory stays flat.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_10_khz_flood_is_answered_in_order_without_starving_the_other_client()
--> anyhow::Result<()> {
+async fn a_10_khz_flood_is_rate_limited_and_does_not_starve_the_other_client() -> anyhow::Result<()>
+{
+    const RESOURCE_EXHAUSTED: i32 = 8;
     let server = TestServer::start("cube", SimOptions::default(), ServeOptions::default()).await?;
     let mut flood_client = own_connection(&server.url).await?;
     let mut paced_client = own_connection(&server.url).await?;
+    let paced_pose = |offset: u64| {
+        move |i: u64| {
+            let t = (i + offset) as f64 * 1e-3;
+            flat_pose(t, i + 1 + offset, RIGHT_X, TOUCH_Z - push_depth(t, 0.002))
+        }
+    };
+    // Baseline: the 1 kHz client alone.
+    let alone = pipelined(
+        &mut paced_client,
+        "right",
+        1000,
+        1000.0,
+        1,
+        paced_pose(0),
+        Duration::from_secs(10),
+    )
+    .await?;
+    assert_eq!(alone.missed(), 0);
+    let p99_alone = quantile(&mut alone.round_trip_us.clone(), 0.99);
     let rss0 = rss_bytes();
+    let started = std::time::Instant::now();
     let flood = tokio::spawn(async move {
         // 10 poses every 1 ms tick: 10 kHz.
         pipelined(
@@ -285,37 +345,59 @@ async fn a_10_khz_flood_is_answered_in_order_without_starving_the_other_client()
         1000,
         1000.0,
         1,
-        |i| {
-            let t = i as f64 * 1e-3;
-            flat_pose(t, i + 1, RIGHT_X, TOUCH_Z - push_depth(t, 0.002))
-        },
+        paced_pose(1000),
         Duration::from_secs(10),
     )
     .await?;
     let flood = flood.await??;
+    let flood_s = started.elapsed().as_secs_f64();
     let rss1 = rss_bytes();
     assert_eq!(flood.sent, 10_000);
-    assert_eq!(flood.missed(), 0, "flood: {} poses unanswered", flood.missed());
+    assert_eq!(
+        flood.missed(),
+        0,
+        "flood: {} poses unanswered",
+        flood.missed()
+    );
     assert!(flood.bad_answers.is_empty(), "{:?}", &flood.bad_answers[..]);
+    assert!(
+        flood
+            .rejected
+            .iter()
+            .all(|(_, code, m)| *code == RESOURCE_EXHAUSTED && m.contains("pose rate above")),
+        "{:?}",
+        flood.rejected.first()
+    );
+    let served = flood.sent - flood.rejected.len() as u64;
+    // At most the sustained rate over the run plus the burst (2000 / s, 200).
+    assert!(
+        (served as f64) <= 2000.0 * flood_s + 200.0 + 1.0,
+        "{served} flood poses served in {flood_s:.2} s"
+    );
+    assert!(served >= 200, "the flood was not served at all ({served})");
     assert_eq!(paced.sent, 1000);
     assert_eq!(paced.missed(), 0, "paced: {} unanswered", paced.missed());
     assert!(paced.bad_answers.is_empty(), "{:?}", &paced.bad_answers[..]);
+    assert!(paced.rejected.is_empty(), "{:?}", paced.rejected.first());
     assert!(
         paced.answers.iter().any(|a| a.contact_count > 0),
         "the paced client never touched the tissue"
     );
-    let mut rtt = paced.round_trip_us.clone();
-    let p99 = quantile(&mut rtt, 0.99);
-    let flood_rtt = quantile(&mut flood.round_trip_us.clone(), 0.99);
+    let p99 = quantile(&mut paced.round_trip_us.clone(), 0.99);
     eprintln!(
-        "flood: 10000 poses answered; paced 1 kHz client p99 round trip {p99:.0} us; \
-         flood p99 {flood_rtt:.0} us; RSS {:.1} -> {:.1} MiB",
+        "flood: 10000 poses at 10 kHz answered in {flood_s:.2} s, {served} served, {} \
+         rejected (RESOURCE_EXHAUSTED); 1 kHz client p99 round trip {p99_alone:.0} us alone, \
+         {p99:.0} us beside the flood; RSS {:.1} -> {:.1} MiB",
+        flood.rejected.len(),
         rss0 as f64 / 1048576.0,
         rss1 as f64 / 1048576.0
     );
-    // Not starved: 99% of the paced client's answers within 50 ms (its own
-    // clients sees ~1 ms on an idle machine; the bound absorbs a loaded one).
-    assert!(p99 < 50_000.0, "paced p99 round trip {p99:.0} us");
+    // Not starved: beside the flood, the p99 round trip stays within 4 times
+    // the one measured alone plus 20 ms (a loaded 2-core machine is noisy).
+    assert!(
+        p99 < 4.0 * p99_alone + 20_000.0,
+        "paced p99 round trip {p99:.0} us beside the flood, {p99_alone:.0} us alone"
+    );
     assert!(
         rss1 < rss0 + 64 * 1024 * 1024,
         "RSS grew {} MiB",

@@ -60,8 +60,8 @@ impl<T: Message + Default + Send + 'static> Codec for RawCodec<T> {
 /// A pose message padded with an unknown length-delimited field (number 15)
 /// to `total` bytes. Decoders skip unknown fields, so only the size matters.
 fn padded_pose(sequence: u64, total: usize) -> Vec<u8> {
-    let mut buf = flat_pose(sequence as f64 * 1e-3, sequence, LEFT_X, TOUCH_Z + 0.001)
-        .encode_to_vec();
+    let mut buf =
+        flat_pose(sequence as f64 * 1e-3, sequence, LEFT_X, TOUCH_Z + 0.001).encode_to_vec();
     // Key (1 byte) + length varint (3 bytes for 16 KiB..2 MiB) + padding.
     let pad = total - buf.len() - 1 - 3;
     prost::encoding::encode_key(15, prost::encoding::WireType::LengthDelimited, &mut buf);

@@ -35,6 +35,54 @@ pub const MAX_ENCODING_MESSAGE_BYTES: usize = 16 * 1024 * 1024;
 /// shutdown before they are dropped.
 pub const SHUTDOWN_GRACE: Duration = Duration::from_secs(5);
 
+/// Sustained pose rate a haptic stream is served at in free-running mode, as
+/// a multiple of the scene's `loops.haptic_rate_hz` (2 kHz for a 1 kHz scene).
+/// Poses above it are answered at once with a `RESOURCE_EXHAUSTED` rejection
+/// (nothing computed, nothing applied), so a flooding client cannot take more
+/// than its share of the CPU from the other client and the deformation loop.
+/// Stepped mode has no limit: its force loop waits for the deformation loop.
+pub const MAX_POSE_RATE_FACTOR: f64 = 2.0;
+
+/// Burst a haptic stream may send above the sustained rate, seconds of poses
+/// at that rate (absorbs network jitter: 200 poses at 2 kHz).
+pub const POSE_BURST_S: f64 = 0.1;
+
+/// A token bucket over wall-clock time: `rate` poses a second sustained,
+/// `rate * POSE_BURST_S` at once.
+#[derive(Debug)]
+struct PoseBudget {
+    rate_hz: f64,
+    tokens: f64,
+    capacity: f64,
+    last: std::time::Instant,
+}
+
+impl PoseBudget {
+    fn new(rate_hz: f64) -> Self {
+        let capacity = (rate_hz * POSE_BURST_S).max(1.0);
+        Self {
+            rate_hz,
+            tokens: capacity,
+            capacity,
+            last: std::time::Instant::now(),
+        }
+    }
+
+    /// Takes one pose from the budget; false when the stream is over its rate.
+    fn take(&mut self) -> bool {
+        let now = std::time::Instant::now();
+        let dt = now.duration_since(self.last).as_secs_f64();
+        self.last = now;
+        self.tokens = (self.tokens + dt * self.rate_hz).min(self.capacity);
+        if self.tokens >= 1.0 {
+            self.tokens -= 1.0;
+            true
+        } else {
+            false
+        }
+    }
+}
+
 /// How clients must authenticate and where the server listens.
 #[derive(Debug, Clone, Default)]
 pub struct ServeOptions {
@@ -171,6 +219,8 @@ impl Fissure for FissureService {
         let (tx, rx) = tokio::sync::mpsc::channel::<Result<pb::ForceSample, Status>>(64);
         let runtime = tokio::runtime::Handle::current();
         let mut stopping = self.stopping.subscribe();
+        let mut budget = (!sim.is_stepped())
+            .then(|| PoseBudget::new(MAX_POSE_RATE_FACTOR * sim.scene().loops.haptic_rate_hz));
         std::thread::Builder::new()
             .name(format!("force-loop-{name}"))
             .spawn(move || {
@@ -197,7 +247,27 @@ impl Fissure for FissureService {
                             break;
                         }
                     };
-                    let reply = match convert::raw_pose(&msg).and_then(|raw| claim.force_sample(&raw)) {
+                    let over_rate = budget.as_mut().is_some_and(|b| !b.take());
+                    if let Some(b) = budget.as_ref().filter(|_| over_rate) {
+                        sim.record_rejection();
+                        let reply = convert::rejection(
+                            &msg,
+                            tonic::Code::ResourceExhausted,
+                            format!(
+                                "pose rate above {:.0} Hz: pose not applied",
+                                b.rate_hz
+                            ),
+                        );
+                        if tx.blocking_send(Ok(reply)).is_err() {
+                            break;
+                        }
+                        continue;
+                    }
+                    let raw = convert::raw_pose(&msg);
+                    if raw.is_err() {
+                        sim.record_rejection();
+                    }
+                    let reply = match raw.and_then(|raw| claim.force_sample(&raw)) {
                         Ok(out) => {
                             let sample = convert::force_sample(&out);
                             if let Some(rec) = sim.recorder() {

@@ -55,6 +55,19 @@ pub async fn own_connection(url: &str) -> anyhow::Result<FissureClient<Channel>>
     fissure_cli::replay::connect(url).await
 }
 
+/// A client on its own connection whose HTTP/2 receive windows are the
+/// protocol's minimum default (64 KiB): what it does not read stays in the
+/// server (the default client windows, 2 MiB a stream and 5 MiB a connection
+/// in hyper, would let the client itself buffer that much).
+pub async fn small_window_connection(url: &str) -> anyhow::Result<FissureClient<Channel>> {
+    let channel = Channel::from_shared(url.to_owned())?
+        .initial_stream_window_size(Some(65_535))
+        .initial_connection_window_size(Some(65_535))
+        .connect()
+        .await?;
+    Ok(FissureClient::new(channel))
+}
+
 /// The `q`-quantile (0..=1) of `values` (sorted in place), nearest rank.
 pub fn quantile(values: &mut [f64], q: f64) -> f64 {
     assert!(!values.is_empty(), "no values");
@@ -72,8 +85,10 @@ pub struct StreamReport {
     pub answers: Vec<pb::ForceSample>,
     /// Round trip of each answer (send to receive), microseconds.
     pub round_trip_us: Vec<f64>,
-    /// Answers out of order, with a rejection, or with a non-finite force.
+    /// Answers out of order or with a non-finite force.
     pub bad_answers: Vec<String>,
+    /// Rejected poses: sequence, status code, message.
+    pub rejected: Vec<(u64, i32, String)>,
 }
 
 impl StreamReport {
@@ -85,7 +100,8 @@ impl StreamReport {
 
 /// Streams `count` poses from `pose_at(i)` at `rate_hz` (a tick per
 /// `1 / rate_hz`, `per_tick` poses a tick, late ticks caught up), without
-/// waiting for answers, and reads every answer. Sequence numbers are `i + 1`.
+/// waiting for answers, and reads every answer; the k-th answer must carry
+/// the k-th pose's sequence number.
 /// Returns after the last answer or `timeout` after the last send.
 pub async fn pipelined(
     client: &mut FissureClient<Channel>,
@@ -103,7 +119,9 @@ pub async fn pipelined(
         None,
     )?;
     let mut inbound = client.haptic(req).await?.into_inner();
-    let sent_at = Arc::new(Mutex::new(Vec::<Instant>::with_capacity(count as usize)));
+    let sent_at = Arc::new(Mutex::new(Vec::<(Instant, u64)>::with_capacity(
+        count as usize,
+    )));
     let sent_at_w = sent_at.clone();
     let sender = tokio::spawn(async move {
         let mut tick = tokio::time::interval(Duration::from_secs_f64(1.0 / rate_hz));
@@ -113,7 +131,10 @@ pub async fn pipelined(
             tick.tick().await;
             for _ in 0..per_tick.min(count - i) {
                 let p = pose_at(i);
-                sent_at_w.lock().expect("sent_at").push(Instant::now());
+                sent_at_w
+                    .lock()
+                    .expect("sent_at")
+                    .push((Instant::now(), p.sequence));
                 if tx.send(p).await.is_err() {
                     return (i, tx);
                 }
@@ -142,22 +163,23 @@ pub async fn pipelined(
         match tokio::time::timeout(wait, inbound.message()).await {
             Ok(Ok(Some(answer))) => {
                 let k = report.answers.len();
-                let rtt = sent_at.lock().expect("sent_at")[k].elapsed();
-                report.round_trip_us.push(rtt.as_secs_f64() * 1e6);
-                if answer.sequence != k as u64 + 1 {
+                let (at, expected) = sent_at.lock().expect("sent_at")[k];
+                report.round_trip_us.push(at.elapsed().as_secs_f64() * 1e6);
+                if answer.sequence != expected && report.bad_answers.len() < 10 {
                     report.bad_answers.push(format!(
-                        "answer {k} has sequence {}, expected {}",
-                        answer.sequence,
-                        k + 1
+                        "answer {k} has sequence {}, expected {expected}",
+                        answer.sequence
                     ));
                 }
                 if let Some(r) = &answer.rejection {
                     report
-                        .bad_answers
-                        .push(format!("pose {} rejected: {}", answer.sequence, r.message));
+                        .rejected
+                        .push((answer.sequence, r.code, r.message.clone()));
                 }
                 let f = answer.force_n.clone().unwrap_or_default();
-                if !(f.x.is_finite() && f.y.is_finite() && f.z.is_finite()) {
+                if !(f.x.is_finite() && f.y.is_finite() && f.z.is_finite())
+                    && report.bad_answers.len() < 10
+                {
                     report
                         .bad_answers
                         .push(format!("pose {}: non-finite force {f:?}", answer.sequence));
@@ -175,7 +197,13 @@ pub async fn pipelined(
         report.sent = sent;
         keep_open = Some(tx);
     }
+    // Close the stream and wait for the server to end it (the claim is
+    // released then).
     drop(keep_open);
+    let _ = tokio::time::timeout(Duration::from_secs(5), async {
+        while let Ok(Some(_)) = inbound.message().await {}
+    })
+    .await;
     Ok(report)
 }
 
