@@ -290,9 +290,11 @@ async fn one_metre_jump_is_flagged_and_the_simulation_stays_finite() -> anyhow::
 }
 
 /// One client floods 10,000 poses at 10 kHz while the other streams at 1 kHz.
-/// Every pose of both is answered once, in order. The flood is served at the
-/// stream rate limit (2 kHz sustained after a 0.1 s burst) and the poses
-/// above it are answered at once with RESOURCE_EXHAUSTED; the 1 kHz client
+/// Every pose of both is answered once, in order. The flood is served at
+/// most at the stream rate limit (2 kHz sustained after a burst of 2000) and
+/// the poses above it are answered at once with RESOURCE_EXHAUSTED (where
+/// the machine serves it more slowly than that, nothing is refused and the
+/// flood is paced by HTTP/2 flow control instead); the 1 kHz client
 /// gets no rejection and its round trip stays close to what it is without the
 /// flood (measured first, side by side); process memory stays flat.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -369,12 +371,12 @@ async fn a_10_khz_flood_is_rate_limited_and_does_not_starve_the_other_client() -
         flood.rejected.first()
     );
     let served = flood.sent - flood.rejected.len() as u64;
-    // At most the sustained rate over the run plus the burst (2000 / s, 200).
+    // At most the sustained rate over the run plus the burst (2000 / s, 2000).
     assert!(
-        (served as f64) <= 2000.0 * flood_s + 200.0 + 1.0,
+        (served as f64) <= 2000.0 * flood_s + 2000.0 + 1.0,
         "{served} flood poses served in {flood_s:.2} s"
     );
-    assert!(served >= 200, "the flood was not served at all ({served})");
+    assert!(served >= 2000, "the flood was not served ({served})");
     assert_eq!(paced.sent, 1000);
     assert_eq!(paced.missed(), 0, "paced: {} unanswered", paced.missed());
     assert!(paced.bad_answers.is_empty(), "{:?}", &paced.bad_answers[..]);

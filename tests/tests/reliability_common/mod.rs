@@ -242,8 +242,12 @@ pub async fn next_frame(
     }
 }
 
-/// The `fissure-server` binary of this build (built on demand).
+/// The `fissure-server` binary: `FISSURE_SERVER_BIN` if set, else the one
+/// of this build's profile (built on demand).
 pub fn server_binary() -> PathBuf {
+    if let Some(path) = std::env::var_os("FISSURE_SERVER_BIN") {
+        return PathBuf::from(path);
+    }
     let exe = std::env::current_exe().expect("test executable");
     let profile_dir = exe
         .parent()
