@@ -123,7 +123,7 @@ async fn failed_deformation_steps_serve_the_last_good_state() -> anyhow::Result<
         let z = TOUCH_Z + 0.001 - (t * 0.04).min(0.003);
         let s = haptic.send(flat_pose(t, i + 1, LEFT_X, z)).await?;
         assert!(s.rejection.is_none());
-        let f = s.force_n.clone().expect("force");
+        let f = s.force_n.expect("force");
         assert!(f.x.is_finite() && f.y.is_finite() && f.z.is_finite());
         if s.safety_flags & flags::SOLVER_FAILED != 0 {
             flagged += 1;

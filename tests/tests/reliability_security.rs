@@ -115,12 +115,10 @@ async fn messages_over_64_kib_are_refused_and_the_server_keeps_serving() -> anyh
     let a = answers.message().await?.expect("answer to the 60 KiB pose");
     assert!(a.rejection.is_none() && a.sequence == 1, "{a:?}");
     tx.send(padded_pose(2, 65 * 1024)).await?;
-    let status = loop {
-        match answers.message().await {
-            Ok(Some(a)) => panic!("the 65 KiB pose was answered: {a:?}"),
-            Ok(None) => panic!("the stream ended without a status"),
-            Err(s) => break s,
-        }
+    let status = match answers.message().await {
+        Ok(Some(a)) => panic!("the 65 KiB pose was answered: {a:?}"),
+        Ok(None) => panic!("the stream ended without a status"),
+        Err(s) => s,
     };
     assert_size_refusal(&status);
     drop(tx);

@@ -276,7 +276,7 @@ impl Fissure for FissureService {
                         Ok(out) => {
                             let sample = convert::force_sample(&out);
                             if let Some(rec) = sim.recorder() {
-                                rec.pose(&name, msg.clone());
+                                rec.pose(&name, msg);
                                 rec.force(&name, sample.clone());
                             }
                             sample
