@@ -4,6 +4,12 @@
 //! (health reports `NOT_SERVING` until then). Each haptic stream gets its own
 //! OS thread for its force loop: a 1 kHz loop should not share a scheduler
 //! with watchers' serialisation work.
+//!
+//! Shutdown ([`RunningServer::shutdown`]) ends every open stream first (haptic
+//! and watch streams end with `UNAVAILABLE`, "the server is shutting down"),
+//! so that the graceful HTTP/2 shutdown does not wait on clients that keep
+//! their streams open; connections still open after [`SHUTDOWN_GRACE`] are
+//! dropped.
 
 pub mod convert;
 
@@ -15,6 +21,7 @@ use futures::{Stream, StreamExt};
 use std::net::SocketAddr;
 use std::pin::Pin;
 use std::sync::{Arc, OnceLock};
+use std::time::Duration;
 use tokio_stream::wrappers::{ReceiverStream, WatchStream};
 use tonic::{Request, Response, Status, Streaming};
 
@@ -23,6 +30,63 @@ pub const MAX_DECODING_MESSAGE_BYTES: usize = 64 * 1024;
 
 /// Largest message sent, bytes (a frame of a 16k-vertex surface is ~200 kB).
 pub const MAX_ENCODING_MESSAGE_BYTES: usize = 16 * 1024 * 1024;
+
+/// Longest wait, after the streams are ended, for connections to close at
+/// shutdown before they are dropped.
+pub const SHUTDOWN_GRACE: Duration = Duration::from_secs(5);
+
+/// Sustained pose rate a haptic stream is served at in free-running mode, as
+/// a multiple of the scene's `loops.haptic_rate_hz` (2 kHz for a 1 kHz scene).
+/// Poses above it are answered at once with a `RESOURCE_EXHAUSTED` rejection
+/// (nothing computed, nothing applied), so a flooding client cannot take more
+/// than its share of the CPU from the other client and the deformation loop.
+/// Stepped mode has no limit: its force loop waits for the deformation loop.
+pub const MAX_POSE_RATE_FACTOR: f64 = 2.0;
+
+/// Burst a haptic stream may send above the sustained rate, seconds of poses
+/// at that rate (2000 poses at 2 kHz): a 1 kHz client whose poses queued up
+/// during a stall of up to 2 s (network, scheduling) drains its backlog
+/// without a rejection.
+pub const POSE_BURST_S: f64 = 1.0;
+
+/// A token bucket over wall-clock time: `rate` poses a second sustained,
+/// `rate * POSE_BURST_S` at once.
+#[derive(Debug)]
+struct PoseBudget {
+    rate_hz: f64,
+    tokens: f64,
+    capacity: f64,
+    last: std::time::Instant,
+}
+
+impl PoseBudget {
+    fn new(rate_hz: f64) -> Self {
+        let capacity = (rate_hz * POSE_BURST_S).max(1.0);
+        Self {
+            rate_hz,
+            tokens: capacity,
+            capacity,
+            last: std::time::Instant::now(),
+        }
+    }
+
+    /// Takes one pose from the budget; false when the stream is over its rate.
+    fn take(&mut self) -> bool {
+        self.take_at(std::time::Instant::now())
+    }
+
+    fn take_at(&mut self, now: std::time::Instant) -> bool {
+        let dt = now.duration_since(self.last).as_secs_f64();
+        self.last = now;
+        self.tokens = (self.tokens + dt * self.rate_hz).min(self.capacity);
+        if self.tokens >= 1.0 {
+            self.tokens -= 1.0;
+            true
+        } else {
+            false
+        }
+    }
+}
 
 /// How clients must authenticate and where the server listens.
 #[derive(Debug, Clone, Default)]
@@ -38,6 +102,12 @@ pub struct ServeOptions {
 pub struct FissureService {
     sim: Arc<OnceLock<Arc<Simulation>>>,
     token: Option<Arc<str>>,
+    /// Becomes true when the server shuts down; open streams end then.
+    stopping: tokio::sync::watch::Sender<bool>,
+}
+
+fn shutting_down() -> Status {
+    Status::unavailable("the server is shutting down")
 }
 
 impl FissureService {
@@ -46,7 +116,14 @@ impl FissureService {
         Self {
             sim: Arc::new(OnceLock::new()),
             token: token.map(Into::into),
+            stopping: tokio::sync::watch::Sender::new(false),
         }
+    }
+
+    /// Ends every open haptic and watch stream (with `UNAVAILABLE`) and makes
+    /// new ones fail the same way.
+    pub fn stop_streams(&self) {
+        self.stopping.send_replace(true);
     }
 
     /// Makes the loaded simulation available to clients.
@@ -122,6 +199,9 @@ impl Fissure for FissureService {
     ) -> Result<Response<Self::HapticStream>, Status> {
         let sim = self.sim()?.clone();
         self.check_token(&req)?;
+        if *self.stopping.borrow() {
+            return Err(shutting_down());
+        }
         let name = req
             .metadata()
             .get(INSTRUMENT_METADATA_KEY)
@@ -143,20 +223,56 @@ impl Fissure for FissureService {
         let mut inbound = req.into_inner();
         let (tx, rx) = tokio::sync::mpsc::channel::<Result<pb::ForceSample, Status>>(64);
         let runtime = tokio::runtime::Handle::current();
+        let mut stopping = self.stopping.subscribe();
+        let mut budget = (!sim.is_stepped())
+            .then(|| PoseBudget::new(MAX_POSE_RATE_FACTOR * sim.scene().loops.haptic_rate_hz));
         std::thread::Builder::new()
             .name(format!("force-loop-{name}"))
             .spawn(move || {
                 // The claim lives on this thread and is released when it ends.
                 loop {
-                    let msg = match runtime.block_on(inbound.message()) {
-                        Ok(Some(m)) => m,
-                        Ok(None) => break,
-                        Err(status) => {
+                    let next = runtime.block_on(async {
+                        tokio::select! {
+                            m = inbound.message() => Some(m),
+                            _ = stopping.wait_for(|s| *s) => None,
+                        }
+                    });
+                    let msg = match next {
+                        Some(Ok(Some(m))) => m,
+                        Some(Ok(None)) => break,
+                        Some(Err(status)) => {
+                            // E.g. a message over the size limit: the client
+                            // gets the status, the claim is released.
                             tracing::debug!(instrument = %name, %status, "haptic stream ended with an error");
+                            let _ = tx.blocking_send(Err(status));
+                            break;
+                        }
+                        None => {
+                            let _ = tx.try_send(Err(shutting_down()));
                             break;
                         }
                     };
-                    let reply = match convert::raw_pose(&msg).and_then(|raw| claim.force_sample(&raw)) {
+                    let over_rate = budget.as_mut().is_some_and(|b| !b.take());
+                    if let Some(b) = budget.as_ref().filter(|_| over_rate) {
+                        sim.record_rejection();
+                        let reply = convert::rejection(
+                            &msg,
+                            tonic::Code::ResourceExhausted,
+                            format!(
+                                "pose rate above {:.0} Hz: pose not applied",
+                                b.rate_hz
+                            ),
+                        );
+                        if tx.blocking_send(Ok(reply)).is_err() {
+                            break;
+                        }
+                        continue;
+                    }
+                    let raw = convert::raw_pose(&msg);
+                    if raw.is_err() {
+                        sim.record_rejection();
+                    }
+                    let reply = match raw.and_then(|raw| claim.force_sample(&raw)) {
                         Ok(out) => {
                             let sample = convert::force_sample(&out);
                             if let Some(rec) = sim.recorder() {
@@ -187,15 +303,24 @@ impl Fissure for FissureService {
         req: Request<pb::WatchRequest>,
     ) -> Result<Response<Self::WatchStream>, Status> {
         let sim = self.sim()?;
+        if *self.stopping.borrow() {
+            return Err(shutting_down());
+        }
         let include = req.get_ref().include_positions;
         let guard = sim
             .watch()
             .ok_or_else(|| Status::resource_exhausted("the server's watcher limit is reached"))?;
         let rx = guard.rx.clone();
-        let stream = WatchStream::new(rx).map(move |frame| {
-            let _keep = &guard;
-            Ok(convert::frame(&frame, include))
-        });
+        let mut stopping = self.stopping.subscribe();
+        let stream = WatchStream::new(rx)
+            .map(move |frame| {
+                let _keep = &guard;
+                Ok(convert::frame(&frame, include))
+            })
+            .take_until(async move {
+                let _ = stopping.wait_for(|s| *s).await;
+            })
+            .chain(futures::stream::once(async { Err(shutting_down()) }));
         Ok(Response::new(Box::pin(stream)))
     }
 
@@ -228,12 +353,23 @@ impl RunningServer {
             .await;
     }
 
-    /// Stops accepting calls, waits for the server task to end.
+    /// Ends the open streams, stops accepting calls and waits (at most
+    /// [`SHUTDOWN_GRACE`]) for the connections to close; then drops them.
     pub async fn shutdown(mut self) -> anyhow::Result<()> {
+        self.service.stop_streams();
         if let Some(tx) = self.shutdown.take() {
             let _ = tx.send(());
         }
-        self.task.await??;
+        match tokio::time::timeout(SHUTDOWN_GRACE, &mut self.task).await {
+            Ok(joined) => joined??,
+            Err(_) => {
+                tracing::warn!(
+                    "connections still open {} s after shutdown; dropping them",
+                    SHUTDOWN_GRACE.as_secs()
+                );
+                self.task.abort();
+            }
+        }
         Ok(())
     }
 }
@@ -289,4 +425,38 @@ pub async fn serve(addr: SocketAddr, options: ServeOptions) -> anyhow::Result<Ru
         shutdown: Some(tx),
         task,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{POSE_BURST_S, PoseBudget};
+    use std::time::{Duration, Instant};
+
+    /// A flood gets the burst, then the sustained rate; a stream at the rate
+    /// is never refused; a stall refills at most the burst.
+    #[test]
+    fn pose_budget_allows_the_rate_and_the_burst_only() {
+        let rate = 2000.0;
+        let burst = (rate * POSE_BURST_S) as usize;
+        let t0 = Instant::now();
+        let mut b = PoseBudget::new(rate);
+        b.last = t0;
+        // 10 kHz for 2 s: burst + 2 s at 2 kHz served (within one pose).
+        let served = (0..20_000)
+            .filter(|&i| b.take_at(t0 + Duration::from_micros(100 * i)))
+            .count();
+        let expected = burst + 2 * rate as usize;
+        assert!(served.abs_diff(expected) <= 1, "{served} vs {expected}");
+        // At 1 kHz after a 10 s pause: every pose served.
+        let t1 = t0 + Duration::from_secs(12);
+        assert!((0..5_000).all(|i| b.take_at(t1 + Duration::from_millis(i))));
+        // A 1.5 s stall at 1 kHz, then the 1500 queued poses at once: served.
+        let t2 = t1 + Duration::from_millis(5_000 + 1_500);
+        assert!((0..1_500).all(|_| b.take_at(t2)));
+        // The budget is then empty: the next pose at the same instant is not.
+        let mut empty = PoseBudget::new(rate);
+        empty.last = t0;
+        assert!((0..burst).all(|_| empty.take_at(t0)));
+        assert!(!empty.take_at(t0));
+    }
 }

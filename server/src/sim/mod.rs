@@ -381,6 +381,12 @@ impl Simulation {
         }
     }
 
+    /// Counts a pose rejected before it reached a claim (a missing field, a
+    /// stream over its rate), in the stats' `rejected_poses`.
+    pub fn record_rejection(&self) {
+        self.rejected.fetch_add(1, Ordering::Relaxed);
+    }
+
     /// The session recorder, if recording.
     pub fn recorder(&self) -> Option<&recording::Recorder> {
         self.recorder.as_ref()

@@ -1,0 +1,218 @@
+#!/usr/bin/env python3
+"""Writes the seed corpora of the fuzz targets into seeds/<target>/.
+
+Seeds are the tool-written fixtures of server/tests/data, the scenes of
+server/scenes, and small files of every form each reader accepts (a unit cube
+split into five tetrahedra or its twelve boundary triangles), written here by
+the format specifications. Run from server/fuzz: `python3 make_seeds.py`.
+"""
+import os
+import shutil
+import struct
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+DATA = os.path.join(HERE, "..", "tests", "data")
+SCENES = os.path.join(HERE, "..", "scenes")
+SEEDS = os.path.join(HERE, "seeds")
+
+NODES = [(x * 0.01, y * 0.01, z * 0.01) for z in (0, 1) for y in (0, 1) for x in (0, 1)]
+# Five positive tetrahedra of the cube (0-based).
+TETS = [(0, 1, 3, 5), (0, 3, 2, 6), (0, 5, 6, 4), (3, 6, 5, 7), (0, 3, 6, 5)]
+TRIS = [
+    (0, 2, 3), (0, 3, 1), (4, 5, 7), (4, 7, 6), (0, 1, 5), (0, 5, 4),
+    (2, 6, 7), (2, 7, 3), (0, 4, 6), (0, 6, 2), (1, 3, 7), (1, 7, 5),
+]
+
+
+def put(target, name, data):
+    d = os.path.join(SEEDS, target)
+    os.makedirs(d, exist_ok=True)
+    mode = "wb" if isinstance(data, bytes) else "w"
+    with open(os.path.join(d, name), mode) as f:
+        f.write(data)
+
+
+def copy(target, src, name=None):
+    d = os.path.join(SEEDS, target)
+    os.makedirs(d, exist_ok=True)
+    shutil.copy(src, os.path.join(d, name or os.path.basename(src)))
+
+
+def msh22():
+    s = "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n%d\n" % len(NODES)
+    s += "".join("%d %g %g %g\n" % (i + 1, *p) for i, p in enumerate(NODES))
+    s += "$EndNodes\n$Elements\n%d\n" % (len(TETS) + 1)
+    s += "1 15 2 0 1 1\n"
+    s += "".join("%d 4 2 0 1 %d %d %d %d\n" % (i + 2, *(v + 1 for v in t)) for i, t in enumerate(TETS))
+    return s + "$EndElements\n"
+
+
+def msh41():
+    s = "$MeshFormat\n4.1 0 8\n$EndMeshFormat\n"
+    s += "$Nodes\n1 %d 1 %d\n3 1 0 %d\n" % (len(NODES), len(NODES), len(NODES))
+    s += "".join("%d\n" % (i + 1) for i in range(len(NODES)))
+    s += "".join("%g %g %g\n" % p for p in NODES)
+    s += "$EndNodes\n$Elements\n1 %d 1 %d\n3 1 4 %d\n" % (len(TETS), len(TETS), len(TETS))
+    s += "".join("%d %d %d %d %d\n" % (i + 1, *(v + 1 for v in t)) for i, t in enumerate(TETS))
+    return s + "$EndElements\n"
+
+
+def vtk_ascii():
+    s = "# vtk DataFile Version 4.2\nseed\nASCII\nDATASET UNSTRUCTURED_GRID\n"
+    s += "POINTS %d double\n" % len(NODES) + "".join("%g %g %g\n" % p for p in NODES)
+    s += "CELLS %d %d\n" % (len(TETS), 5 * len(TETS)) + "".join("4 %d %d %d %d\n" % t for t in TETS)
+    s += "CELL_TYPES %d\n" % len(TETS) + "10\n" * len(TETS)
+    return s
+
+
+def vtk_binary42():
+    b = b"# vtk DataFile Version 4.2\nseed\nBINARY\nDATASET UNSTRUCTURED_GRID\n"
+    b += b"POINTS %d double\n" % len(NODES) + b"".join(struct.pack(">3d", *p) for p in NODES) + b"\n"
+    b += b"CELLS %d %d\n" % (len(TETS), 5 * len(TETS))
+    b += b"".join(struct.pack(">5i", 4, *t) for t in TETS) + b"\n"
+    b += b"CELL_TYPES %d\n" % len(TETS) + struct.pack(">%di" % len(TETS), *[10] * len(TETS)) + b"\n"
+    return b
+
+
+def vtu_ascii():
+    pts = " ".join("%g %g %g" % p for p in NODES)
+    con = " ".join("%d %d %d %d" % t for t in TETS)
+    off = " ".join(str(4 * (i + 1)) for i in range(len(TETS)))
+    typ = " ".join("10" for _ in TETS)
+    return (
+        '<?xml version="1.0"?>\n<VTKFile type="UnstructuredGrid" version="0.1" byte_order="LittleEndian">\n'
+        '<UnstructuredGrid><Piece NumberOfPoints="%d" NumberOfCells="%d">\n'
+        '<Points><DataArray type="Float64" NumberOfComponents="3" format="ascii">%s</DataArray></Points>\n'
+        '<Cells><DataArray type="Int32" Name="connectivity" format="ascii">%s</DataArray>\n'
+        '<DataArray type="Int32" Name="offsets" format="ascii">%s</DataArray>\n'
+        '<DataArray type="UInt8" Name="types" format="ascii">%s</DataArray></Cells>\n'
+        "</Piece></UnstructuredGrid></VTKFile>\n" % (len(NODES), len(TETS), pts, con, off, typ)
+    )
+
+
+def tetgen():
+    node = "%d 3 0 0\n" % len(NODES) + "".join("%d %g %g %g\n" % (i, *p) for i, p in enumerate(NODES))
+    ele = "%d 4 0\n" % len(TETS) + "".join("%d %d %d %d %d\n" % (i, *t) for i, t in enumerate(TETS))
+    return node.encode() + b"\0" + ele.encode()
+
+
+def obj():
+    return "".join("v %g %g %g\n" % p for p in NODES) + "".join(
+        "f %d %d %d\n" % tuple(v + 1 for v in t) for t in TRIS
+    )
+
+
+def ply_header(fmt):
+    return (
+        "ply\nformat %s 1.0\nelement vertex %d\nproperty float x\nproperty float y\nproperty float z\n"
+        "element face %d\nproperty list uchar int vertex_indices\nend_header\n" % (fmt, len(NODES), len(TRIS))
+    )
+
+
+def ply_ascii():
+    return ply_header("ascii") + "".join("%g %g %g\n" % p for p in NODES) + "".join(
+        "3 %d %d %d\n" % t for t in TRIS
+    )
+
+
+def ply_binary():
+    b = ply_header("binary_little_endian").encode()
+    b += b"".join(struct.pack("<3f", *p) for p in NODES)
+    b += b"".join(struct.pack("<B3i", 3, *t) for t in TRIS)
+    return b
+
+
+def normal(t):
+    a, b, c = (NODES[i] for i in t)
+    u = [b[k] - a[k] for k in range(3)]
+    v = [c[k] - a[k] for k in range(3)]
+    n = (u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0])
+    m = sum(x * x for x in n) ** 0.5
+    return tuple(x / m for x in n)
+
+
+def stl_ascii():
+    s = "solid seed\n"
+    for t in TRIS:
+        s += " facet normal %g %g %g\n  outer loop\n" % normal(t)
+        s += "".join("   vertex %g %g %g\n" % NODES[i] for i in t)
+        s += "  endloop\n endfacet\n"
+    return s + "endsolid seed\n"
+
+
+def stl_binary():
+    b = b"seed".ljust(80, b" ") + struct.pack("<I", len(TRIS))
+    for t in TRIS:
+        b += struct.pack("<3f", *normal(t)) + b"".join(struct.pack("<3f", *NODES[i]) for i in t) + b"\0\0"
+    return b
+
+
+def varint(n):
+    out = b""
+    while True:
+        byte = n & 0x7F
+        n >>= 7
+        if n:
+            out += bytes([byte | 0x80])
+        else:
+            return out + bytes([byte])
+
+
+def field_double(k, x):
+    return varint(k << 3 | 1) + struct.pack("<d", x)
+
+
+def field_msg(k, body):
+    return varint(k << 3 | 2) + varint(len(body)) + body
+
+
+def pose(t, seq, p, q):
+    body = field_double(1, t) + varint(2 << 3) + varint(seq)
+    body += field_msg(3, b"".join(field_double(i + 1, x) for i, x in enumerate(p)))
+    body += field_msg(4, b"".join(field_double(i + 1, x) for i, x in enumerate(q)))
+    return body
+
+
+def delimited(msgs):
+    return b"".join(varint(len(m)) + m for m in msgs)
+
+
+def main():
+    if os.path.isdir(SEEDS):
+        shutil.rmtree(SEEDS)
+    copy("msh", os.path.join(DATA, "gmsh-box-41.msh"))
+    copy("msh", os.path.join(DATA, "gmsh-box-22-bin.msh"))
+    put("msh", "cube-22.msh", msh22())
+    put("msh", "cube-41.msh", msh41())
+    copy("vtk", os.path.join(DATA, "meshio-51-bin.vtk"))
+    put("vtk", "cube-ascii.vtk", vtk_ascii())
+    put("vtk", "cube-42-bin.vtk", vtk_binary42())
+    copy("vtu", os.path.join(DATA, "meshio-zlib.vtu"))
+    put("vtu", "cube-ascii.vtu", vtu_ascii())
+    with open(os.path.join(DATA, "tetgen-block.1.node"), "rb") as f:
+        node = f.read()
+    with open(os.path.join(DATA, "tetgen-block.1.ele"), "rb") as f:
+        ele = f.read()
+    put("tetgen", "tetgen-block.1", node + b"\0" + ele)
+    put("tetgen", "cube.0", tetgen())
+    put("obj", "cube.obj", obj())
+    put("ply", "cube-ascii.ply", ply_ascii())
+    put("ply", "cube-binary.ply", ply_binary())
+    put("stl", "cube-ascii.stl", stl_ascii())
+    put("stl", "cube-binary.stl", stl_binary())
+    for name in sorted(os.listdir(SCENES)):
+        copy("scene", os.path.join(SCENES, name))
+    q = (0.5, -0.5, 0.5, 0.5)
+    put("pose", "one", delimited([pose(0.0, 1, (0.011, 0.005, 0.04275), q)]))
+    put("pose", "stream", delimited([pose(i * 1e-3, i + 1, (0.011, 0.005, 0.04275 - i * 1e-4), q) for i in range(8)]))
+    put("pose", "bad", delimited([
+        pose(0.0, 1, (float("nan"), 0.0, 0.0), q),
+        pose(0.0, 2, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0)),
+        pose(0.002, 3, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0)),
+        pose(0.001, 4, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0)),
+        pose(0.003, 3, (1.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0)),
+    ]))
+
+
+if __name__ == "__main__":
+    main()
