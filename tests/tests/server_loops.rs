@@ -243,9 +243,12 @@ async fn slow_watcher_skips_frames_fast_watcher_keeps_up() -> anyhow::Result<()>
         slow.windows(2).any(|w| w[1] > w[0] + 1),
         "the slow watcher never skipped a frame: {slow:?}"
     );
+    // A queue would hand the slow watcher every published frame; latest-wins
+    // gives it a fraction (bounded by its reading time, not by the machine's
+    // load, which stretches the whole run).
     assert!(
-        slow.len() as f64 <= 1.8 / 0.15 + 2.0,
-        "the slow watcher got {} frames in 1.8 s at 150 ms each: a queue? {slow:?}",
+        2 * slow.len() as u64 <= published,
+        "the slow watcher got {} of {published} frames: a queue? {slow:?}",
         slow.len()
     );
     assert!(
