@@ -145,3 +145,34 @@ fn region_of_interest_crops_and_converges() {
         "a larger region must be closer to the full model: {ratios:?}"
     );
 }
+
+/// Strategies without a local model (corotational) still give the haptic
+/// client the step's force: the force loop holds the last step's reactions.
+#[test]
+fn corotational_force_loop_holds_the_step_force() {
+    let (mut scene, _) = Scene::load("cube").unwrap();
+    scene.solver.strategy = fissure_server::scene::Strategy::Corotational;
+    let home = scene.instruments[0].home_position_m;
+    let sim = Simulation::start(scene, stepped()).unwrap();
+    let mut poses = Vec::new();
+    // Down 4 mm from 2 mm above the top (2 mm into it) in 0.1 s, then hold.
+    for i in 0..=200 {
+        let t = i as f64 * 1e-3;
+        poses.push((t, [home[0], home[1], home[2] - 0.004 * (t / 0.1).min(1.0)]));
+    }
+    let f = drive(&sim, "left", &poses);
+    let frame = sim.snapshot().frame_summary.clone();
+    sim.shutdown();
+    assert!(frame.solver_error.is_none(), "{:?}", frame.solver_error);
+    let step_force = frame.instruments[0].force_n;
+    assert!(
+        f.force_n.z > 0.0,
+        "force {:?} does not oppose the push",
+        f.force_n
+    );
+    assert!(
+        (f.force_n - step_force).norm() <= 1e-9 * step_force.norm().max(1e-12),
+        "{:?} vs {step_force:?}",
+        f.force_n
+    );
+}

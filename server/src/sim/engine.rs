@@ -532,13 +532,36 @@ impl Deformer {
             .collect();
         let force_model = match self.solver.local_model() {
             Some(local) => force_model_from(local, contacts, &reactions),
-            None => ForceModel::default(),
+            None => held_force_model(contacts, &reactions),
         };
         Ok(StepResult {
             displacements,
             reactions,
             force_model,
         })
+    }
+}
+
+/// For strategies without a local model (the iterative ones): the step's
+/// contact set with its reactions and a zero stiffness, so the force loop holds
+/// the step's reactions (a zero-order hold) until the next step, releasing the
+/// nodes the instrument leaves.
+fn held_force_model(contacts: &ContactOutput, reactions: &[Vector3<f64>]) -> ForceModel {
+    let m = contacts.enforced.len();
+    ForceModel {
+        nodes: contacts.enforced.iter().map(|e| e.volume_node).collect(),
+        owner: contacts.enforced.iter().map(|e| e.instrument).collect(),
+        u0: contacts.enforced.iter().map(|e| e.displacement).collect(),
+        r0: reactions.to_vec(),
+        rest: Vec::new(),
+        stiffness: DMatrix::zeros(3 * m, 3 * m),
+        index: contacts
+            .enforced
+            .iter()
+            .enumerate()
+            .map(|(i, e)| (e.volume_node, i))
+            .collect(),
+        frame: 0,
     }
 }
 
