@@ -8,4 +8,5 @@ pub mod mesh_cmd;
 pub mod render;
 pub mod replay;
 pub mod report;
+pub mod study;
 pub mod trajectory;
