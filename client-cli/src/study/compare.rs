@@ -145,9 +145,8 @@ impl<'a> TriangleGrid<'a> {
             for x in (c[0] - r)..=(c[0] + r) {
                 for y in (c[1] - r)..=(c[1] + r) {
                     for z in (c[2] - r)..=(c[2] + r) {
-                        let on_ring = (x - c[0]).abs() == r
-                            || (y - c[1]).abs() == r
-                            || (z - c[2]).abs() == r;
+                        let on_ring =
+                            (x - c[0]).abs() == r || (y - c[1]).abs() == r || (z - c[2]).abs() == r;
                         if !on_ring
                             || x < 0
                             || y < 0
@@ -158,7 +157,8 @@ impl<'a> TriangleGrid<'a> {
                         {
                             continue;
                         }
-                        let idx = (x as usize * self.dims[1] + y as usize) * self.dims[2] + z as usize;
+                        let idx =
+                            (x as usize * self.dims[1] + y as usize) * self.dims[2] + z as usize;
                         for &t in &self.cells[idx] {
                             let tri = self.triangles[t as usize];
                             let [a, b, cc] = tri.map(|v| self.positions[v as usize]);

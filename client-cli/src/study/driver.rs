@@ -704,7 +704,13 @@ impl RunResult {
 
     /// Mean solver iterations per step.
     pub fn mean_iterations(&self) -> f64 {
-        Self::mean(&self.iterations.iter().map(|&i| i as f64).collect::<Vec<_>>())
+        Self::mean(
+            &self
+                .iterations
+                .iter()
+                .map(|&i| i as f64)
+                .collect::<Vec<_>>(),
+        )
     }
 
     /// Largest solver iterations of a step.

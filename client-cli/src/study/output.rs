@@ -33,7 +33,13 @@ fn write(path: &Path, text: &str) -> Result<(), StudyError> {
 pub fn slug(label: &str) -> String {
     label
         .chars()
-        .map(|c| if c.is_ascii_alphanumeric() || c == '.' || c == '-' { c } else { '_' })
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '.' || c == '-' {
+                c
+            } else {
+                '_'
+            }
+        })
         .collect()
 }
 
@@ -103,7 +109,8 @@ fn stab_csv_row(s: &StabilityRow) -> String {
         r.final_force_n[0],
         r.final_force_n[1],
         s.force_ratio,
-        s.force_error_pct.map_or(String::new(), |e| format!("{e:.3}")),
+        s.force_error_pct
+            .map_or(String::new(), |e| format!("{e:.3}")),
         s.stable,
         s.reason.clone().unwrap_or_default().replace('"', "'"),
         r.ms_per_step,
@@ -119,7 +126,11 @@ pub fn markdown(res: &StudyResult) -> String {
         res.window_s,
         res.dt_s * 1e3,
         res.rate_hz,
-        if res.quick { "quick variant" } else { "full study" },
+        if res.quick {
+            "quick variant"
+        } else {
+            "full study"
+        },
         res.total_s
     );
     if !res.grid.is_empty() {
@@ -132,7 +143,10 @@ pub fn markdown(res: &StudyResult) -> String {
             md,
             "| configuration | sweep | tets | ms/step | us/force sample | iterations (mean/max) | RMS err (mm) | max err (mm) | force err L (N, %) | force err R (N, %) | min det F | haptic local model |"
         );
-        let _ = writeln!(md, "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|");
+        let _ = writeln!(
+            md,
+            "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|"
+        );
         for r in res.reference.iter().chain(&res.grid) {
             let e = r.errors.unwrap_or_default();
             let _ = writeln!(
@@ -301,11 +315,13 @@ pub fn write_all(
                     .zip(&left.force)
                     .map(|(t, v)| [*t, (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()])
                     .collect();
-                all.add(Series::new(label.clone(), pts, palette(i)).width(if i == 0 {
-                    3.0
-                } else {
-                    1.4
-                }));
+                all.add(
+                    Series::new(label.clone(), pts, palette(i)).width(if i == 0 {
+                        3.0
+                    } else {
+                        1.4
+                    }),
+                );
             }
         }
         let p = dir.join("forces-all.png");

@@ -46,10 +46,7 @@ pub fn pose_at(points: &[Waypoint], t: f64) -> Isometry3<f64> {
     let q = |w: &Waypoint| Quaternion::new(w.qw, w.qx, w.qy, w.qz);
     let p = |w: &Waypoint| Vector3::new(w.x_m, w.y_m, w.z_m);
     let iso = |pos: Vector3<f64>, quat: Quaternion<f64>| {
-        Isometry3::from_parts(
-            Translation3::from(pos),
-            UnitQuaternion::new_normalize(quat),
-        )
+        Isometry3::from_parts(Translation3::from(pos), UnitQuaternion::new_normalize(quat))
     };
     let first = &points[0];
     let last = &points[points.len() - 1];
@@ -96,7 +93,9 @@ impl Scenario {
         rate_hz: f64,
         dt_s: f64,
     ) -> Self {
-        let end_s = window_s * time_scale;
+        // The motion, then a hold of three deformation steps at the last pose
+        // (a fast run must still show its end state).
+        let end_s = window_s * time_scale + 3.0 * dt_s;
         let n = (end_s * rate_hz).floor().max(1.0) as usize;
         let times: Vec<f64> = (1..=n).map(|j| j as f64 / rate_hz).collect();
         let tracks = trajectories
@@ -109,9 +108,9 @@ impl Scenario {
                     .collect(),
             })
             .collect();
-        let mean_speed_mps = trajectories
-            .first()
-            .map_or(0.0, |(_, tr)| path_length(&tr.points, window_s) / end_s);
+        let mean_speed_mps = trajectories.first().map_or(0.0, |(_, tr)| {
+            path_length(&tr.points, window_s) / (window_s * time_scale)
+        });
         Self {
             times,
             tracks,
