@@ -16,6 +16,9 @@
 //! force sample is one instrument's collision query plus the local-model
 //! reaction, as in `Claim::force_sample`.
 
+// Negated comparisons are deliberate: NaN must fail the checks.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 use super::config::{Backend, Config, FISSURE_CENTRE_M};
 use super::scenario::Scenario;
 use fissure_server::collide::RayBackend;

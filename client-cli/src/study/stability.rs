@@ -20,6 +20,9 @@
 //! element inverted (`det F <= 0`), or its force error exceeds
 //! [`FORCE_ERROR_LIMIT_PCT`].
 
+// Negated comparisons are deliberate: NaN must fail the checks.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 use super::Row;
 use super::config::Config;
 use super::driver::RunResult;
