@@ -11,5 +11,6 @@ pub mod mesh_cmd;
 pub mod render;
 pub mod replay;
 pub mod report;
+pub mod study;
 pub mod trajectory;
 pub mod watch;

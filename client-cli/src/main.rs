@@ -53,6 +53,10 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Speed against accuracy of the simulation's configurations on the
+    /// scripted Sylvian opening, and stability at the extremes (CSV,
+    /// markdown, PNG plots).
+    Study(fissure_cli::study::StudyArgs),
     /// Ask a server's grpc.health.v1 whether it is serving; exits non-zero if not.
     Health {
         /// Server URL.
@@ -172,6 +176,7 @@ fn main() -> anyhow::Result<()> {
         .init();
     let rt = tokio::runtime::Runtime::new().context("starting the async runtime")?;
     match cli.command {
+        Command::Study(args) => fissure_cli::study::run(&args)?,
         Command::Demo(args) => {
             rt.block_on(fissure_cli::demo::run(&args))?;
         }

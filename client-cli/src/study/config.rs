@@ -1,0 +1,155 @@
+//! One configuration of the study: the knobs that trade speed for accuracy
+//! (mesh preset, strategy, tolerance, source nodes a face, region of
+//! interest, ray-casting backend, threads) and the material and speed knobs
+//! of the stability sweep.
+
+use fissure_server::fem::Strategy;
+use fissure_server::scene::{CollisionMethod, Scene, SceneError};
+use serde::Serialize;
+
+/// Where and how rays are cast.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Backend {
+    /// CPU BVH (the default).
+    CpuBvh,
+    /// CPU brute force over all triangles.
+    CpuBrute,
+    /// GPU linear BVH through wgpu (CPU BVH when no adapter).
+    GpuBvh,
+}
+
+impl Backend {
+    /// Name as in the table.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::CpuBvh => "cpu-bvh",
+            Self::CpuBrute => "cpu-brute",
+            Self::GpuBvh => "gpu-bvh",
+        }
+    }
+}
+
+/// One configuration.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Config {
+    /// Short unique label, e.g. `48k/compliance/150`.
+    pub label: String,
+    /// Which sweep it belongs to (`baseline`, `preset`, `strategy`, ...).
+    pub sweep: String,
+    /// Phantom preset.
+    pub preset: String,
+    /// Solver strategy.
+    #[serde(serialize_with = "ser_strategy")]
+    pub strategy: Strategy,
+    /// Relative residual tolerance of the iterative strategies.
+    pub tolerance: f64,
+    /// Source nodes a spatula face.
+    pub nodes_per_face: u32,
+    /// Region of interest: keep the tetrahedra within this distance (m) of the
+    /// fissure centre, cut fixed; `None` is the whole brain.
+    pub roi_m: Option<f64>,
+    /// Ray-casting backend.
+    pub backend: Backend,
+    /// Threads of the rayon pool the run executes in.
+    pub threads: usize,
+    /// Young's modulus, Pa.
+    pub youngs_pa: f64,
+    /// Poisson's ratio.
+    pub nu: f64,
+    /// Time scale of the trajectory (`> 1` slower).
+    pub time_scale: f64,
+}
+
+fn ser_strategy<S: serde::Serializer>(s: &Strategy, ser: S) -> Result<S::Ok, S::Error> {
+    ser.serialize_str(s.name())
+}
+
+/// Centre of the region of interest and of the error region: the middle of
+/// the left Sylvian fissure (entry at x = -65.7 mm, 25 mm deep along +x;
+/// 50 mm long along y, centred at y = 10 mm), m.
+pub const FISSURE_CENTRE_M: [f64; 3] = [-0.0532, 0.010, 0.0];
+
+impl Config {
+    /// The baseline: paper-48k, linear compliance, 150 nodes a face, whole
+    /// brain, CPU BVH, 2 threads, E = 3 kPa, nu = 0.45, nominal speed.
+    pub fn baseline() -> Self {
+        Self {
+            label: String::new(),
+            sweep: "baseline".into(),
+            preset: "paper-48k".into(),
+            strategy: Strategy::Compliance,
+            tolerance: 1e-6,
+            nodes_per_face: 150,
+            roi_m: None,
+            backend: Backend::CpuBvh,
+            threads: 2,
+            youngs_pa: 3000.0,
+            nu: 0.45,
+            time_scale: 1.0,
+        }
+        .labelled()
+    }
+
+    /// Sets the label from the fields (only the ones that differ from the
+    /// baseline's material and speed are named).
+    pub fn labelled(mut self) -> Self {
+        let preset = match self.preset.as_str() {
+            "paper-48k" => "48k",
+            "paper-34k" => "34k",
+            other => other,
+        };
+        let strategy = match self.strategy {
+            Strategy::Compliance => "lin",
+            Strategy::Direct => "lin-direct",
+            Strategy::Corotational => "corot",
+            Strategy::NeoHookean => "neoh",
+        };
+        let mut l = format!("{preset}/{strategy}");
+        if matches!(self.strategy, Strategy::Corotational | Strategy::NeoHookean) {
+            l.push_str(&format!("/tol{:.0e}", self.tolerance));
+        }
+        l.push_str(&format!("/n{}", self.nodes_per_face));
+        if let Some(r) = self.roi_m {
+            l.push_str(&format!("/roi{:.0}mm", r * 1e3));
+        }
+        if self.backend != Backend::CpuBvh {
+            l.push_str(&format!("/{}", self.backend.name()));
+        }
+        if self.threads != 2 {
+            l.push_str(&format!("/t{}", self.threads));
+        }
+        if self.youngs_pa != 3000.0 {
+            l.push_str(&format!("/E{}", self.youngs_pa));
+        }
+        if self.nu != 0.45 {
+            l.push_str(&format!("/nu{}", self.nu));
+        }
+        if self.time_scale != 1.0 {
+            l.push_str(&format!("/x{:.3}", self.time_scale));
+        }
+        self.label = l;
+        self
+    }
+
+    /// The sylvian scene edited to this configuration.
+    pub fn scene(&self) -> Result<Scene, SceneError> {
+        let (mut scene, _) = Scene::load("sylvian")?;
+        scene.model = fissure_server::scene::ModelSpec::Phantom {
+            preset: self.preset.clone(),
+        };
+        scene.material.youngs_modulus_pa = self.youngs_pa;
+        scene.material.poisson_ratio = self.nu;
+        scene.solver.strategy = self.strategy;
+        scene.solver.tolerance = self.tolerance;
+        scene.collision.method = match self.backend {
+            Backend::CpuBrute => CollisionMethod::Brute,
+            _ => CollisionMethod::Bvh,
+        };
+        for i in &mut scene.instruments {
+            i.nodes_per_face = self.nodes_per_face;
+        }
+        scene.validate("study")?;
+        Ok(scene)
+    }
+}
