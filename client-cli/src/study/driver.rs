@@ -341,8 +341,12 @@ fn force_model(
         stiffness,
         index: nodes.iter().enumerate().map(|(i, &n)| (n, i)).collect(),
         nodes,
+        // A distinct id per built model (the force loop caches per model).
+        frame: NEXT_MODEL_ID.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
     }
 }
+
+static NEXT_MODEL_ID: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
 
 /// Cache of built models by (preset, nodes a face): the phantom is generated
 /// once per preset and instrument layout.
