@@ -31,7 +31,7 @@ use fissure_server::fem::{self, DeformationSolver, Prescribed};
 use fissure_server::mesh::TetMesh;
 use fissure_server::sim::engine::{History, Model};
 use fissure_server::sim::local_model::{ForceModel, ForceWorkspace};
-use nalgebra::{DMatrix, Isometry3, Matrix3, Point3, Vector3};
+use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 use std::collections::{HashMap, VecDeque};
 use std::time::Instant;
 
@@ -302,48 +302,21 @@ pub fn min_det_f(mesh: &TetMesh, u: &[Vector3<f64>]) -> f64 {
     worst
 }
 
-/// The local force model of a step (as `sim::engine` builds it): the
-/// condensed stiffness `S = C^-1` of the contact nodes, with their owners.
-/// Node indices are the full model's.
+/// The local force model of a step, as `sim::engine` builds it, with node
+/// indices of the full model.
 fn force_model(
     local: &fem::LocalModel,
     contacts: &ContactOutput,
     to_full: Option<&[u32]>,
     mesh: &TetMesh,
 ) -> ForceModel {
-    let owner_of: HashMap<u32, u16> = contacts
-        .enforced
-        .iter()
-        .map(|e| (e.volume_node, e.instrument))
-        .collect();
-    let m = local.nodes.len();
-    let stiffness = if m == 0 {
-        DMatrix::zeros(0, 0)
-    } else {
-        match local.compliance.clone().cholesky() {
-            Some(ch) => ch.inverse(),
-            None => DMatrix::zeros(3 * m, 3 * m),
-        }
-    };
-    let nodes: Vec<u32> = local
-        .nodes
-        .iter()
-        .map(|&n| to_full.map_or(n, |map| map[n as usize]))
-        .collect();
-    ForceModel {
-        owner: nodes
-            .iter()
-            .map(|n| owner_of.get(n).copied().unwrap_or(u16::MAX))
-            .collect(),
-        u0: local.displacements.clone(),
-        r0: local.reactions.clone(),
-        rest: nodes.iter().map(|&n| mesh.nodes[n as usize]).collect(),
-        stiffness,
-        index: nodes.iter().enumerate().map(|(i, &n)| (n, i)).collect(),
-        nodes,
-        // A distinct id per built model (the force loop caches per model).
-        frame: NEXT_MODEL_ID.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
-    }
+    let mut fm = fissure_server::sim::engine::force_model_from(local, contacts, |n| {
+        to_full.map_or(n, |map| map[n as usize])
+    });
+    fm.rest = fm.nodes.iter().map(|&n| mesh.nodes[n as usize]).collect();
+    // A distinct id per built model (the force loop caches per model).
+    fm.frame = NEXT_MODEL_ID.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    fm
 }
 
 static NEXT_MODEL_ID: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);

@@ -531,7 +531,7 @@ impl Deformer {
             .map(|j| j.map_or_else(Vector3::zeros, |j| solution.reactions[j]))
             .collect();
         let force_model = match self.solver.local_model() {
-            Some(local) => force_model_from(local, contacts, &reactions),
+            Some(local) => force_model_from(local, contacts, |n| n),
             None => held_force_model(contacts, &reactions),
         };
         Ok(StepResult {
@@ -565,12 +565,15 @@ fn held_force_model(contacts: &ContactOutput, reactions: &[Vector3<f64>]) -> For
     }
 }
 
-/// The condensed stiffness `S = C^-1` of the local model, with each node's
-/// owner (the instrument that enforced it).
-fn force_model_from(
+/// The local force model of a step: the condensed stiffness `S = C^-1` of
+/// the local model's contact nodes, with each node's owner (the instrument
+/// that enforced it). `node_map` maps the solver's node indices to the
+/// collision stage's (the identity unless the FEM runs on a cropped mesh).
+/// `rest` is left empty and `frame` zero: the publisher fills them.
+pub fn force_model_from(
     local: &fem::LocalModel,
     contacts: &ContactOutput,
-    _reactions: &[Vector3<f64>],
+    node_map: impl Fn(u32) -> u32,
 ) -> ForceModel {
     let owner_of: HashMap<u32, u16> = contacts
         .enforced
@@ -592,10 +595,9 @@ fn force_model_from(
             }
         }
     };
+    let nodes: Vec<u32> = local.nodes.iter().map(|&n| node_map(n)).collect();
     ForceModel {
-        nodes: local.nodes.clone(),
-        owner: local
-            .nodes
+        owner: nodes
             .iter()
             .map(|n| owner_of.get(n).copied().unwrap_or(u16::MAX))
             .collect(),
@@ -603,13 +605,8 @@ fn force_model_from(
         r0: local.reactions.clone(),
         rest: Vec::new(),
         stiffness,
-        index: local
-            .nodes
-            .iter()
-            .enumerate()
-            .map(|(i, &n)| (n, i))
-            .collect(),
-        // Set by the snapshot that publishes it.
+        index: nodes.iter().enumerate().map(|(i, &n)| (n, i)).collect(),
+        nodes,
         frame: 0,
     }
 }
