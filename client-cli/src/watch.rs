@@ -490,34 +490,16 @@ impl FrameRenderer {
             let (c, _) = plate(&view.instruments[*i], &pose);
             let base = Point3::from(c.translation.vector);
             let tip = base + f * scale;
-            if let (Some(p0), Some(p1)) = (cam.project(&base, vw, vh), cam.project(&tip, vw, vh)) {
-                let (dx, dy) = (p1[0] - p0[0], p1[1] - p0[1]);
-                let len = dx.hypot(dy).max(1e-9);
-                let (ux, uy) = (dx / len, dy / len);
-                let h = if ux < -0.3 {
-                    HAlign::Right
-                } else if ux > 0.3 {
-                    HAlign::Left
-                } else {
-                    HAlign::Center
-                };
-                let v = if uy < -0.3 {
-                    VAlign::Bottom
-                } else if uy > 0.3 {
-                    VAlign::Top
-                } else {
-                    VAlign::Middle
-                };
-                let lbl = TextStyle::new(13.0).bold().colour(a.colour).align(h, v);
-                let (x, y) = (p1[0] + 14.0 * ux, p1[1] + 14.0 * uy + TITLE_BAND as f64);
-                draw_text(
-                    &mut img,
-                    &view.instruments[*i].name,
-                    x as f32,
-                    y as f32,
-                    &lbl,
-                );
-            }
+            crate::render::view::label_arrow(
+                &mut img,
+                &cam,
+                (vw, vh),
+                &base,
+                &tip,
+                &view.instruments[*i].name,
+                a.colour,
+                14.0,
+            );
         }
         Ok(img)
     }

@@ -17,6 +17,48 @@ use nalgebra::{Isometry3, Point3, Vector3};
 
 /// Height of the title band, px.
 pub const TITLE_BAND: u32 = 58;
+
+/// Writes `name` just beyond the tip of the arrow `base -> tip` (m) as seen
+/// through `cam` in a view of `size` px drawn below the title band of `img`,
+/// `gap` px past the tip along the arrow's screen direction, aligned so the
+/// text never covers the arrow. Nothing when either end is behind the camera.
+pub fn label_arrow(
+    img: &mut Image,
+    cam: &Camera,
+    size: (u32, u32),
+    base: &Point3<f64>,
+    tip: &Point3<f64>,
+    name: &str,
+    colour: Rgb,
+    gap: f64,
+) {
+    let (Some(p0), Some(p1)) = (
+        cam.project(base, size.0, size.1),
+        cam.project(tip, size.0, size.1),
+    ) else {
+        return;
+    };
+    let (dx, dy) = (p1[0] - p0[0], p1[1] - p0[1]);
+    let len = dx.hypot(dy).max(1e-9);
+    let (ux, uy) = (dx / len, dy / len);
+    let h = if ux < -0.3 {
+        HAlign::Right
+    } else if ux > 0.3 {
+        HAlign::Left
+    } else {
+        HAlign::Center
+    };
+    let v = if uy < -0.3 {
+        VAlign::Bottom
+    } else if uy > 0.3 {
+        VAlign::Top
+    } else {
+        VAlign::Middle
+    };
+    let lbl = TextStyle::new(13.0).bold().colour(colour).align(h, v);
+    let (x, y) = (p1[0] + gap * ux, p1[1] + gap * uy + TITLE_BAND as f64);
+    draw_text(img, name, x as f32, y as f32, &lbl);
+}
 /// Width of the legend panel, px.
 pub const PANEL: u32 = 130;
 
@@ -316,29 +358,16 @@ impl ViewRenderer {
             let Some(f) = s.force else { continue };
             let base = Point3::from(s.pose.translation.vector);
             let tip = base + f * scale;
-            if let (Some(p0), Some(p1)) = (cam.project(&base, vw, vh), cam.project(&tip, vw, vh)) {
-                // Beyond the tip, along the arrow as seen on screen.
-                let (dx, dy) = (p1[0] - p0[0], p1[1] - p0[1]);
-                let len = dx.hypot(dy).max(1e-9);
-                let (ux, uy) = (dx / len, dy / len);
-                let h = if ux < -0.3 {
-                    HAlign::Right
-                } else if ux > 0.3 {
-                    HAlign::Left
-                } else {
-                    HAlign::Center
-                };
-                let v = if uy < -0.3 {
-                    VAlign::Bottom
-                } else if uy > 0.3 {
-                    VAlign::Top
-                } else {
-                    VAlign::Middle
-                };
-                let lbl = TextStyle::new(13.0).bold().colour(a.colour).align(h, v);
-                let (x, y) = (p1[0] + 16.0 * ux, p1[1] + 16.0 * uy + TITLE_BAND as f64);
-                draw_text(&mut img, &s.name, x as f32, y as f32, &lbl);
-            }
+            label_arrow(
+                &mut img,
+                &cam,
+                (vw, vh),
+                &base,
+                &tip,
+                &s.name,
+                a.colour,
+                16.0,
+            );
         }
         Ok(img)
     }
