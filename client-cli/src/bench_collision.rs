@@ -25,6 +25,14 @@
 //! speedup of a row is the CPU brute-force time of the same configuration over
 //! its own, measured in the same run.
 //!
+//! # Rays
+//! Every node's reach is capped at `--max-depth-m` (the scenes'
+//! `collision.max_depth_m`, default 10 mm), as the server does. Rows marked
+//! `bounded` cast each line only as far as an answer can matter
+//! ([`DetectOptions::bounded_rays`], the server's default); the CPU BVH is also
+//! timed casting whole lines (`line`, the paper's pass). Both give the same
+//! output (`same`).
+//!
 //! The refit alone is reported for three position changes: none (the force
 //! loop between two published surfaces), local (the bump) and global (every
 //! vertex moved).
@@ -92,6 +100,9 @@ pub struct CollisionArgs {
     /// Least number of timed queries per row.
     #[arg(long, default_value_t = 3)]
     pub min_repeats: usize,
+    /// Reach of the source nodes, m (the scenes' `collision.max_depth_m`).
+    #[arg(long, default_value_t = fissure_server::scene::DEFAULT_MAX_DEPTH_M)]
+    pub max_depth_m: f64,
     /// Print JSON instead of a table.
     #[arg(long)]
     pub json: bool,
@@ -110,6 +121,8 @@ pub struct BenchOptions {
     pub min_time: Duration,
     /// Least number of timed queries per row.
     pub min_repeats: usize,
+    /// Reach of the source nodes, m.
+    pub max_depth_m: f64,
 }
 
 impl Default for BenchOptions {
@@ -120,6 +133,7 @@ impl Default for BenchOptions {
             gpu: true,
             min_time: Duration::from_millis(500),
             min_repeats: 3,
+            max_depth_m: fissure_server::scene::DEFAULT_MAX_DEPTH_M,
         }
     }
 }
@@ -224,6 +238,9 @@ pub struct Row {
     pub spatulas: usize,
     /// Rays cast per query (all nodes of all spatulas).
     pub rays: usize,
+    /// "bounded" (each line only as far as an answer can matter) or "line"
+    /// (whole lines).
+    pub cast: String,
     /// Mean wall time of one query (refit/update included), ms.
     pub ms_per_query: f64,
     /// Timed queries.
@@ -307,6 +324,7 @@ fn time_queries(
     to_volume: &[u32],
     inst: &Instrument,
     opts: &BenchOptions,
+    detect: &DetectOptions,
     first: &mut ContactOutput,
 ) -> (f64, usize) {
     let mut hist: Vec<History> = surf
@@ -342,7 +360,7 @@ fn time_queries(
             &query,
             &mut tools,
             Stage::Deformation,
-            &DetectOptions::default(),
+            detect,
             &mut ws,
             out,
         )
@@ -405,16 +423,38 @@ pub fn run_collision_bench(surf: &BenchSurface, opts: &BenchOptions) -> anyhow::
             Err(e) => report.gpu_error = Some(e.to_string()),
         }
     }
+    if !(opts.max_depth_m > 0.0) {
+        anyhow::bail!("--max-depth-m must be positive, got {}", opts.max_depth_m);
+    }
+    let bounded = DetectOptions::default();
+    let line = DetectOptions {
+        bounded_rays: false,
+        ..bounded
+    };
     for &npf in &opts.nodes_per_face {
-        let inst = Instrument::new(
+        let mut inst = Instrument::new(
             Plate::flat(PLATE[0], PLATE[1], PLATE[2]),
             NodeLayout::WholeFace { per_face: npf },
             None,
         )
         .with_context(|| format!("{npf} nodes a face"))?;
-        let row = |method: &str, backend: &str, ms: f64, repeats: usize, pairs: usize| Row {
+        for node in &mut inst.nodes {
+            node.reach = node.reach.min(opts.max_depth_m);
+        }
+        let row = |method: &str,
+                   backend: &str,
+                   detect: &DetectOptions,
+                   ms: f64,
+                   repeats: usize,
+                   pairs: usize| Row {
             method: method.into(),
             backend: backend.into(),
+            cast: if detect.bounded_rays {
+                "bounded"
+            } else {
+                "line"
+            }
+            .into(),
             triangles: tris.len(),
             nodes_per_face: npf,
             spatulas: surf.poses.len(),
@@ -427,22 +467,44 @@ pub fn run_collision_bench(surf: &BenchSurface, opts: &BenchOptions) -> anyhow::
         };
         // The CPU brute force is the reference of every row.
         let mut reference = ContactOutput::default();
-        let (ms_ref, rep) = time_queries(&mut brute, surf, &to_volume, &inst, opts, &mut reference);
-        let mut rows = vec![row("brute", "cpu", ms_ref, rep, reference.pairs.len())];
-        let mut others: Vec<&mut dyn RayBackend> = Vec::new();
+        let (ms_ref, rep) = time_queries(
+            &mut brute,
+            surf,
+            &to_volume,
+            &inst,
+            opts,
+            &line,
+            &mut reference,
+        );
+        let mut rows = vec![row(
+            "brute",
+            "cpu",
+            &line,
+            ms_ref,
+            rep,
+            reference.pairs.len(),
+        )];
+        let mut others: Vec<(&mut dyn RayBackend, &DetectOptions)> = Vec::new();
         if opts.cpu {
-            others.push(&mut bvh);
+            others.push((&mut bvh, &bounded));
         }
         if let Some(b) = gpu_brute.as_mut() {
-            others.push(b);
+            others.push((b, &line));
         }
         if let Some(b) = gpu_bvh.as_mut() {
-            others.push(b);
+            others.push((b, &line));
         }
-        for b in others {
+        for (b, detect) in others {
             let mut out = ContactOutput::default();
-            let (ms, rep) = time_queries(b, surf, &to_volume, &inst, opts, &mut out);
-            let mut r = row(b.method(), b.backend(), ms, rep, out.pairs.len());
+            let (ms, rep) = time_queries(b, surf, &to_volume, &inst, opts, detect, &mut out);
+            let mut r = row(b.method(), b.backend(), detect, ms, rep, out.pairs.len());
+            r.matches_brute = Some(out == reference);
+            rows.push(r);
+        }
+        if opts.cpu {
+            let mut out = ContactOutput::default();
+            let (ms, rep) = time_queries(&mut bvh, surf, &to_volume, &inst, opts, &line, &mut out);
+            let mut r = row("bvh", "cpu", &line, ms, rep, out.pairs.len());
             r.matches_brute = Some(out == reference);
             rows.push(r);
         }
@@ -486,6 +548,7 @@ pub fn run(args: &CollisionArgs) -> anyhow::Result<()> {
         gpu: args.backend != BackendChoice::Cpu,
         min_time: Duration::from_millis(args.min_time_ms),
         min_repeats: args.min_repeats.max(1),
+        max_depth_m: args.max_depth_m,
     };
     let report = run_collision_bench(&surf, &opts)?;
     print(&report, args.json);
@@ -511,9 +574,10 @@ pub fn print(report: &Report, json: bool) {
         (None, None) => {}
     }
     println!(
-        "{:<6} {:<4} {:>9} {:>6} {:>4} {:>6} {:>12} {:>7} {:>6} {:>9} {:>6}",
+        "{:<6} {:<4} {:<7} {:>9} {:>6} {:>4} {:>6} {:>12} {:>7} {:>6} {:>9} {:>6}",
         "method",
         "dev",
+        "cast",
         "triangles",
         "nodes",
         "spat",
@@ -526,9 +590,10 @@ pub fn print(report: &Report, json: bool) {
     );
     for r in &report.rows {
         println!(
-            "{:<6} {:<4} {:>9} {:>6} {:>4} {:>6} {:>12.4} {:>7} {:>6} {:>9} {:>6}",
+            "{:<6} {:<4} {:<7} {:>9} {:>6} {:>4} {:>6} {:>12.4} {:>7} {:>6} {:>9} {:>6}",
             r.method,
             r.backend,
+            r.cast,
             r.triangles,
             r.nodes_per_face,
             r.spatulas,
@@ -580,9 +645,15 @@ mod tests {
                 ("brute", "cpu")
             );
             assert_eq!(
-                (rows[1].method.as_str(), rows[1].backend.as_str()),
-                ("bvh", "cpu")
+                (
+                    rows[1].method.as_str(),
+                    rows[1].backend.as_str(),
+                    rows[1].cast.as_str()
+                ),
+                ("bvh", "cpu", "bounded")
             );
+            let last = rows.last().unwrap();
+            assert_eq!((last.method.as_str(), last.cast.as_str()), ("bvh", "line"));
             for r in rows {
                 assert_eq!(r.matches_brute, Some(true), "{r:?}");
                 assert!(r.pairs > 0, "the spatulas touch the surface: {r:?}");

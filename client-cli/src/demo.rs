@@ -170,6 +170,7 @@ pub async fn run(args: &DemoArgs) -> anyhow::Result<DemoReport> {
         stepped_clients: plans.len(),
         recording: Some(recording.clone()),
         max_watchers: 4,
+        ..SimOptions::default()
     };
     let scene_name = scene.name.clone();
     let sim = tokio::task::spawn_blocking(move || Simulation::start(scene, options)).await??;

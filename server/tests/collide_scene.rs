@@ -5,6 +5,7 @@
 //! the deformed surface), gives exactly the contacts of the same scene on the
 //! CPU.
 
+use faer::Par;
 use fissure_server::scene::{CollisionBackend, Scene};
 use fissure_server::sim::engine::{ContactQuery, Deformer, Model, ray_backend};
 use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion};
@@ -50,8 +51,8 @@ fn gpu_scene_gives_the_cpu_scenes_contacts() {
     }
     drop(backend);
 
-    let mut cpu = ContactQuery::new(&cpu_scene, &model);
-    let mut gpu = ContactQuery::new(&gpu_scene, &model);
+    let mut cpu = ContactQuery::new(&cpu_scene, Par::Seq);
+    let mut gpu = ContactQuery::new(&gpu_scene, Par::Seq);
     let mut deformer = Deformer::new(&cpu_scene, &model).unwrap();
     let mut snap = model.rest_snapshot(&cpu_scene);
     let mut h_cpu = vec![model.new_history(0)];

@@ -48,6 +48,10 @@ struct Args {
     /// Largest number of concurrent watchers.
     #[arg(long, default_value_t = 16)]
     max_watchers: usize,
+    /// Nice value of the deformation thread and its pool (Linux; 0: unchanged).
+    /// Above the force loops' so that a force sample preempts the solver.
+    #[arg(long, default_value_t = fissure_server::sim::DEFAULT_DEFORMATION_NICE)]
+    deformation_nice: i32,
     /// Log filter (tracing's EnvFilter syntax), e.g. `info` or `fissure_server=debug`.
     #[arg(long, env = "FISSURE_LOG", default_value = "info")]
     log: String,
@@ -91,6 +95,7 @@ async fn main() -> anyhow::Result<()> {
         stepped_clients: args.stepped_clients,
         recording: args.record.clone(),
         max_watchers: args.max_watchers,
+        deformation_nice: args.deformation_nice,
     };
     let sim = tokio::task::spawn_blocking(move || Simulation::start(scene, options))
         .await?

@@ -1,8 +1,8 @@
 //! A bounding-volume hierarchy over the deforming surface, refitted each step.
 //!
-//! Binary tree of axis-aligned boxes, built once by median splits of triangle
-//! centroids along the longest axis (leaves of at most [`LEAF_SIZE`]
-//! triangles), stored depth-first so that a node's left child is the next node
+//! Binary tree of axis-aligned boxes, built once by binned SAH splits of the
+//! triangles (median splits of the centroids below a depth limit; leaves of at
+//! most [`LEAF_SIZE`] triangles), stored depth-first so that a node's left child is the next node
 //! and children always follow their parent. Large deformations make the boxes
 //! overlap more and the queries slower, never wrong; [`Bvh::rebuild`] rebuilds
 //! the topology.
@@ -45,7 +45,8 @@
 
 use super::brute::keep_nearest;
 use super::ray::{PreparedRay, RayTest};
-use super::{Hit, NodeHits, RayBackend, SurfaceError, check_surface};
+use super::{Hit, NodeHits, RayBackend, RayRange, SurfaceError, check_surface};
+use faer::Par;
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
@@ -54,6 +55,129 @@ pub const LEAF_SIZE: usize = 4;
 
 /// Relative padding of leaf boxes (module documentation).
 const PAD: f64 = 1e-10;
+
+/// Depth below which splits are median splits: SAH trees may be unbalanced,
+/// and the traversal stack (96 entries) must hold the deepest path. Median
+/// splits below this depth add at most `log2(n) + 2` levels.
+const SAH_DEPTH: usize = 40;
+
+/// Bins per axis of the SAH split.
+const SAH_BINS: usize = 16;
+
+/// One triangle while building: centroid, box, original index, vertices.
+#[derive(Debug, Clone, Copy)]
+struct Item {
+    centroid: Point3<f64>,
+    lo: Point3<f64>,
+    hi: Point3<f64>,
+    id: u32,
+    tri: [u32; 3],
+}
+
+/// Half the surface area of the box `[lo, hi]` (empty boxes: 0).
+fn half_area(lo: &Point3<f64>, hi: &Point3<f64>) -> f64 {
+    let e = (hi - lo).map(|x| x.max(0.0));
+    e.x * e.y + e.y * e.z + e.z * e.x
+}
+
+/// Median split of the centroids along their longest axis; returns the
+/// size of the left part.
+fn median_split(items: &mut [Item]) -> usize {
+    let mut lo = items[0].centroid;
+    let mut hi = items[0].centroid;
+    for it in items.iter() {
+        lo = lo.inf(&it.centroid);
+        hi = hi.sup(&it.centroid);
+    }
+    let ext = hi - lo;
+    let axis = if ext.x >= ext.y && ext.x >= ext.z {
+        0
+    } else if ext.y >= ext.z {
+        1
+    } else {
+        2
+    };
+    let mid = items.len() / 2;
+    items.select_nth_unstable_by(mid, |a, b| {
+        a.centroid[axis]
+            .total_cmp(&b.centroid[axis])
+            .then(a.id.cmp(&b.id))
+    });
+    mid
+}
+
+/// Binned surface-area-heuristic split (Wald 2007): centroids binned into
+/// [`SAH_BINS`] slabs per axis; the plane between two bins minimising
+/// `A(left) n(left) + A(right) n(right)` (the expected number of triangle
+/// tests of a ray that reaches the node) is chosen. Thin, close sheets such as
+/// the two walls of a fissure end up in separate boxes, where median splits
+/// keep boxes that span the gap. Returns the size of the left part, or `None`
+/// when every centroid falls in one bin on every axis.
+fn sah_split(items: &mut [Item]) -> Option<usize> {
+    let mut clo = items[0].centroid;
+    let mut chi = items[0].centroid;
+    for it in items.iter() {
+        clo = clo.inf(&it.centroid);
+        chi = chi.sup(&it.centroid);
+    }
+    let empty = (
+        Point3::from([f64::INFINITY; 3]),
+        Point3::from([f64::NEG_INFINITY; 3]),
+    );
+    let mut best: Option<(f64, usize, usize)> = None;
+    for axis in 0..3 {
+        let ext = chi[axis] - clo[axis];
+        if !(ext > 0.0) {
+            continue;
+        }
+        let bin = |it: &Item| {
+            (((it.centroid[axis] - clo[axis]) / ext * SAH_BINS as f64) as usize).min(SAH_BINS - 1)
+        };
+        let mut count = [0usize; SAH_BINS];
+        let mut boxes = [empty; SAH_BINS];
+        for it in items.iter() {
+            let b = bin(it);
+            count[b] += 1;
+            boxes[b].0 = boxes[b].0.inf(&it.lo);
+            boxes[b].1 = boxes[b].1.sup(&it.hi);
+        }
+        // Right-to-left sweep of areas and counts, then left-to-right.
+        let mut right_area = [0.0f64; SAH_BINS];
+        let mut acc = empty;
+        let mut n = 0;
+        let mut right_count = [0usize; SAH_BINS];
+        for b in (1..SAH_BINS).rev() {
+            acc.0 = acc.0.inf(&boxes[b].0);
+            acc.1 = acc.1.sup(&boxes[b].1);
+            n += count[b];
+            right_area[b] = half_area(&acc.0, &acc.1);
+            right_count[b] = n;
+        }
+        let mut acc = empty;
+        let mut n = 0;
+        for b in 1..SAH_BINS {
+            acc.0 = acc.0.inf(&boxes[b - 1].0);
+            acc.1 = acc.1.sup(&boxes[b - 1].1);
+            n += count[b - 1];
+            if n == 0 || right_count[b] == 0 {
+                continue;
+            }
+            let cost = half_area(&acc.0, &acc.1) * n as f64 + right_area[b] * right_count[b] as f64;
+            if best.is_none_or(|(c, _, _)| cost < c) {
+                best = Some((cost, axis, b));
+            }
+        }
+    }
+    let (_, axis, split) = best?;
+    let ext = chi[axis] - clo[axis];
+    let side = |it: &Item| {
+        (((it.centroid[axis] - clo[axis]) / ext * SAH_BINS as f64) as usize).min(SAH_BINS - 1)
+            >= split
+    };
+    items.sort_unstable_by(|a, b| side(a).cmp(&side(b)).then(a.id.cmp(&b.id)));
+    let mid = items.iter().filter(|it| !side(it)).count();
+    (mid > 0 && mid < items.len()).then_some(mid)
+}
 
 /// No node (the root's parent).
 const NONE: u32 = u32::MAX;
@@ -205,21 +329,27 @@ impl Bvh {
             .zip(self.triangles.iter().copied())
             .collect();
         order.sort_unstable_by_key(|e| e.0);
-        let mut items: Vec<(Point3<f64>, u32, [u32; 3])> = order
+        let mut items: Vec<Item> = order
             .into_iter()
-            .map(|(id, t)| {
-                let [a, b, c] = t.map(|v| positions[v as usize]);
-                (Point3::from((a.coords + b.coords + c.coords) / 3.0), id, t)
+            .map(|(id, tri)| {
+                let [a, b, c] = tri.map(|v| positions[v as usize]);
+                Item {
+                    centroid: Point3::from((a.coords + b.coords + c.coords) / 3.0),
+                    lo: a.inf(&b).inf(&c),
+                    hi: a.sup(&b).sup(&c),
+                    id,
+                    tri,
+                }
             })
             .collect();
         self.nodes.clear();
         self.parent.clear();
         if !items.is_empty() {
             self.nodes.reserve(2 * items.len() / LEAF_SIZE + 1);
-            Self::split(&mut self.nodes, &mut self.parent, &mut items, 0, NONE);
+            Self::split(&mut self.nodes, &mut self.parent, &mut items, 0, NONE, 0);
         }
-        self.ids = items.iter().map(|e| e.1).collect();
-        self.triangles = items.iter().map(|e| e.2).collect();
+        self.ids = items.iter().map(|e| e.id).collect();
+        self.triangles = items.iter().map(|e| e.tri).collect();
         // Leaf of each slot.
         self.leaf_of.clear();
         self.leaf_of.resize(self.triangles.len(), 0);
@@ -257,13 +387,18 @@ impl Bvh {
         self.moved.reserve(self.needed);
     }
 
-    /// Emits the subtree of `items` (which start at leaf-order index `first`).
+    /// Emits the subtree of `items` (which start at leaf-order index `first`)
+    /// at depth `depth`: a binned SAH split ([`sah_split`]) while `depth <
+    /// SAH_DEPTH`, a median split of the centroids along their longest axis
+    /// below that or when SAH finds no split. Deterministic: every partition
+    /// orders by (side, triangle id).
     fn split(
         nodes: &mut Vec<Node>,
         parent: &mut Vec<u32>,
-        items: &mut [(Point3<f64>, u32, [u32; 3])],
+        items: &mut [Item],
         first: usize,
         up: u32,
+        depth: usize,
     ) {
         let me = nodes.len();
         nodes.push(Node {
@@ -276,28 +411,14 @@ impl Bvh {
         if items.len() <= LEAF_SIZE {
             return;
         }
-        let mut lo = items[0].0;
-        let mut hi = items[0].0;
-        for it in items.iter() {
-            lo = lo.inf(&it.0);
-            hi = hi.sup(&it.0);
-        }
-        let ext = hi - lo;
-        let axis = if ext.x >= ext.y && ext.x >= ext.z {
-            0
-        } else if ext.y >= ext.z {
-            1
-        } else {
-            2
+        let mid = match (depth < SAH_DEPTH).then(|| sah_split(items)).flatten() {
+            Some(mid) => mid,
+            None => median_split(items),
         };
-        let mid = items.len() / 2;
-        items.select_nth_unstable_by(mid, |a, b| {
-            a.0[axis].total_cmp(&b.0[axis]).then(a.1.cmp(&b.1))
-        });
         let (left, right) = items.split_at_mut(mid);
-        Self::split(nodes, parent, left, first, me as u32);
+        Self::split(nodes, parent, left, first, me as u32, depth + 1);
         let r = nodes.len() as u32;
-        Self::split(nodes, parent, right, first + mid, me as u32);
+        Self::split(nodes, parent, right, first + mid, me as u32, depth + 1);
         nodes[me].index = r;
         nodes[me].count = 0;
     }
@@ -454,9 +575,10 @@ impl Bvh {
         (t0 <= t1).then_some((t0, t1))
     }
 
-    fn cast_one(&self, origin: Point3<f64>, dir: Vector3<f64>) -> NodeHits {
+    /// The nearest hits of one line within `range` (module documentation).
+    fn cast_one(&self, origin: Point3<f64>, dir: Vector3<f64>, range: RayRange) -> NodeHits {
         let mut hits = NodeHits::default();
-        if self.nodes.is_empty() {
+        if self.nodes.is_empty() || !(range.behind >= 0.0 || range.front > 0.0) {
             return hits;
         }
         let ray = PreparedRay::new(self.test, origin, dir);
@@ -466,10 +588,13 @@ impl Bvh {
         }
         let inv = [0, 1, 2].map(|a| if zero[a] { 0.0 } else { 1.0 / dir[a] });
         // Is an interval still able to improve an answer?
+        // Bounds beyond which nothing is looked for: the range, then the hits
+        // found so far.
         let useful = |t0: f64, t1: f64, hits: &NodeHits| {
-            let front = hits.front.map_or(f64::INFINITY, |h| h.t);
-            let behind = hits.behind.map_or(f64::INFINITY, |h| -h.t);
-            (t1 > 0.0 && t0 <= front) || (t0 <= 0.0 && t1 >= -behind)
+            let front = hits.front.map_or(range.front, |h| h.t);
+            let behind = hits.behind.map_or(range.behind, |h| -h.t);
+            (front > 0.0 && t1 > 0.0 && t0 <= front)
+                || (behind >= 0.0 && t0 <= 0.0 && t1 >= -behind)
         };
         let dist = |t0: f64, t1: f64| {
             if t0 > 0.0 {
@@ -497,7 +622,9 @@ impl Bvh {
                 let first = n.index as usize;
                 for j in first..first + n.count as usize {
                     let [a, b, c] = &self.verts[j];
-                    if let Some(h) = ray.intersect(a, b, c) {
+                    if let Some(h) = ray.intersect(a, b, c)
+                        && range.contains(h.t)
+                    {
                         keep_nearest(
                             &mut hits,
                             Hit {
@@ -516,7 +643,8 @@ impl Bvh {
             let il = self.interval(l, &origin, &inv, &zero);
             let ir = self.interval(r, &origin, &inv, &zero);
             let mut push = |e: (u32, f64, f64)| {
-                // The tree is balanced (median splits): depth <= log2(n) + 2.
+                // Depth <= SAH_DEPTH + log2(n) + 2, and the stack grows by
+                // at most one entry a level.
                 stack[top] = e;
                 top += 1;
             };
@@ -536,6 +664,42 @@ impl Bvh {
             }
         }
         hits
+    }
+}
+
+impl Bvh {
+    /// Casts one line per source node within `ranges` (one per ray; rays
+    /// without one look along the whole line), parallel over the rays as `par`
+    /// says. Read-only: one tree published by the deformation loop serves
+    /// every force loop at once. Answers equal [`RayBackend::cast_ranged`]'s.
+    pub fn cast_ranged_with(
+        &self,
+        origins: &[Point3<f64>],
+        dirs: &[Vector3<f64>],
+        ranges: &[RayRange],
+        par: Par,
+        out: &mut Vec<NodeHits>,
+    ) {
+        let n = origins.len().min(dirs.len());
+        out.clear();
+        out.resize(n, NodeHits::default());
+        if !self.valid {
+            return;
+        }
+        let range = |i: usize| ranges.get(i).copied().unwrap_or(RayRange::LINE);
+        match par {
+            Par::Seq => {
+                for (i, slot) in out.iter_mut().enumerate() {
+                    *slot = self.cast_one(origins[i], dirs[i], range(i));
+                }
+            }
+            Par::Rayon(_) => {
+                out.par_iter_mut()
+                    .enumerate()
+                    .with_min_len(32)
+                    .for_each(|(i, slot)| *slot = self.cast_one(origins[i], dirs[i], range(i)));
+            }
+        }
     }
 }
 
@@ -560,16 +724,16 @@ impl RayBackend for Bvh {
     }
 
     fn cast(&mut self, origins: &[Point3<f64>], dirs: &[Vector3<f64>], out: &mut Vec<NodeHits>) {
-        let n = origins.len().min(dirs.len());
-        out.clear();
-        out.resize(n, NodeHits::default());
-        if !self.valid {
-            return;
-        }
-        let this = &*self;
-        out.par_iter_mut()
-            .with_min_len(32)
-            .zip(origins[..n].par_iter().zip(dirs[..n].par_iter()))
-            .for_each(|(slot, (o, d))| *slot = this.cast_one(*o, *d));
+        self.cast_ranged_with(origins, dirs, &[], Par::rayon(0), out);
+    }
+
+    fn cast_ranged(
+        &mut self,
+        origins: &[Point3<f64>],
+        dirs: &[Vector3<f64>],
+        ranges: &[RayRange],
+        out: &mut Vec<NodeHits>,
+    ) {
+        self.cast_ranged_with(origins, dirs, ranges, Par::rayon(0), out);
     }
 }

@@ -64,6 +64,50 @@ pub struct NodeHits {
     pub front: Option<Hit>,
 }
 
+/// How far along its line a cast looks, m: behind up to `behind`
+/// (`-behind <= t <= 0`) and in front up to `front` (`0 < t <= front`). A
+/// negative bound looks nowhere on that side; [`RayRange::LINE`] is the whole
+/// line.
+///
+/// The nearest hit within a range is the nearest hit of the whole line when
+/// that one lies within the range, and none otherwise ([`RayRange::clip`]): a
+/// ranged cast answers a question of the whole-line cast exactly, while a
+/// backend may skip everything beyond the bounds.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RayRange {
+    /// Largest `|t|` of a hit behind (`t <= 0`), m.
+    pub behind: f64,
+    /// Largest `t` of a hit in front (`t > 0`), m.
+    pub front: f64,
+}
+
+impl RayRange {
+    /// The whole line.
+    pub const LINE: Self = Self {
+        behind: f64::INFINITY,
+        front: f64::INFINITY,
+    };
+
+    /// Whether a hit at `t` lies within the range.
+    #[inline]
+    pub fn contains(&self, t: f64) -> bool {
+        if t <= 0.0 {
+            -t <= self.behind
+        } else {
+            t <= self.front
+        }
+    }
+
+    /// The whole-line answer restricted to the range.
+    #[inline]
+    pub fn clip(&self, hits: NodeHits) -> NodeHits {
+        NodeHits {
+            behind: hits.behind.filter(|h| self.contains(h.t)),
+            front: hits.front.filter(|h| self.contains(h.t)),
+        }
+    }
+}
+
 /// A ray-casting backend over a deforming triangle surface: the stage that
 /// answers, for every source-node ray, the nearest hit behind and in front.
 ///
@@ -81,6 +125,22 @@ pub trait RayBackend: Send {
     /// Casts one ray per source node: `origins[i] + t * dirs[i]`, `dirs` unit
     /// length. Writes `out[i]` for every `i` (`out` is resized to the ray count).
     fn cast(&mut self, origins: &[Point3<f64>], dirs: &[Vector3<f64>], out: &mut Vec<NodeHits>);
+    /// As [`RayBackend::cast`], each ray looking only within `ranges[i]`: the
+    /// answer is the whole-line answer clipped to the range ([`RayRange`]).
+    /// The default casts whole lines and clips; a backend that can skip work
+    /// beyond the bounds overrides it.
+    fn cast_ranged(
+        &mut self,
+        origins: &[Point3<f64>],
+        dirs: &[Vector3<f64>],
+        ranges: &[RayRange],
+        out: &mut Vec<NodeHits>,
+    ) {
+        self.cast(origins, dirs, out);
+        for (h, r) in out.iter_mut().zip(ranges) {
+            *h = r.clip(*h);
+        }
+    }
 }
 
 /// Errors in a surface handed to a backend.

@@ -268,6 +268,9 @@ pub struct CollisionSpec {
     pub max_depth_m: f64,
 }
 
+/// Default of [`CollisionSpec::max_depth_m`], m.
+pub const DEFAULT_MAX_DEPTH_M: f64 = 0.01;
+
 impl Default for CollisionSpec {
     fn default() -> Self {
         Self {
@@ -275,7 +278,7 @@ impl Default for CollisionSpec {
             backend: CollisionBackend::Cpu,
             history: HistoryMode::ForceRate,
             culling: true,
-            max_depth_m: 0.01,
+            max_depth_m: DEFAULT_MAX_DEPTH_M,
         }
     }
 }

@@ -9,17 +9,18 @@
 use super::SimError;
 use super::local_model::ForceModel;
 use super::snapshot::{Frame, InstrumentReaction, Snapshot, StepTimings};
-use crate::collide::RayBackend;
 use crate::collide::brute::BruteForce;
 use crate::collide::bvh::Bvh;
 use crate::collide::contact::{self, ContactOutput, DetectOptions, Tool, Workspace};
 use crate::collide::history::{HistoryMode as CollideHistoryMode, Stage};
 use crate::collide::instrument::{Instrument, NodeLayout, Plate, RimNodes};
+use crate::collide::{NodeHits, RayBackend, RayRange};
 use crate::fem::{self, DeformationSolver, Prescribed};
 use crate::mesh::{BoundarySurface, TetMesh};
 use crate::scene::{
     CollisionBackend, CollisionMethod, HistoryMode, LayoutKind, ModelSpec, Region, Scene, ShapeKind,
 };
+use faer::Par;
 use nalgebra::{DMatrix, Isometry3, Point3, Vector3};
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -220,6 +221,7 @@ impl Model {
             sim_time_s: 0.0,
             published: Instant::now(),
             surface: Arc::new(self.rest_surface.clone()),
+            surface_bvh: None,
             force_model: Arc::new(ForceModel::default()),
             paper_history: (0..self.instruments.len())
                 .map(|i| self.new_history(i))
@@ -279,21 +281,105 @@ pub fn ray_backend(scene: &Scene, model: &Model, positions: &[Point3<f64>]) -> B
     }
 }
 
+/// The published surface BVHs of a scene with the CPU BVH: each step's tree
+/// is refitted on the deformation thread, then shared read-only by the force
+/// loops (and by the next step's collision) through the snapshot. The tree of
+/// two steps ago is reused once nobody holds it (no allocation in steady
+/// state); otherwise the current one is cloned.
+#[derive(Debug)]
+pub struct SurfaceBvhs {
+    current: Arc<Bvh>,
+    spare: Option<Arc<Bvh>>,
+}
+
+impl SurfaceBvhs {
+    /// A tree over the rest surface, when the scene casts on the CPU BVH.
+    pub fn new(scene: &Scene, model: &Model) -> Option<Self> {
+        (scene.collision.method == CollisionMethod::Bvh
+            && scene.collision.backend == CollisionBackend::Cpu)
+            .then(|| Self {
+                current: Arc::new(
+                    Bvh::new(&model.surface.triangles, &model.rest_surface)
+                        .expect("surface checked at load"),
+                ),
+                spare: None,
+            })
+    }
+
+    /// The tree fitted to the rest surface (or whatever was published last).
+    pub fn current(&self) -> Arc<Bvh> {
+        self.current.clone()
+    }
+
+    /// A tree fitted to `surface`, to publish with it.
+    pub fn fit(&mut self, surface: &[Point3<f64>]) -> Arc<Bvh> {
+        let mut next = match self.spare.take().map(Arc::try_unwrap) {
+            Some(Ok(tree)) => tree,
+            _ => (*self.current).clone(),
+        };
+        next.update_positions(surface);
+        let next = Arc::new(next);
+        self.spare = Some(std::mem::replace(&mut self.current, next.clone()));
+        next
+    }
+}
+
+/// A published tree as a [`RayBackend`] of one query: casts read-only with the
+/// caller's parallelism. Its positions are the snapshot's, fitted by the
+/// deformation loop, so `update_positions` has nothing to do.
+struct SharedBvh<'a> {
+    tree: &'a Bvh,
+    par: Par,
+}
+
+impl RayBackend for SharedBvh<'_> {
+    fn method(&self) -> &'static str {
+        "bvh"
+    }
+
+    fn backend(&self) -> &'static str {
+        "cpu"
+    }
+
+    fn update_positions(&mut self, _positions: &[Point3<f64>]) {}
+
+    fn cast(&mut self, origins: &[Point3<f64>], dirs: &[Vector3<f64>], out: &mut Vec<NodeHits>) {
+        self.tree
+            .cast_ranged_with(origins, dirs, &[], self.par, out);
+    }
+
+    fn cast_ranged(
+        &mut self,
+        origins: &[Point3<f64>],
+        dirs: &[Vector3<f64>],
+        ranges: &[RayRange],
+        out: &mut Vec<NodeHits>,
+    ) {
+        self.tree
+            .cast_ranged_with(origins, dirs, ranges, self.par, out);
+    }
+}
+
 /// The collision stage of one loop: its own backend (fitted to the snapshot it
-/// last saw), workspace and output buffers.
+/// last saw) unless the snapshot carries a published tree, workspace and
+/// output buffers. `par` is the parallelism of its casts on a published tree:
+/// sequential for a force loop (on its own thread, never queued behind the
+/// deformation loop's parallel work), the rayon pool for the deformation loop.
 pub struct ContactQuery {
-    backend: Box<dyn RayBackend>,
+    scene: Scene,
+    backend: Option<Box<dyn RayBackend>>,
     fitted: Option<Arc<Vec<Point3<f64>>>>,
     ws: Workspace,
     out: ContactOutput,
     opts: DetectOptions,
     by_node: Vec<(u32, Vector3<f64>)>,
+    par: Par,
 }
 
 impl std::fmt::Debug for ContactQuery {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("ContactQuery")
-            .field("method", &self.backend.method())
+            .field("method", &self.backend.as_ref().map(|b| b.method()))
             .finish_non_exhaustive()
     }
 }
@@ -322,10 +408,13 @@ impl ContactView<'_> {
 }
 
 impl ContactQuery {
-    /// A collision stage for `scene` over the rest surface.
-    pub fn new(scene: &Scene, model: &Model) -> Self {
+    /// A collision stage for `scene` over the rest surface; casts on a
+    /// published tree with parallelism `par`.
+    pub fn new(scene: &Scene, par: Par) -> Self {
         Self {
-            backend: ray_backend(scene, model, &model.rest_surface),
+            par,
+            scene: scene.clone(),
+            backend: None,
             fitted: None,
             ws: Workspace::new(),
             out: ContactOutput::default(),
@@ -337,15 +426,32 @@ impl ContactQuery {
         }
     }
 
-    fn fit(&mut self, surface: &Arc<Vec<Point3<f64>>>) {
-        if !self
-            .fitted
-            .as_ref()
-            .is_some_and(|f| Arc::ptr_eq(f, surface))
-        {
-            self.backend.update_positions(surface);
-            self.fitted = Some(surface.clone());
+    /// The backend to cast on for `snap`: its published tree, or this
+    /// query's own backend fitted to its surface.
+    /// Its own backend is built on first need (never, while snapshots carry
+    /// a tree).
+    #[allow(clippy::too_many_arguments)]
+    fn backend_for<'a>(
+        backend: &'a mut Option<Box<dyn RayBackend>>,
+        fitted: &mut Option<Arc<Vec<Point3<f64>>>>,
+        scene: &Scene,
+        model: &Model,
+        snap: &'a Snapshot,
+        par: Par,
+        shared: &'a mut Option<SharedBvh<'a>>,
+    ) -> &'a mut dyn RayBackend {
+        if let Some(tree) = &snap.surface_bvh {
+            return shared.insert(SharedBvh { tree, par });
         }
+        let backend = backend.get_or_insert_with(|| ray_backend(scene, model, &snap.surface));
+        if !fitted
+            .as_ref()
+            .is_some_and(|f| Arc::ptr_eq(f, &snap.surface))
+        {
+            backend.update_positions(&snap.surface);
+            *fitted = Some(snap.surface.clone());
+        }
+        backend.as_mut()
     }
 
     fn index(&mut self) {
@@ -368,10 +474,19 @@ impl ContactQuery {
         pose: &Isometry3<f64>,
         history: &mut History,
     ) -> ContactView<'_> {
-        self.fit(&snap.surface);
+        let mut shared = None;
+        let backend = Self::backend_for(
+            &mut self.backend,
+            &mut self.fitted,
+            &self.scene,
+            model,
+            snap,
+            Par::Seq,
+            &mut shared,
+        );
         let q = model.contact_query(&snap.surface);
         if let Err(e) = contact::detect(
-            self.backend.as_mut(),
+            backend,
             &q,
             &model.instruments[instrument],
             pose,
@@ -399,7 +514,16 @@ impl ContactQuery {
         poses: &[Isometry3<f64>],
         histories: &mut [History],
     ) -> &ContactOutput {
-        self.fit(&snap.surface);
+        let mut shared = None;
+        let backend = Self::backend_for(
+            &mut self.backend,
+            &mut self.fitted,
+            &self.scene,
+            model,
+            snap,
+            self.par,
+            &mut shared,
+        );
         let q = model.contact_query(&snap.surface);
         let mut tools: Vec<Tool<'_>> = model
             .instruments
@@ -413,7 +537,7 @@ impl ContactQuery {
             })
             .collect();
         if let Err(e) = contact::detect_many(
-            self.backend.as_mut(),
+            backend,
             &q,
             &mut tools,
             Stage::Deformation,
@@ -685,6 +809,7 @@ impl Model {
             sim_time_s,
             published: Instant::now(),
             surface: Arc::new(surface),
+            surface_bvh: None,
             force_model: Arc::new(force_model),
             paper_history,
             solver_error: None,

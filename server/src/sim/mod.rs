@@ -20,12 +20,14 @@
 pub mod engine;
 pub mod local_model;
 pub mod pose;
+pub mod priority;
 pub mod recording;
 pub mod snapshot;
 pub mod stats;
 
 use crate::scene::{HistoryMode, Scene};
 use engine::{ContactQuery, Deformer, Model};
+use faer::Par;
 use local_model::ForceWorkspace;
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use pose::{PoseError, RawPose, TimedPose};
@@ -65,7 +67,14 @@ pub struct SimOptions {
     pub recording: Option<PathBuf>,
     /// Largest number of concurrent watchers.
     pub max_watchers: usize,
+    /// Nice value of the deformation thread and its rayon pool (Linux; 0
+    /// leaves them at the process's priority). Higher than the force loops'
+    /// so that a force sample preempts the solver ([`priority`]).
+    pub deformation_nice: i32,
 }
+
+/// Default of [`SimOptions::deformation_nice`].
+pub const DEFAULT_DEFORMATION_NICE: i32 = 10;
 
 impl Default for SimOptions {
     fn default() -> Self {
@@ -74,6 +83,7 @@ impl Default for SimOptions {
             stepped_clients: 1,
             recording: None,
             max_watchers: 16,
+            deformation_nice: DEFAULT_DEFORMATION_NICE,
         }
     }
 }
@@ -211,7 +221,9 @@ impl Simulation {
             ),
             None => None,
         };
-        let rest = model.rest_snapshot(&scene);
+        let mut bvhs = engine::SurfaceBvhs::new(&scene, &model);
+        let mut rest = model.rest_snapshot(&scene);
+        rest.surface_bvh = bvhs.as_mut().map(|b| b.current());
         let (frames, _) = tokio::sync::watch::channel(rest.frame_summary.clone());
         let n = scene.instruments.len();
         let sim = Arc::new(Self {
@@ -253,7 +265,14 @@ impl Simulation {
         let worker = sim.clone();
         let handle = std::thread::Builder::new()
             .name("deformation-loop".into())
-            .spawn(move || worker.deformation_loop(deformer))
+            .spawn(move || {
+                let nice = worker.options.deformation_nice;
+                priority::lower_current_thread(nice);
+                match priority::deformation_pool(nice) {
+                    Some(pool) => pool.install(|| worker.deformation_loop(deformer, bvhs)),
+                    None => worker.deformation_loop(deformer, bvhs),
+                }
+            })
             .map_err(|e| SimError::Solver(format!("cannot start the deformation thread: {e}")))?;
         *sim.thread.lock().expect("thread lock") = Some(handle);
         Ok(sim)
@@ -329,7 +348,7 @@ impl Simulation {
             name: name.to_owned(),
             last: None,
             history: self.model.new_history(index),
-            query: ContactQuery::new(&self.scene, &self.model),
+            query: ContactQuery::new(&self.scene, Par::Seq),
             ws: ForceWorkspace::default(),
         })
     }
@@ -424,10 +443,14 @@ impl Simulation {
         )
     }
 
-    fn deformation_loop(self: Arc<Self>, mut deformer: Deformer) {
+    fn deformation_loop(
+        self: Arc<Self>,
+        mut deformer: Deformer,
+        mut bvhs: Option<engine::SurfaceBvhs>,
+    ) {
         let dt = self.scene.loops.deformation_interval_s;
         let n = self.scene.instruments.len();
-        let mut query = ContactQuery::new(&self.scene, &self.model);
+        let mut query = ContactQuery::new(&self.scene, Par::rayon(0));
         let mut paper_history: Vec<engine::History> =
             (0..n).map(|i| self.model.new_history(i)).collect();
         let mut seen_versions = vec![u64::MAX; n];
@@ -498,6 +521,7 @@ impl Simulation {
                     }
                     let prev = self.snapshot();
                     let mut rest = self.model.rest_snapshot(&self.scene);
+                    rest.surface_bvh = bvhs.as_mut().map(|b| b.fit(&rest.surface));
                     rest.frame = prev.frame + 1;
                     rest.sim_time_s = prev.sim_time_s;
                     Arc::make_mut(&mut rest.frame_summary).frame = rest.frame;
@@ -581,16 +605,21 @@ impl Simulation {
                 total_us,
             };
             let snap = match result {
-                Ok(step) => self.model.snapshot_from(
-                    &self.scene,
-                    k,
-                    sim_time,
-                    step,
-                    contacts,
-                    &poses,
-                    paper_history.clone(),
-                    timings,
-                ),
+                Ok(step) => {
+                    let mut snap = self.model.snapshot_from(
+                        &self.scene,
+                        k,
+                        sim_time,
+                        step,
+                        contacts,
+                        &poses,
+                        paper_history.clone(),
+                        timings,
+                    );
+                    snap.surface_bvh = tracing::debug_span!("refit")
+                        .in_scope(|| bvhs.as_mut().map(|b| b.fit(&snap.surface)));
+                    snap
+                }
                 Err(e) => {
                     self.failed_steps.fetch_add(1, Ordering::Relaxed);
                     tracing::warn!(frame = k, error = %e, "deformation step failed; keeping the last good state");
@@ -604,6 +633,7 @@ impl Simulation {
                         sim_time_s: sim_time,
                         published: Instant::now(),
                         surface: prev.surface.clone(),
+                        surface_bvh: prev.surface_bvh.clone(),
                         force_model: prev.force_model.clone(),
                         paper_history: prev.paper_history.clone(),
                         solver_error: Some(e.to_string()),

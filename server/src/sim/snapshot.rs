@@ -7,6 +7,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use super::local_model::ForceModel;
+use crate::collide::Bvh;
 
 /// Reaction of the tissue on one instrument in a deformation step.
 #[derive(Debug, Clone, PartialEq)]
@@ -71,6 +72,10 @@ pub struct Snapshot {
     pub published: Instant,
     /// Current surface vertex positions, m.
     pub surface: Arc<Vec<Point3<f64>>>,
+    /// A BVH fitted to `surface` (scenes with the CPU BVH), refitted once per
+    /// step by the deformation loop and shared read-only by every force loop,
+    /// so that no force sample pays for a refit.
+    pub surface_bvh: Option<Arc<Bvh>>,
     /// The local model of the contact DOFs, for the force loops.
     pub force_model: Arc<ForceModel>,
     /// Paper-mode history flags per instrument (renewed once a step).
