@@ -230,6 +230,9 @@ def bridge_seeds():
     put("bridge", "overflow.json", '{"i":0,"seq":18446744073709551616,"t_s":1e400,"p":[0,0,0],"q":[1,0,0,0]}')
     put("bridge", "escaped-name.json", '{"instrument":"le\\"ft","seq":1,"t_s":0,"p":[0,0,0],"q":[1,0,0,0]}')
     put("bridge", "null-index.json", '{"instrument":"left","i":null,"seq":1,"t_s":0,"p":[0,0,0],"q":[1,0,0,0]}')
+    # Long digit strings (serde_json's default float reader rounds them
+    # differently from Rust's shortest round-trip printing).
+    put("bridge", "long-digits.json", '{"instrument":"right","seq":9,"t_s":0.0332222222222222222222222222222222222222E43,"p":[0.0,0.0,0.0],"q":[1.0,0.0,0.0,0.0]}')
     put("bridge", "padded.json", json_pose("right", 9, 0.009, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0)).ljust(1024))
 
 
