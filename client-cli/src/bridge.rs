@@ -50,8 +50,9 @@
 //! with `"status"` `"ok"`, `"rejected"` (then `"message"` says why) or
 //! `"not-forwarded"`.
 //!
-//! Datagrams that do not parse are dropped and counted
-//! ([`parse_datagram`] names what is wrong; it never panics).
+//! Datagrams that do not parse, and any over [`MAX_DATAGRAM`] bytes, are
+//! dropped and counted ([`parse_datagram`] names what is wrong; it never
+//! panics). The parser is fuzzed (`server/fuzz`, target `bridge`).
 //!
 //! # Rate and allocation
 //!
@@ -153,6 +154,13 @@ pub enum DatagramError {
         /// Bytes received.
         got: usize,
     },
+    /// Longer than [`MAX_DATAGRAM`] (the bridge's receive buffer holds one
+    /// byte more, so `got` is then `MAX_DATAGRAM + 1`: at least that many).
+    #[error("datagram of {got} bytes is over the {MAX_DATAGRAM}-byte limit")]
+    TooLong {
+        /// Bytes received (a lower bound when the receive was cut short).
+        got: usize,
+    },
     /// The JSON object is malformed or misses a field.
     #[error("JSON pose: {0}")]
     Json(String),
@@ -184,9 +192,22 @@ struct JsonPose<'a> {
 }
 
 /// Parses one pose datagram (binary or JSON, see the module doc). Never
-/// panics; values are not range-checked here (the server answers
-/// non-finite values or a non-unit quaternion with a rejection).
+/// panics and never allocates for a binary datagram.
+///
+/// Checked here: the length (at most [`MAX_DATAGRAM`] bytes; a binary pose
+/// is exactly [`POSE_LEN`]), the magic and version of a binary pose, and the
+/// JSON object's fields (exactly one of `"instrument"` and `"i"`, no unknown
+/// field, numbers of the right type; an instrument name is taken as written,
+/// so it may not contain JSON escapes). The reserved bytes 6..8 of a binary
+/// pose are ignored. Values are not range-checked here: a NaN or infinite
+/// binary component, or a non-unit quaternion, is passed on bit for bit and
+/// the server answers it with a rejection naming the field (JSON has no
+/// literal for NaN or infinity, and a number beyond the f64 range is a JSON
+/// error).
 pub fn parse_datagram(bytes: &[u8]) -> Result<PoseDatagram<'_>, DatagramError> {
+    if bytes.len() > MAX_DATAGRAM {
+        return Err(DatagramError::TooLong { got: bytes.len() });
+    }
     let first = bytes
         .iter()
         .position(|b| !b.is_ascii_whitespace())
@@ -603,12 +624,10 @@ impl Bridge {
                     _ = stopped.changed() => break,
                 };
                 counters.received.fetch_add(1, Ordering::Relaxed);
-                let d = if n > MAX_DATAGRAM {
-                    Err(DatagramError::Length { got: n })
-                } else {
-                    parse_datagram(&buf[..n])
-                };
-                let d = match d {
+                // `buf` holds one byte more than the limit, so a longer
+                // datagram arrives cut to `MAX_DATAGRAM + 1` bytes and is
+                // refused as too long.
+                let d = match parse_datagram(&buf[..n]) {
                     Ok(d) => d,
                     Err(e) => {
                         let bad = counters.bad.fetch_add(1, Ordering::Relaxed);
@@ -827,33 +846,231 @@ mod tests {
         assert_eq!(f64::from_le_bytes(b[32..40].try_into().unwrap()), -0.02);
     }
 
+    fn valid() -> [u8; POSE_LEN] {
+        encode_pose(0, 1, 0.0, [0.0; 3], [1.0, 0.0, 0.0, 0.0])
+    }
+
+    fn json_error(bytes: &[u8]) -> String {
+        match parse_datagram(bytes) {
+            Err(DatagramError::Json(m)) => m,
+            other => panic!(
+                "{:?}: expected a JSON error, got {other:?}",
+                String::from_utf8_lossy(bytes)
+            ),
+        }
+    }
+
     #[test]
-    fn bad_datagrams_are_named() {
-        let b = encode_pose(0, 1, 0.0, [0.0; 3], [1.0, 0.0, 0.0, 0.0]);
+    fn truncated_binary_poses_are_refused_at_every_length() {
+        let b = valid();
         assert_eq!(parse_datagram(&[]), Err(DatagramError::Empty));
+        assert_eq!(parse_datagram(b" \t\r\n"), Err(DatagramError::Empty));
+        // Shorter than the magic: the magic as received, zero-padded.
         assert_eq!(
-            parse_datagram(&b[..79]),
-            Err(DatagramError::Length { got: 79 })
+            parse_datagram(&b[..1]),
+            Err(DatagramError::Magic(*b"F\0\0\0"))
         );
-        let mut v = b;
-        v[4] = 2;
-        assert_eq!(parse_datagram(&v), Err(DatagramError::Version(2)));
-        assert!(matches!(
-            parse_datagram(b"XY"),
-            Err(DatagramError::Magic(_))
-        ));
-        assert!(matches!(
-            parse_datagram(b"FSP1"),
-            Err(DatagramError::Length { got: 4 })
-        ));
-        assert!(matches!(
-            parse_datagram(br#"{"seq":1,"t_s":0,"p":[0,0,0],"q":[1,0,0,0]}"#),
-            Err(DatagramError::Json(_))
-        ));
-        assert!(matches!(
-            parse_datagram(br#"{"instrument":"left","seq":1,"t_s":0,"p":[0,0],"q":[1,0,0,0]}"#),
-            Err(DatagramError::Json(_))
-        ));
+        assert_eq!(
+            parse_datagram(&b[..3]),
+            Err(DatagramError::Magic(*b"FSP\0"))
+        );
+        // Magic (and version) present: the length is named.
+        for n in 4..POSE_LEN {
+            assert_eq!(
+                parse_datagram(&b[..n]),
+                Err(DatagramError::Length { got: n }),
+                "{n} bytes"
+            );
+        }
+        assert!(parse_datagram(&b).is_ok());
+        // One byte too many is as wrong as one too few.
+        let mut long = b.to_vec();
+        long.push(0);
+        assert_eq!(
+            parse_datagram(&long),
+            Err(DatagramError::Length { got: 81 })
+        );
+        // A truncated JSON pose: every proper prefix fails.
+        let json = br#"{"instrument":"left","seq":1,"t_s":0,"p":[0,0,0],"q":[1,0,0,0]}"#;
+        for n in 1..json.len() {
+            assert!(
+                matches!(parse_datagram(&json[..n]), Err(DatagramError::Json(_))),
+                "{n} bytes"
+            );
+        }
+    }
+
+    #[test]
+    fn wrong_magic_or_version_is_named() {
+        let mut b = valid();
+        // A force answer looped back to the bridge.
+        b[0..4].copy_from_slice(&FORCE_MAGIC);
+        assert_eq!(parse_datagram(&b), Err(DatagramError::Magic(*b"FSF1")));
+        b[0..4].copy_from_slice(b"fsp1");
+        assert_eq!(parse_datagram(&b), Err(DatagramError::Magic(*b"fsp1")));
+        assert_eq!(parse_datagram(b"XY"), Err(DatagramError::Magic(*b"XY\0\0")));
+        for v in [0u8, 2, 255] {
+            let mut b = valid();
+            b[4] = v;
+            assert_eq!(parse_datagram(&b), Err(DatagramError::Version(v)));
+            // The version is checked before the length.
+            assert_eq!(parse_datagram(&b[..10]), Err(DatagramError::Version(v)));
+        }
+        // The reserved bytes are not checked.
+        let mut b = valid();
+        b[6] = 0xff;
+        b[7] = 0x01;
+        assert_eq!(parse_datagram(&b), parse_datagram(&valid()));
+        let e = parse_datagram(b"FSF1\x01").unwrap_err().to_string();
+        assert!(e.contains("FSP1") && e.contains("[46, 53, 46, 31]"), "{e}");
+    }
+
+    #[test]
+    fn nan_and_infinite_values_are_passed_on_bit_for_bit() {
+        // Binary: the parser does not range-check; the server rejects such a
+        // pose naming the field, and the bridge relays that answer.
+        let nan = f64::from_bits(0x7ff8_0000_dead_beef);
+        let b = encode_pose(
+            3,
+            u64::MAX,
+            f64::NEG_INFINITY,
+            [nan, f64::INFINITY, f64::MIN_POSITIVE / 4.0],
+            [0.0, 0.0, 0.0, 0.0],
+        );
+        let d = parse_datagram(&b).unwrap();
+        assert_eq!(d.instrument, InstrumentRef::Index(3));
+        assert_eq!(d.sequence, u64::MAX);
+        assert_eq!(d.t_s, f64::NEG_INFINITY);
+        assert_eq!(d.position_m[0].to_bits(), nan.to_bits());
+        assert_eq!(d.position_m[1], f64::INFINITY);
+        assert_eq!(
+            d.position_m[2].to_bits(),
+            (f64::MIN_POSITIVE / 4.0).to_bits()
+        );
+        assert_eq!(d.orientation, [0.0; 4]);
+        let s = pose_sample(&d);
+        assert!(s.position_m.unwrap().x.is_nan());
+        // JSON has no NaN or infinity; a number beyond f64 is an error too.
+        for bad in [
+            br#"{"i":0,"seq":1,"t_s":NaN,"p":[0,0,0],"q":[1,0,0,0]}"#.as_slice(),
+            br#"{"i":0,"seq":1,"t_s":0,"p":[Infinity,0,0],"q":[1,0,0,0]}"#,
+            br#"{"i":0,"seq":1,"t_s":0,"p":[0,0,0],"q":[1e400,0,0,0]}"#,
+            br#"{"i":0,"seq":1,"t_s":0,"p":[0,0,-1e309],"q":[1,0,0,0]}"#,
+            br#"{"i":0,"seq":1,"t_s":"nan","p":[0,0,0],"q":[1,0,0,0]}"#,
+        ] {
+            json_error(bad);
+        }
+        // The extremes of f64 are fine.
+        let d = parse_datagram(
+            br#"{"i":0,"seq":1,"t_s":1.7976931348623157e308,"p":[5e-324,0,-0.0],"q":[1,0,0,0]}"#,
+        )
+        .unwrap();
+        assert_eq!(d.t_s, f64::MAX);
+        assert_eq!(d.position_m[0], 5e-324);
+        assert!(d.position_m[2].is_sign_negative());
+    }
+
+    #[test]
+    fn oversized_datagrams_are_refused() {
+        let mut b = valid().to_vec();
+        b.resize(MAX_DATAGRAM + 1, 0);
+        assert_eq!(
+            parse_datagram(&b),
+            Err(DatagramError::TooLong {
+                got: MAX_DATAGRAM + 1
+            })
+        );
+        // A JSON pose padded to the limit parses; one byte more does not.
+        let json = br#"{"instrument":"left","seq":1,"t_s":0,"p":[0,0,0],"q":[1,0,0,0]}"#;
+        let mut j = json.to_vec();
+        j.resize(MAX_DATAGRAM, b' ');
+        assert_eq!(
+            parse_datagram(&j).unwrap().instrument,
+            InstrumentRef::Name("left")
+        );
+        j.push(b'\n');
+        assert_eq!(
+            parse_datagram(&j),
+            Err(DatagramError::TooLong {
+                got: MAX_DATAGRAM + 1
+            })
+        );
+        // 64 KiB (the largest UDP payload) of anything.
+        assert_eq!(
+            parse_datagram(&vec![b'{'; 65_507]),
+            Err(DatagramError::TooLong { got: 65_507 })
+        );
+        assert!(
+            DatagramError::TooLong { got: 1025 }
+                .to_string()
+                .contains("1024-byte limit")
+        );
+    }
+
+    #[test]
+    fn malformed_json_poses_are_named() {
+        let cases: [(&[u8], &str); 13] = [
+            (
+                br#"{"seq":1,"t_s":0,"p":[0,0,0],"q":[1,0,0,0]}"#,
+                "exactly one",
+            ),
+            (
+                br#"{"instrument":"left","i":0,"seq":1,"t_s":0,"p":[0,0,0],"q":[1,0,0,0]}"#,
+                "exactly one",
+            ),
+            (
+                br#"{"i":0,"t_s":0,"p":[0,0,0],"q":[1,0,0,0]}"#,
+                "missing field `seq`",
+            ),
+            (
+                br#"{"i":0,"seq":1,"p":[0,0,0],"q":[1,0,0,0]}"#,
+                "missing field `t_s`",
+            ),
+            (
+                br#"{"i":0,"seq":1,"t_s":0,"p":[0,0],"q":[1,0,0,0]}"#,
+                "array of length 3",
+            ),
+            (
+                br#"{"i":0,"seq":1,"t_s":0,"p":[0,0,0],"q":[1,0,0,0,0]}"#,
+                "trailing",
+            ),
+            (
+                br#"{"i":256,"seq":1,"t_s":0,"p":[0,0,0],"q":[1,0,0,0]}"#,
+                "256",
+            ),
+            (
+                br#"{"i":0,"seq":-1,"t_s":0,"p":[0,0,0],"q":[1,0,0,0]}"#,
+                "-1",
+            ),
+            (
+                br#"{"i":0,"seq":1,"t_s":0,"p":[0,0,0],"q":[1,0,0,0],"x":1}"#,
+                "unknown field `x`",
+            ),
+            (
+                br#"{"i":0,"i":1,"seq":1,"t_s":0,"p":[0,0,0],"q":[1,0,0,0]}"#,
+                "duplicate field `i`",
+            ),
+            (
+                br#"{"i":0,"seq":1,"t_s":0,"p":[0,0,0],"q":[1,0,0,0]} {"#,
+                "trailing characters",
+            ),
+            (
+                br#"{"instrument":"le\"ft","seq":1,"t_s":0,"p":[0,0,0],"q":[1,0,0,0]}"#,
+                "borrowed",
+            ),
+            (
+                b"{\"instrument\":\"\xff\",\"seq\":1,\"t_s\":0,\"p\":[0,0,0],\"q\":[1,0,0,0]}",
+                "invalid unicode",
+            ),
+        ];
+        for (bytes, says) in cases {
+            let m = json_error(bytes);
+            assert!(
+                m.contains(says),
+                "{}: {m:?} should say {says:?}",
+                String::from_utf8_lossy(bytes)
+            );
+        }
     }
 
     #[test]

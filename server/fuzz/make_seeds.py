@@ -177,6 +177,65 @@ def delimited(msgs):
     return b"".join(varint(len(m)) + m for m in msgs)
 
 
+# The bridge's datagrams (client-cli/src/bridge.rs, "Datagram format"),
+# packed here from the documented layout.
+POSE_FMT = "<4sBBHQd3d4d"  # 80 bytes
+FORCE_FMT = "<4sBBHQd3d3dIIQddQ"  # 112 bytes
+FLAT_DOWN = (0.5, -0.5, 0.5, 0.5)
+
+
+def bin_pose(i, seq, t, p, q, magic=b"FSP1", version=1, reserved=0):
+    return struct.pack(POSE_FMT, magic, version, i, reserved, seq, t, *p, *q)
+
+
+def bin_force(i, status, seq, t, f, tq, contacts, flags, frame, age, us):
+    return struct.pack(FORCE_FMT, b"FSF1", 1, i, status, seq, t, *f, *tq, contacts, flags, frame, age, us, 0)
+
+
+def json_pose(name, seq, t, p, q, key="instrument"):
+    who = '"%s":"%s"' % (key, name) if key == "instrument" else '"i":%d' % name
+    return '{%s,"seq":%d,"t_s":%r,"p":[%r,%r,%r],"q":[%r,%r,%r,%r]}' % (who, seq, t, *p, *q)
+
+
+def bridge_seeds():
+    nan, inf = float("nan"), float("inf")
+    assert struct.calcsize(POSE_FMT) == 80 and struct.calcsize(FORCE_FMT) == 112
+    # A press 2 mm into the cube's top (the bridge test's trajectory).
+    for k, i in enumerate((1, 50, 100)):
+        t = i * 1e-3
+        z = 0.04 + 0.00075 + 0.002 - 0.004 * min(t / 0.1, 1.0)
+        put("bridge", "press-%d.bin" % k, bin_pose(0, i, t, (0.011, 0.005, z), FLAT_DOWN))
+    put("bridge", "right.bin", bin_pose(1, 7, 0.007, (-0.011, 0.005, 0.045), (1.0, 0.0, 0.0, 0.0)))
+    put("bridge", "extremes.bin", bin_pose(255, 2**64 - 1, 1.7976931348623157e308, (5e-324, -0.0, 1e-300), (1.0, 0.0, 0.0, 0.0)))
+    put("bridge", "nan.bin", bin_pose(0, 2, nan, (nan, inf, -inf), (nan, 0.0, 0.0, 0.0)))
+    put("bridge", "zero-quat.bin", bin_pose(0, 3, 0.003, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0)))
+    put("bridge", "non-unit.bin", bin_pose(0, 4, 0.004, (0.0, 0.0, 0.0), (2.0, 0.0, 0.0, 0.0)))
+    put("bridge", "reserved.bin", bin_pose(0, 5, 0.005, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0), reserved=0xFFFF))
+    put("bridge", "version-2.bin", bin_pose(0, 6, 0.006, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0), version=2))
+    good = bin_pose(0, 8, 0.008, (0.011, 0.005, 0.04275), FLAT_DOWN)
+    put("bridge", "truncated.bin", good[:79])
+    put("bridge", "header-only.bin", good[:8])
+    put("bridge", "long.bin", good + b"\0")
+    put("bridge", "oversized.bin", good + b"\0" * (1025 - len(good)))
+    put("bridge", "force.bin", bin_force(0, 0, 8, 0.008, (0.01, -0.02, 0.35), (0.0, 1e-4, 0.0), 5, 0, 12, 0.004, 41.0))
+    put("bridge", "force-rejected.bin", bin_force(1, 1, 9, 0.009, (0.0,) * 3, (0.0,) * 3, 0, 2, 0, 0.0, 3.5))
+    put("bridge", "empty", b"")
+    put("bridge", "blank", b" \t\r\n")
+    put("bridge", "named.json", json_pose("left", 7, 0.007, (0.011, 0.005, 0.04275), FLAT_DOWN) + "\n")
+    put("bridge", "index.json", "  " + json_pose(1, 8, 0.008, (-0.011, 0.005, 0.045), (1.0, 0.0, 0.0, 0.0), key="i"))
+    put("bridge", "both.json", '{"instrument":"left","i":0,"seq":1,"t_s":0,"p":[0,0,0],"q":[1,0,0,0]}')
+    put("bridge", "neither.json", '{"seq":1,"t_s":0,"p":[0,0,0],"q":[1,0,0,0]}')
+    put("bridge", "unknown-field.json", '{"i":0,"seq":1,"t_s":0,"p":[0,0,0],"q":[1,0,0,0],"v":1}')
+    put("bridge", "nan.json", '{"i":0,"seq":1,"t_s":NaN,"p":[0,0,0],"q":[1,0,0,0]}')
+    put("bridge", "overflow.json", '{"i":0,"seq":18446744073709551616,"t_s":1e400,"p":[0,0,0],"q":[1,0,0,0]}')
+    put("bridge", "escaped-name.json", '{"instrument":"le\\"ft","seq":1,"t_s":0,"p":[0,0,0],"q":[1,0,0,0]}')
+    put("bridge", "null-index.json", '{"instrument":"left","i":null,"seq":1,"t_s":0,"p":[0,0,0],"q":[1,0,0,0]}')
+    # Long digit strings (serde_json's default float reader rounds them
+    # differently from Rust's shortest round-trip printing).
+    put("bridge", "long-digits.json", '{"instrument":"right","seq":9,"t_s":0.0332222222222222222222222222222222222222E43,"p":[0.0,0.0,0.0],"q":[1.0,0.0,0.0,0.0]}')
+    put("bridge", "padded.json", json_pose("right", 9, 0.009, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0)).ljust(1024))
+
+
 def main():
     if os.path.isdir(SEEDS):
         shutil.rmtree(SEEDS)
@@ -212,6 +271,7 @@ def main():
         pose(0.001, 4, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0)),
         pose(0.003, 3, (1.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0)),
     ]))
+    bridge_seeds()
 
 
 if __name__ == "__main__":

@@ -18,7 +18,7 @@ cd "$(dirname "$0")"
 if [ "$#" -gt 0 ]; then
     targets=("$@")
 else
-    targets=(msh vtk vtu tetgen obj ply stl scene pose)
+    targets=(msh vtk vtu tetgen obj ply stl scene pose bridge)
 fi
 toolchain="${FUZZ_TOOLCHAIN:-nightly}"
 sanitizer="${FUZZ_SANITIZER:-address}"
