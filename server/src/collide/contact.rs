@@ -22,6 +22,9 @@
 //!    of its triangle, with current position `V` and rest position `V_rest`:
 //!    `depth = (S - V) . N_R`, `V_proj = V + depth N_R` (the projection onto the
 //!    face plane along `N_R`), `U = V_proj - V_rest`.
+//!    With [`DetectOptions::unilateral`] (the default), only vertices with
+//!    `depth >= -skin` (behind the face, or on it) are enforced: a vertex in
+//!    front of the face is free, never pulled onto it.
 //!    **Conflict rule:** when several pairs give one vertex different
 //!    displacements, the one with the largest `depth` wins (the face the vertex
 //!    has penetrated deepest, so that the vertex ends up outside every face that
@@ -96,6 +99,13 @@ pub struct DetectOptions {
     /// other front). The output is the same as with whole lines (`false`, the
     /// paper's pass), which is kept for comparison.
     pub bounded_rays: bool,
+    /// Unilateral contact (the default): a vertex of a surviving pair's
+    /// triangle gets an enforced displacement only when its depth is at
+    /// least `-skin_m` (behind the face, or on it up to the skin). `false`
+    /// projects all three vertices, as the paper does: with triangles larger
+    /// than the contact, a vertex lying in front of the face is pulled onto it
+    /// (the tissue sticks to the spatula and is dragged towards it).
+    pub unilateral: bool,
 }
 
 /// Default contact skin, m (0.1 um: far above rounding, far below any
@@ -108,6 +118,7 @@ impl Default for DetectOptions {
             culling: true,
             skin_m: DEFAULT_SKIN_M,
             bounded_rays: true,
+            unilateral: true,
         }
     }
 }
@@ -416,6 +427,9 @@ pub fn detect_many(
         for v in query.triangles[p.triangle as usize] {
             let pos = query.positions[v as usize];
             let depth = (s - pos).dot(&n);
+            if opts.unilateral && depth < -skin {
+                continue;
+            }
             let e = Enforced {
                 surface_vertex: v,
                 volume_node: query.to_volume[v as usize],

@@ -259,6 +259,12 @@ pub struct CollisionSpec {
     pub history: HistoryMode,
     /// Whether history culling (B1-B3) is applied.
     pub culling: bool,
+    /// Unilateral contact: a vertex of a paired triangle is enforced only
+    /// when it lies behind the face (or on it, within the contact skin); a
+    /// vertex in front is left free. `false` projects every vertex of a paired
+    /// triangle, as the paper does, which pulls vertices lying in front of the
+    /// face onto it when triangles are larger than the contact.
+    pub unilateral: bool,
     /// Largest depth behind a face at which a collision pair may form, m.
     /// A triangle farther behind a face than this is reached through the
     /// tissue (e.g. the far side of a block when the plate tip enters the
@@ -278,6 +284,7 @@ impl Default for CollisionSpec {
             backend: CollisionBackend::Cpu,
             history: HistoryMode::ForceRate,
             culling: true,
+            unilateral: true,
             max_depth_m: DEFAULT_MAX_DEPTH_M,
         }
     }

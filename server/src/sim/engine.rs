@@ -420,6 +420,7 @@ impl ContactQuery {
             out: ContactOutput::default(),
             opts: DetectOptions {
                 culling: scene.collision.culling,
+                unilateral: scene.collision.unilateral,
                 ..DetectOptions::default()
             },
             by_node: Vec::new(),
