@@ -28,6 +28,27 @@ pub struct InstrumentReport {
     pub time_in_contact_s: f64,
 }
 
+/// Entries the recorder dropped (its queue to the disk was full), by kind,
+/// and the places in the file where they are missing.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+pub struct LostEntries {
+    /// Accepted poses not recorded.
+    pub poses: u64,
+    /// Force samples not recorded.
+    pub forces: u64,
+    /// Frame summaries not recorded.
+    pub frames: u64,
+    /// Gap entries: places where entries are missing.
+    pub gaps: usize,
+}
+
+impl LostEntries {
+    /// All kinds together.
+    pub fn total(&self) -> u64 {
+        self.poses + self.forces + self.frames
+    }
+}
+
 /// Summary of a recording.
 #[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
 pub struct Report {
@@ -43,6 +64,9 @@ pub struct Report {
     pub threshold_n: f64,
     /// Whether the file ended in a truncated entry (a crash mid-write).
     pub truncated: bool,
+    /// Entries the recorder dropped; the per-instrument figures cover only
+    /// what was recorded.
+    pub lost: LostEntries,
     /// Per instrument.
     pub instruments: Vec<InstrumentReport>,
 }
@@ -54,13 +78,21 @@ fn norm(v: &Option<pb::Vec3>) -> f64 {
 
 /// Reads a recording and summarises it; `threshold_n` is the safe-force threshold.
 pub fn report(path: &Path, threshold_n: f64) -> anyhow::Result<Report> {
-    let (entries, truncated) = recording::read(path)?;
+    let rec = recording::read_recording(path)?;
+    let lost = rec.lost();
+    let lost = LostEntries {
+        poses: lost.poses,
+        forces: lost.forces,
+        frames: lost.frames,
+        gaps: rec.gaps.len(),
+    };
+    let truncated = rec.truncated;
     let mut scene = String::new();
     let mut frames = 0;
     let mut failed_frames = 0;
     let mut forces: BTreeMap<String, Vec<pb::ForceSample>> = BTreeMap::new();
     let mut poses: BTreeMap<String, Vec<pb::PoseSample>> = BTreeMap::new();
-    for e in entries {
+    for e in rec.entries {
         match e.entry {
             Some(pb::recording_entry::Entry::Header(h)) => {
                 scene = h.scene.map(|s| s.name).unwrap_or_default()
@@ -77,7 +109,8 @@ pub fn report(path: &Path, threshold_n: f64) -> anyhow::Result<Report> {
                     failed_frames += 1;
                 }
             }
-            None => {}
+            // Gaps are in `rec.gaps`; `None`: a member of a later version.
+            Some(pb::recording_entry::Entry::Gap(_)) | None => {}
         }
     }
     let (mut t_min, mut t_max) = (f64::INFINITY, f64::NEG_INFINITY);
@@ -138,6 +171,7 @@ pub fn report(path: &Path, threshold_n: f64) -> anyhow::Result<Report> {
         failed_frames,
         threshold_n,
         truncated,
+        lost,
         instruments,
     })
 }
@@ -184,6 +218,20 @@ pub fn table(r: &Report) -> String {
             ""
         }
     );
+    if r.lost.total() > 0 || r.lost.gaps > 0 {
+        s.insert_str(
+            s.len() - 1,
+            &format!(
+                "entries lost (the recorder's queue to the disk was full): poses {}, \
+                 force samples {}, frames {}, in {} gap{}\n",
+                r.lost.poses,
+                r.lost.forces,
+                r.lost.frames,
+                r.lost.gaps,
+                if r.lost.gaps == 1 { "" } else { "s" }
+            ),
+        );
+    }
     s.push_str(&format!(
         "{:<10} {:>8} {:>10} {:>11} {:>14} {:>17} {:>13} {:>16}\n",
         "instrument",
@@ -209,4 +257,170 @@ pub fn table(r: &Report) -> String {
         ));
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use fissure_server::sim::recording::RecordingGap;
+    use pb::recording_entry::Entry;
+    use prost::Message;
+
+    fn put(file: &mut Vec<u8>, e: Entry) {
+        file.extend(pb::RecordingEntry { entry: Some(e) }.encode_length_delimited_to_vec());
+    }
+
+    /// A recording of `left` at 1 kHz: samples `seqs` (pose and force each,
+    /// 1 mm apart along x, 0.2 N), a frame, and a gap after each sample
+    /// listed in `gaps`.
+    fn write(path: &Path, seqs: &[u64], gaps: &[(u64, RecordingGap)]) {
+        let mut file = Vec::new();
+        put(
+            &mut file,
+            Entry::Header(pb::RecordingHeader {
+                version: 1,
+                scene: Some(pb::SceneDescription {
+                    name: "cube".into(),
+                    ..Default::default()
+                }),
+                started_unix_s: 0.0,
+            }),
+        );
+        for &k in seqs {
+            let t_s = k as f64 * 1e-3;
+            put(
+                &mut file,
+                Entry::Pose(pb::RecordedPose {
+                    instrument: "left".into(),
+                    pose: Some(pb::PoseSample {
+                        t_s,
+                        sequence: k,
+                        position_m: Some(pb::Vec3 {
+                            x: k as f64 * 1e-3,
+                            y: 0.0,
+                            z: 0.0,
+                        }),
+                        ..Default::default()
+                    }),
+                }),
+            );
+            put(
+                &mut file,
+                Entry::Force(pb::RecordedForce {
+                    instrument: "left".into(),
+                    sample: Some(pb::ForceSample {
+                        t_s,
+                        sequence: k,
+                        force_n: Some(pb::Vec3 {
+                            x: 0.0,
+                            y: 0.0,
+                            z: 0.2,
+                        }),
+                        contact_count: 1,
+                        ..Default::default()
+                    }),
+                }),
+            );
+            put(
+                &mut file,
+                Entry::Frame(pb::DeformationFrame {
+                    frame: k,
+                    ..Default::default()
+                }),
+            );
+            for (_, g) in gaps.iter().filter(|(after, _)| *after == k) {
+                put(&mut file, Entry::Gap(*g));
+            }
+        }
+        std::fs::write(path, file).unwrap();
+    }
+
+    #[test]
+    fn a_recording_with_gaps_reports_the_entries_lost() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("gaps.fsrec");
+        let stall = RecordingGap {
+            poses: 3,
+            forces: 3,
+            frames: 3,
+        };
+        let end = RecordingGap {
+            poses: 2,
+            forces: 1,
+            frames: 0,
+        };
+        write(&path, &[1, 5, 6], &[(1, stall), (6, end)]);
+        let r = report(&path, 0.1).unwrap();
+        assert_eq!(
+            r.lost,
+            LostEntries {
+                poses: 5,
+                forces: 4,
+                frames: 3,
+                gaps: 2
+            }
+        );
+        assert_eq!(r.lost.total(), 12);
+        // The figures cover what was recorded.
+        assert_eq!((r.frames, r.instruments.len()), (3, 1));
+        let left = &r.instruments[0];
+        assert_eq!(left.samples, 3);
+        assert!((left.duration_s - 5e-3).abs() < 1e-12);
+        assert!((left.path_length_m - 5e-3).abs() < 1e-12);
+
+        let t = table(&r);
+        let lines: Vec<&str> = t.lines().collect();
+        assert_eq!(
+            lines[1],
+            "entries lost (the recorder's queue to the disk was full): poses 5, \
+             force samples 4, frames 3, in 2 gaps",
+            "{t}"
+        );
+        assert_eq!(lines[2], "", "{t}");
+        let json = serde_json::to_value(&r).unwrap();
+        assert_eq!(
+            json["lost"],
+            serde_json::json!({"poses": 5, "forces": 4, "frames": 3, "gaps": 2})
+        );
+        // Replay takes the recorded poses only.
+        let plans = trajectories(&path).unwrap();
+        assert_eq!(plans.len(), 1);
+        assert_eq!(plans[0].1.points.len(), 3);
+    }
+
+    #[test]
+    fn a_complete_recording_reports_no_loss() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("complete.fsrec");
+        write(&path, &[1, 2, 3], &[]);
+        let r = report(&path, 0.1).unwrap();
+        assert_eq!(r.lost, LostEntries::default());
+        assert_eq!(r.instruments[0].samples, 3);
+        let t = table(&r);
+        assert!(!t.contains("lost"), "{t}");
+        assert_eq!(t.lines().nth(1), Some(""), "{t}");
+        let json = serde_json::to_value(&r).unwrap();
+        assert_eq!(
+            json["lost"],
+            serde_json::json!({"poses": 0, "forces": 0, "frames": 0, "gaps": 0})
+        );
+    }
+
+    /// A gap of zero counts (the recorder writes none, a file may hold one)
+    /// is still a place: reported, with no loss.
+    #[test]
+    fn an_empty_gap_is_counted_as_a_place() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("empty-gap.fsrec");
+        write(&path, &[1, 2], &[(1, RecordingGap::default())]);
+        let r = report(&path, 0.1).unwrap();
+        assert_eq!(
+            r.lost,
+            LostEntries {
+                gaps: 1,
+                ..Default::default()
+            }
+        );
+        assert!(table(&r).contains("poses 0, force samples 0, frames 0, in 1 gap\n"));
+    }
 }

@@ -4,9 +4,11 @@
 //! still reads it. Memory is the process's resident set, so the tests of this
 //! file run one at a time.
 
-use fissure_cli::report::report;
+use fissure_cli::report::{LostEntries, report};
 use fissure_proto::v1 as pb;
-use fissure_server::sim::recording::{QUEUE_CAPACITY, Recorder, RecordingGap, read_recording};
+use fissure_server::sim::recording::{
+    QUEUE_CAPACITY, Recorder, RecordingGap, RecordingGapExt, read_recording,
+};
 use fissure_server::sim::snapshot::{Frame, InstrumentReaction, StepTimings};
 use nalgebra::Vector3;
 use std::io::Write;
@@ -305,6 +307,7 @@ fn a_stalled_disk_keeps_the_queue_bounded_and_the_file_records_the_loss() {
                 f.frame * 25
             }
             pb::recording_entry::Entry::Header(_) => panic!("a second header"),
+            pb::recording_entry::Entry::Gap(g) => panic!("a gap among the entries: {g:?}"),
         };
         if i < r.gaps[0].before {
             before_gap.push(seq);
@@ -325,10 +328,27 @@ fn a_stalled_disk_keeps_the_queue_bounded_and_the_file_records_the_loss() {
         }
     );
 
-    // `fissure report` reads it.
+    // `fissure report` reads it and says what is missing.
     let summary = report(&path, 1.0).unwrap();
     assert_eq!(summary.scene, "cube");
     assert!(!summary.truncated);
+    assert_eq!(
+        summary.lost,
+        LostEntries {
+            poses: end.lost.poses,
+            forces: end.lost.forces,
+            frames: end.lost.frames,
+            gaps: 1,
+        }
+    );
+    let table = fissure_cli::report::table(&summary);
+    assert!(
+        table.contains(&format!(
+            "poses {}, force samples {}, frames {}, in 1 gap\n",
+            end.lost.poses, end.lost.forces, end.lost.frames
+        )),
+        "{table}"
+    );
     assert_eq!(summary.frames, frames.len());
     assert_eq!(summary.instruments.len(), 1);
     assert_eq!(summary.instruments[0].samples, forces.len());
@@ -391,5 +411,7 @@ fn finishing_on_a_disk_that_does_not_return_gives_up_and_says_so() {
     assert_eq!(r.entries.len() - 1, s.written as usize + s.queued);
     assert_eq!(r.gaps.len(), 1);
     assert_eq!(r.gaps[0].before, r.entries.len(), "the last gap at the end");
-    report(&path, 1.0).unwrap();
+    let summary = report(&path, 1.0).unwrap();
+    assert_eq!(summary.lost.total(), s.lost.total());
+    assert_eq!(summary.lost.gaps, 1);
 }

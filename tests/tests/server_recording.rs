@@ -22,11 +22,12 @@ fn stepped(clients: usize, recording: Option<&Path>) -> SimOptions {
 }
 
 /// Streams every `(instrument, trajectory)` at once to a stepped `cube`
-/// server; returns the force rows per instrument.
+/// server; returns the force rows per instrument and the server's stats at
+/// the end of the session.
 async fn run(
     options: SimOptions,
     plans: &[(String, Trajectory)],
-) -> anyhow::Result<BTreeMap<String, Vec<ForceRow>>> {
+) -> anyhow::Result<(BTreeMap<String, Vec<ForceRow>>, pb::Stats)> {
     let server = TestServer::start("cube", options, ServeOptions::default()).await?;
     let mut tasks = Vec::new();
     for (name, trajectory) in plans {
@@ -42,10 +43,16 @@ async fn run(
         let (name, rows) = t.await??;
         out.insert(name, rows);
     }
+    let stats = server
+        .client()
+        .await?
+        .get_stats(pb::GetStatsRequest {})
+        .await?
+        .into_inner();
     let sim = server.sim.clone();
     server.stop().await?;
     tokio::task::spawn_blocking(move || sim.recorder().map_or(Ok(()), |r| r.finish())).await??;
-    Ok(out)
+    Ok((out, stats))
 }
 
 fn magnitude(v: [f64; 3]) -> f64 {
@@ -61,7 +68,11 @@ async fn recording_round_trip_report_and_replay() -> anyhow::Result<()> {
     ];
     let dir = tempfile::tempdir()?;
     let path = dir.path().join("session.fsrec");
-    let live = run(stepped(2, Some(&path)), &plans).await?;
+    let (live, stats) = run(stepped(2, Some(&path)), &plans).await?;
+    // GetStats: every sample answered, nothing dropped by the recorder.
+    let answered: usize = live.values().map(Vec::len).sum();
+    assert_eq!(stats.force_samples, answered as u64);
+    assert_eq!(stats.recording_lost, 0, "{stats:?}");
 
     // 1. Read back: header first, then every accepted pose and every force
     // sample of each instrument in order, and the frame summaries.
@@ -89,6 +100,7 @@ async fn recording_round_trip_report_and_replay() -> anyhow::Result<()> {
                 .or_default()
                 .push(f.sample.expect("sample")),
             pb::recording_entry::Entry::Frame(f) => frames.push(f),
+            pb::recording_entry::Entry::Gap(g) => panic!("entries lost: {g:?}"),
         }
     }
     for (name, trajectory) in &plans {
@@ -195,7 +207,7 @@ async fn recording_round_trip_report_and_replay() -> anyhow::Result<()> {
             .collect::<Vec<_>>(),
         ["left", "right"]
     );
-    let replayed = run(stepped(2, None), &replayed_plans).await?;
+    let (replayed, _) = run(stepped(2, None), &replayed_plans).await?;
     for (name, rows) in &live {
         let again = &replayed[name];
         assert_eq!(again.len(), rows.len());

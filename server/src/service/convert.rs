@@ -221,5 +221,42 @@ pub fn stats(s: &StatsSummary) -> pb::Stats {
         force_compute: Some(latency(&s.force_compute)),
         deformation_step: Some(latency(&s.deformation_step)),
         failed_steps: s.failed_steps,
+        recording_lost: s.recording_lost,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `GetStats` carries every counter of the summary, the recorder's loss
+    /// included.
+    #[test]
+    fn stats_carry_the_counters() {
+        let s = StatsSummary {
+            uptime_s: 2.5,
+            frames: 40,
+            force_samples: 2_000,
+            rejected_poses: 3,
+            watchers: 1,
+            claimed: vec!["left".into()],
+            failed_steps: 2,
+            recording_lost: 12,
+            ..Default::default()
+        };
+        let m = stats(&s);
+        assert_eq!(
+            (
+                m.uptime_s,
+                m.frames,
+                m.force_samples,
+                m.rejected_poses,
+                m.watchers,
+                m.failed_steps,
+                m.recording_lost
+            ),
+            (2.5, 40, 2_000, 3, 1, 2, 12)
+        );
+        assert_eq!(m.claimed, ["left"]);
     }
 }

@@ -364,6 +364,7 @@ impl Simulation {
 
     /// Counters and latency percentiles.
     pub fn stats(&self) -> StatsSummary {
+        use recording::RecordingGapExt as _;
         let claimed = {
             let inputs = self.inputs.lock().expect("inputs lock");
             self.scene
@@ -384,6 +385,7 @@ impl Simulation {
             force_compute: self.force_latency.summary(),
             deformation_step: self.step_latency.summary(),
             failed_steps: self.failed_steps.load(Ordering::Relaxed),
+            recording_lost: self.recorder().map_or(0, |r| r.stats().lost.total()),
         }
     }
 

@@ -26,10 +26,11 @@
 //! of the queued entries (an instrument name, a frame's per-instrument
 //! summary); measured in `tests/tests/reliability_recording.rs`.
 //!
-//! A `RecordingGap` is field 5 of `RecordingEntry`'s `oneof entry`, a member
-//! `fissure.proto` does not declare yet: a reader built from the proto alone
-//! decodes it as an entry with no `entry` (an unknown field) and can skip it;
-//! [`read_recording`] reports the gaps, [`read`] leaves them out.
+//! A gap is the `gap` member (field 5) of `RecordingEntry`'s `oneof entry`,
+//! a `fissure.v1.RecordingGap` (re-exported here as [`RecordingGap`], its
+//! sums in [`RecordingGapExt`]). [`read_recording`] reports the gaps with
+//! their places, [`read`] leaves them out; an entry of a later format version
+//! (a member this build does not know) is read as an entry with no `entry`.
 
 use fissure_proto::v1 as pb;
 use prost::Message;
@@ -58,24 +59,20 @@ pub const FINISH_TIMEOUT: Duration = Duration::from_secs(5);
 const WARN_INTERVAL: Duration = Duration::from_secs(1);
 
 /// Entries that could not be recorded (the queue to the writer was full),
-/// by kind. In a file, a gap sits where the entries are missing (field 5 of
-/// `fissure.v1.RecordingEntry`).
-#[derive(Clone, Copy, PartialEq, Eq, Hash, prost::Message)]
-pub struct RecordingGap {
-    /// Accepted poses not recorded.
-    #[prost(uint64, tag = "1")]
-    pub poses: u64,
-    /// Force samples not recorded.
-    #[prost(uint64, tag = "2")]
-    pub forces: u64,
-    /// Frame summaries not recorded.
-    #[prost(uint64, tag = "3")]
-    pub frames: u64,
+/// by kind: poses, force samples, frame summaries. In a file, a gap sits
+/// where the entries are missing (`fissure.v1.RecordingEntry.gap`).
+pub use pb::RecordingGap;
+
+/// Sums of a [`RecordingGap`]'s counts.
+pub trait RecordingGapExt {
+    /// All kinds together: `poses + forces + frames`.
+    fn total(&self) -> u64;
+    /// Adds `other`'s counts, kind by kind.
+    fn add(&mut self, other: &RecordingGap);
 }
 
-impl RecordingGap {
-    /// All kinds together.
-    pub fn total(&self) -> u64 {
+impl RecordingGapExt for RecordingGap {
+    fn total(&self) -> u64 {
         self.poses + self.forces + self.frames
     }
 
@@ -86,11 +83,11 @@ impl RecordingGap {
     }
 }
 
-/// A `RecordingEntry` holding a gap, as written (only field 5 set).
-#[derive(Clone, PartialEq, prost::Message)]
-struct GapEntry {
-    #[prost(message, optional, tag = "5")]
-    gap: Option<RecordingGap>,
+/// The `RecordingEntry` holding a gap, as written.
+fn gap_entry(gap: RecordingGap) -> pb::RecordingEntry {
+    pb::RecordingEntry {
+        entry: Some(pb::recording_entry::Entry::Gap(gap)),
+    }
 }
 
 /// The queue's and the writer's figures.
@@ -436,7 +433,7 @@ fn write_entries<W: Write>(
             Some(Msg::Entry(e, gap)) => {
                 shared.queued.fetch_sub(1, Ordering::AcqRel);
                 if gap.total() > 0 {
-                    put(out, &mut buf, &GapEntry { gap: Some(gap) })?;
+                    put(out, &mut buf, &gap_entry(gap))?;
                 }
                 put(out, &mut buf, &e)?;
                 shared.written.fetch_add(1, Ordering::AcqRel);
@@ -454,7 +451,7 @@ fn write_entries<W: Write>(
     }
     let rest = shared.take_pending();
     if rest.total() > 0 {
-        put(out, &mut buf, &GapEntry { gap: Some(rest) })?;
+        put(out, &mut buf, &gap_entry(rest))?;
     }
     out.flush()
 }
@@ -468,7 +465,12 @@ fn drain_lost(rx: &mpsc::Receiver<Msg>, shared: &Shared) {
             let kind = match e.entry {
                 Some(pb::recording_entry::Entry::Pose(_)) => Kind::Pose,
                 Some(pb::recording_entry::Entry::Force(_)) => Kind::Force,
-                _ => Kind::Frame,
+                Some(pb::recording_entry::Entry::Frame(_)) => Kind::Frame,
+                // Only poses, forces and frames are queued.
+                Some(
+                    pb::recording_entry::Entry::Header(_) | pb::recording_entry::Entry::Gap(_),
+                )
+                | None => continue,
             };
             shared.lost[kind as usize].fetch_add(1, Ordering::AcqRel);
         }
@@ -516,7 +518,7 @@ pub enum ReadError {
 }
 
 /// Entries missing from a recording at one place.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Gap {
     /// Index in [`Recording::entries`] of the first entry after the gap
     /// (`entries.len()` for a gap at the end).
@@ -589,21 +591,17 @@ pub fn read_recording(path: &Path) -> Result<Recording, ReadError> {
             offset,
             reason: e.to_string(),
         };
-        let body = &buf[..len];
-        let entry = pb::RecordingEntry::decode(body).map_err(malformed)?;
+        let entry = pb::RecordingEntry::decode(&buf[..len]).map_err(malformed)?;
         buf = &buf[len..];
-        if entry.entry.is_none() {
-            // Not a member `fissure.proto` declares: a gap, or an entry of a
-            // later version (kept, with no `entry`).
-            if let Some(lost) = GapEntry::decode(body).map_err(malformed)?.gap {
-                gaps.push(Gap {
-                    before: entries.len(),
-                    lost,
-                });
-                continue;
-            }
+        match entry.entry {
+            Some(pb::recording_entry::Entry::Gap(lost)) => gaps.push(Gap {
+                before: entries.len(),
+                lost,
+            }),
+            // Also an entry of a later version (a member unknown here), kept
+            // with no `entry`.
+            _ => entries.push(entry),
         }
-        entries.push(entry);
     }
     match entries.first().and_then(|e| e.entry.as_ref()) {
         Some(pb::recording_entry::Entry::Header(_)) => Ok(Recording {
@@ -638,18 +636,34 @@ mod tests {
         pb::RecordingEntry { entry: Some(e) }.encode_length_delimited_to_vec()
     }
 
+    /// The bytes of a gap entry: field 5 of `RecordingEntry` (tag `0x2a`,
+    /// length-delimited) holding `poses` (tag `0x08`), `forces` (`0x10`),
+    /// `frames` (`0x18`) as varints, zero counts left out: the layout files
+    /// written before `RecordingGap` was in `fissure.proto` already have.
     #[test]
-    fn gaps_are_skipped_by_proto_readers_and_read_back_in_place() {
+    fn gap_entries_encode_as_field_5_and_read_back_in_place() {
         let gap = RecordingGap {
             poses: 7,
             forces: 6,
             frames: 1,
         };
-        let gap_bytes = GapEntry { gap: Some(gap) }.encode_to_vec();
-        // A reader built from fissure.proto sees an entry with no member.
         assert_eq!(
-            pb::RecordingEntry::decode(gap_bytes.as_slice()).unwrap(),
-            pb::RecordingEntry { entry: None }
+            gap_entry(gap).encode_to_vec(),
+            [0x2a, 6, 0x08, 7, 0x10, 6, 0x18, 1]
+        );
+        assert_eq!(
+            gap_entry(RecordingGap {
+                poses: 300,
+                forces: 0,
+                frames: 0
+            })
+            .encode_to_vec(),
+            [0x2a, 3, 0x08, 0xac, 0x02]
+        );
+        // A gap with nothing in it still marks a place (an empty member).
+        assert_eq!(
+            gap_entry(RecordingGap::default()).encode_to_vec(),
+            [0x2a, 0]
         );
         let header = pb::RecordingHeader {
             version: 1,
@@ -664,14 +678,18 @@ mod tests {
         };
         let mut file = entry(pb::recording_entry::Entry::Header(header));
         file.extend(entry(recorded(1)));
-        file.extend(GapEntry { gap: Some(gap) }.encode_length_delimited_to_vec());
+        // Written by hand, as a file of the earlier layout holds it.
+        file.extend([8, 0x2a, 6, 0x08, 7, 0x10, 6, 0x18, 1]);
         file.extend(entry(recorded(9)));
-        file.extend(GapEntry { gap: Some(gap) }.encode_length_delimited_to_vec());
+        // A member of a later version (field 15): kept, with no `entry`.
+        file.extend([3, 0x7a, 1, 0]);
+        file.extend(gap_entry(gap).encode_length_delimited_to_vec());
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("gaps.fsrec");
         std::fs::write(&path, &file).unwrap();
         let r = read_recording(&path).unwrap();
-        assert_eq!(r.entries.len(), 3);
+        assert_eq!(r.entries.len(), 4);
+        assert_eq!(r.entries[3], pb::RecordingEntry { entry: None });
         assert!(!r.truncated);
         assert_eq!(
             r.gaps,
@@ -681,10 +699,18 @@ mod tests {
                     lost: gap
                 },
                 Gap {
-                    before: 3,
+                    before: 4,
                     lost: gap
                 }
             ]
+        );
+        assert_eq!(
+            r.lost(),
+            RecordingGap {
+                poses: 14,
+                forces: 12,
+                frames: 2
+            }
         );
         assert_eq!(r.lost().total(), 28);
         let (entries, truncated) = read(&path).unwrap();

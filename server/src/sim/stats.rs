@@ -107,6 +107,10 @@ pub struct StatsSummary {
     pub deformation_step: LatencySummary,
     /// Deformation steps that failed.
     pub failed_steps: u64,
+    /// Recording entries dropped since the start (the recorder's queue to
+    /// the disk was full, or its writing failed), all kinds together; 0 when
+    /// the session is not recorded. See `recording::RecorderStats::lost`.
+    pub recording_lost: u64,
 }
 
 #[cfg(test)]
