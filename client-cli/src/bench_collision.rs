@@ -423,7 +423,7 @@ pub fn run_collision_bench(surf: &BenchSurface, opts: &BenchOptions) -> anyhow::
             Err(e) => report.gpu_error = Some(e.to_string()),
         }
     }
-    if !(opts.max_depth_m > 0.0) {
+    if opts.max_depth_m.is_nan() || opts.max_depth_m <= 0.0 {
         anyhow::bail!("--max-depth-m must be positive, got {}", opts.max_depth_m);
     }
     let bounded = DetectOptions::default();

@@ -127,7 +127,8 @@ fn sah_split(items: &mut [Item]) -> Option<usize> {
     let mut best: Option<(f64, usize, usize)> = None;
     for axis in 0..3 {
         let ext = chi[axis] - clo[axis];
-        if !(ext > 0.0) {
+        // Also skips a NaN extent.
+        if ext.is_nan() || ext <= 0.0 {
             continue;
         }
         let bin = |it: &Item| {

@@ -62,9 +62,9 @@ mod tests {
         })
         .join()
         .unwrap();
-        assert_eq!(got, Some((base.max(7)).min(19)));
+        assert_eq!(got, Some(base.clamp(7, 19)));
         let pool = deformation_pool(9).expect("a pool");
         let in_pool = pool.install(current_thread_nice);
-        assert_eq!(in_pool, Some(base.max(9).min(19)));
+        assert_eq!(in_pool, Some(base.clamp(9, 19)));
     }
 }
