@@ -331,3 +331,80 @@ fn steady_state_does_not_reallocate() {
         assert_eq!(ptrs(&ws, &out), before);
     }
 }
+
+/// A large tilted triangle crosses face B's plane: one vertex 1 mm behind the
+/// face, two 3 mm in front. The paper's rule projects all three onto the face
+/// plane (the two in front are pulled 3 mm towards the plate); the unilateral
+/// rule moves only the vertex behind, onto the plane, and leaves the others.
+#[test]
+fn unilateral_contact_leaves_vertices_in_front_free() {
+    let inst = Instrument::new(
+        Plate::flat(1.0 * MM, 8.0 * MM, 15.0 * MM),
+        NodeLayout::WholeFace { per_face: 60 },
+        None,
+    )
+    .unwrap();
+    let pose = press(0.0, 0.0, 1.0 * MM);
+    let (mut o, mut d) = (Vec::new(), Vec::new());
+    inst.place(&pose, &mut o, &mut d);
+    let face_b: Vec<Point3<f64>> = inst
+        .nodes
+        .iter()
+        .zip(&o)
+        .filter(|(n, _)| n.kind == NodeKind::FaceB)
+        .map(|(_, p)| *p)
+        .collect();
+    let c = face_b.iter().fold(Vector3::zeros(), |a, p| a + p.coords) / face_b.len() as f64;
+    let z0 = c.z;
+    // Counter-clockwise seen from +z: outward normal up, against face B's -z.
+    let pos = vec![
+        Point3::new(c.x, c.y, z0 + 1.0 * MM),
+        Point3::new(c.x + 0.05, c.y - 0.05, z0 - 3.0 * MM),
+        Point3::new(c.x + 0.05, c.y + 0.05, z0 - 3.0 * MM),
+    ];
+    let tris = vec![[0u32, 1, 2]];
+    let to_volume = vec![0u32, 1, 2];
+    let q = ContactQuery {
+        positions: &pos,
+        rest: &pos,
+        triangles: &tris,
+        to_volume: &to_volume,
+    };
+    let mut bvh = Bvh::new(&tris, &pos).unwrap();
+    for unilateral in [false, true] {
+        let (mut ws, mut out) = (Workspace::new(), ContactOutput::default());
+        let mut hist = History::new(&inst, HistoryMode::ForceRate);
+        let opts = DetectOptions {
+            unilateral,
+            ..DetectOptions::default()
+        };
+        detect(
+            &mut bvh,
+            &q,
+            &inst,
+            &pose,
+            &mut hist,
+            Stage::Force,
+            &opts,
+            &mut ws,
+            &mut out,
+        )
+        .unwrap();
+        assert!(!out.pairs.is_empty(), "face B meets the triangle");
+        let by_vertex: HashMap<u32, Vector3<f64>> = out
+            .enforced
+            .iter()
+            .map(|e| (e.surface_vertex, e.displacement))
+            .collect();
+        // The vertex behind goes onto the face plane either way.
+        assert!((by_vertex[&0].z + 1.0 * MM).abs() < 1e-12, "{by_vertex:?}");
+        if unilateral {
+            assert_eq!(by_vertex.len(), 1, "only the vertex behind: {by_vertex:?}");
+        } else {
+            assert_eq!(by_vertex.len(), 3, "{by_vertex:?}");
+            for v in [1, 2] {
+                assert!((by_vertex[&v].z - 3.0 * MM).abs() < 1e-12, "{by_vertex:?}");
+            }
+        }
+    }
+}

@@ -22,9 +22,12 @@
 //!    of its triangle, with current position `V` and rest position `V_rest`:
 //!    `depth = (S - V) . N_R`, `V_proj = V + depth N_R` (the projection onto the
 //!    face plane along `N_R`), `U = V_proj - V_rest`.
-//!    With [`DetectOptions::unilateral`] (the default), only vertices with
-//!    `depth >= -skin` (behind the face, or on it) are enforced: a vertex in
-//!    front of the face is free, never pulled onto it.
+//!    With [`DetectOptions::unilateral`] (off by default), a triangle with a
+//!    vertex at `depth >= -skin` (behind the face, or on it) enforces only
+//!    such vertices: a vertex in front of the face is free, never pulled onto
+//!    it. A triangle whose three vertices all lie in front (the face pokes
+//!    into a triangle larger than the contact) is projected whole, as in the
+//!    paper, so that the contact still gives a force.
 //!    **Conflict rule:** when several pairs give one vertex different
 //!    displacements, the one with the largest `depth` wins (the face the vertex
 //!    has penetrated deepest, so that the vertex ends up outside every face that
@@ -99,12 +102,13 @@ pub struct DetectOptions {
     /// other front). The output is the same as with whole lines (`false`, the
     /// paper's pass), which is kept for comparison.
     pub bounded_rays: bool,
-    /// Unilateral contact (the default): a vertex of a surviving pair's
-    /// triangle gets an enforced displacement only when its depth is at
-    /// least `-skin_m` (behind the face, or on it up to the skin). `false`
-    /// projects all three vertices, as the paper does: with triangles larger
-    /// than the contact, a vertex lying in front of the face is pulled onto it
-    /// (the tissue sticks to the spatula and is dragged towards it).
+    /// Unilateral contact (off by default, as in the scenes): when a vertex of a surviving pair's
+    /// triangle lies behind the face (depth at least `-skin_m`), only such
+    /// vertices get enforced displacements; a triangle with all three
+    /// vertices in front is projected whole. `false` always projects all
+    /// three vertices, as the paper does: with triangles larger than the
+    /// contact, a vertex lying in front of the face is pulled onto it (the
+    /// tissue is dragged towards the spatula).
     pub unilateral: bool,
 }
 
@@ -118,7 +122,7 @@ impl Default for DetectOptions {
             culling: true,
             skin_m: DEFAULT_SKIN_M,
             bounded_rays: true,
-            unilateral: true,
+            unilateral: false,
         }
     }
 }
@@ -424,10 +428,18 @@ pub fn detect_many(
     for p in &out.pairs {
         let g = ws.offsets[p.instrument as usize] + p.node as usize;
         let (s, n) = (ws.origins[g], ws.dirs[g]);
-        for v in query.triangles[p.triangle as usize] {
+        let tri = query.triangles[p.triangle as usize];
+        // Unilateral: when a vertex lies behind the face, those in front stay
+        // free; a triangle the face pokes into with all three vertices in
+        // front is projected whole (else that contact would give no force).
+        let pushes = opts.unilateral
+            && tri
+                .iter()
+                .any(|&v| (s - query.positions[v as usize]).dot(&n) >= -skin);
+        for v in tri {
             let pos = query.positions[v as usize];
             let depth = (s - pos).dot(&n);
-            if opts.unilateral && depth < -skin {
+            if pushes && depth < -skin {
                 continue;
             }
             let e = Enforced {

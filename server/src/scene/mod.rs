@@ -259,11 +259,13 @@ pub struct CollisionSpec {
     pub history: HistoryMode,
     /// Whether history culling (B1-B3) is applied.
     pub culling: bool,
-    /// Unilateral contact: a vertex of a paired triangle is enforced only
-    /// when it lies behind the face (or on it, within the contact skin); a
-    /// vertex in front is left free. `false` projects every vertex of a paired
-    /// triangle, as the paper does, which pulls vertices lying in front of the
-    /// face onto it when triangles are larger than the contact.
+    /// Unilateral contact ([`crate::collide::DetectOptions::unilateral`]):
+    /// when a vertex of a paired triangle lies behind the face, the vertices
+    /// in front are left free. Off by default (the paper's rule, every vertex
+    /// of a paired triangle projected): on meshes whose triangles are larger
+    /// than the contact, the unilateral rule loses contacts from one step to
+    /// the next (the U-valley rotation keeps no contact with it), while the
+    /// paper's rule pulls vertices in front of the face onto it.
     pub unilateral: bool,
     /// Largest depth behind a face at which a collision pair may form, m.
     /// A triangle farther behind a face than this is reached through the
@@ -284,7 +286,7 @@ impl Default for CollisionSpec {
             backend: CollisionBackend::Cpu,
             history: HistoryMode::ForceRate,
             culling: true,
-            unilateral: true,
+            unilateral: false,
             max_depth_m: DEFAULT_MAX_DEPTH_M,
         }
     }
