@@ -249,6 +249,15 @@ fn sylvian_spread_trajectory_converges_at_reference_tolerance() {
     let amounts = [
         0.0, 1e-18, 1e-6, 8.4e-5, 2.06e-4, 2.5e-4, 2.6e-4, 4e-4, 4e-4,
     ];
+    // The absolute floor of the test, N: far below the reactions of the
+    // lightest real contact (1 um).
+    let (lo, hi) = mesh.bounds();
+    let floor =
+        IterativeOptions::DEFAULT_FLOOR_STRAIN * BRAIN.youngs_modulus_pa * (hi - lo).norm_squared();
+    eprintln!(
+        "floor {floor:.2e} N (box diagonal {:.3} m)",
+        (hi - lo).norm()
+    );
     for strategy in ITERATIVE {
         let mut s = build_solver(
             strategy,
@@ -276,6 +285,9 @@ fn sylvian_spread_trajectory_converges_at_reference_tolerance() {
             let fu: Vector3<f64> = upper.iter().sum();
             if a > 0.0 {
                 assert!(fl.dot(&n) < 0.0 && fu.dot(&n) > 0.0, "{strategy:?} {a}");
+            }
+            if a == 1e-6 {
+                assert!(fl.norm() > 1e4 * floor, "{strategy:?}: {fl} vs {floor}");
             }
         }
         eprintln!("{strategy:?}: iterations {its:?} over spreads {amounts:?} m");

@@ -5,7 +5,7 @@
 //! `f_e = R_e K_e (R_e^T x_e - X_e)` (rest positions `X`, current `x = X + u`).
 //! A step solves `sum_e f_e = G^T lambda`, `G u = g` by Newton-like outer
 //! iterations (rotations frozen within one: tangent `K_R = sum R K_e R^T`),
-//! each solved by projected conjugate gradients preconditioned with the exact
+//! each solved by projected conjugate gradients preconditioned with the
 //! constrained rest-state inverse (the `compliance` machinery: the supported
 //! factor plus the compliance block of the step's rows).
 //!
@@ -80,17 +80,24 @@ use nalgebra::{Matrix3, Vector3};
 /// which the enforced displacements imply, so the relative part is
 /// independent of the units and of the size of the load. It vanishes with
 /// the load, and at light contact (enforced displacements of 1e-18 m come
-/// out of the collision stage when a vertex already lies on a spatula face)
-/// both `|r|` and `|f|` sink to the rounding of the force computation,
-/// where their ratio is noise of order 1: a purely relative test can never
-/// pass there, which is how steps "did not converge (residual 0.998)". The
+/// out of the collision stage when a vertex already lies on a spatula face,
+/// and zero ones when it touches without pushing) both `|r|` and `|f|`
+/// sink to the rounding of the force computation, where their ratio is
+/// noise of order 1: a purely relative test can never pass there, which is
+/// how steps "did not converge (residual 0.998)" (forces formed from
+/// absolute positions made that noise 1e-14 N even at zero displacement;
+/// the strategies now form them from displacement differences, exactly
+/// zero at rest, but a return to zero from a loaded state still ends in
+/// rounding). The
 /// floor is where the imbalance stops meaning anything: `1e-12 x E L^2`
-/// (7e-11 N for the 48k phantom: E = 3 kPa, L = 0.15 m) moves a node by
-/// about `1e-12 L`, while the rounding of `|r|` (about
-/// `eps x E h^2 sqrt(DOFs)`, 1e-14 N there, `h` the element size) stays
-/// three orders below it. A genuinely diverging or stalled solve still
-/// fails: the floor is absolute, far below any load a spatula applies
-/// (1e-5 N at a 1 um push), and `max_outer` bounds the iterations.
+/// (1.9e-10 N for the brain phantom: E = 3 kPa, L = 0.25 m) is the force
+/// of a strain of 1e-12 over the model, while the rounding of `|r|` (about
+/// `eps x E h^2 sqrt(DOFs)`, 2e-15 N on the 48k phantom, `h` = 4 mm the
+/// element size) stays five orders below it. A genuinely diverging or
+/// stalled solve still fails: the floor is absolute, four orders and more
+/// below any load a spatula applies (about 1e-5 N at a 1 um push, tested
+/// in `server/tests/fem_convergence.rs`), and `max_outer` bounds the
+/// iterations.
 /// `NotConverged` reports `|r| / max(|f|, F_floor / tolerance)`, which is
 /// `<= tolerance` exactly when the test passes.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -112,10 +119,10 @@ pub struct IterativeOptions {
 impl IterativeOptions {
     /// The default relative residual, chosen for interactive rates: the
     /// free-DOF force imbalance is 1e-4 of the contact forces. On the
-    /// paper-48k phantom this takes 1 to 3 outer iterations of
+    /// paper-48k phantom this takes 2 to 3 outer iterations of
     /// `corotational` per step; the displacement then differs from a
     /// 1e-10 solve by about the same relative amount (1e-4 of the largest
-    /// displacement, measured in `server/tests/fem_corotational.rs`, well
+    /// displacement, measured in `server/tests/fem_solvers.rs`, well
     /// below the P1 discretisation error). The accuracy reference
     /// (`neo-hookean` in the study) should use 1e-8 or below.
     pub const INTERACTIVE_TOLERANCE: f64 = 1e-4;
