@@ -1,5 +1,5 @@
-//! Steps with an unchanged contact set allocate nothing in `compliance` and
-//! `direct` (a counting global allocator, `stats_alloc`; its own test binary
+//! Steps with an unchanged contact set allocate nothing in `compliance`,
+//! `direct` and `corotational` (a counting global allocator, `stats_alloc`; its own test binary
 //! with one test, so that no other test allocates while counting).
 
 use fissure_server::fem::{Material, Par, Prescribed, SolverOptions, Strategy, build_solver};
@@ -49,6 +49,8 @@ fn steps_with_the_same_contact_set_do_not_allocate() {
         (Strategy::Compliance, Par::Seq),
         (Strategy::Compliance, Par::rayon(2)),
         (Strategy::Direct, Par::Seq),
+        (Strategy::Corotational, Par::Seq),
+        (Strategy::Corotational, Par::rayon(2)),
     ] {
         let opts = SolverOptions {
             parallelism: par,

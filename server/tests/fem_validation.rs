@@ -462,41 +462,74 @@ fn indentation_work(k: usize, mat: Material) -> f64 {
         .sum::<f64>()
 }
 
+/// Fits `f(k) = L + C k^-p + D k^-q` (mesh size `h ~ 1/k`) through three
+/// levels and returns `(L, C, D)`.
+fn fit3(ks: [f64; 3], fs: [f64; 3], p: f64, q: f64) -> (f64, f64, f64) {
+    let a = nalgebra::Matrix3::from_fn(|i, j| match j {
+        0 => 1.0,
+        1 => ks[i].powf(-p),
+        _ => ks[i].powf(-q),
+    });
+    let c = a
+        .lu()
+        .solve(&Vector3::from(fs))
+        .expect("distinct levels give a regular system");
+    (c[0], c[1], c[2])
+}
+
 #[test]
 fn indentation_work_converges_at_second_order() {
     // A smooth indenter profile with rollers on the sides: the solution
-    // extends by reflection across the sides to a smooth layer problem (no
-    // corner singularity), so the P1 energy-norm error is O(h) and the
-    // energy (the indenter's work) converges as h^2. (The total force does
-    // not test convergence here: equilibrium fixes it exactly on every
-    // mesh, since the mean of the interpolated profile is exact.)
-    let f: Vec<f64> = [1, 2, 4, 8]
+    // extends by reflection across the sides to a smooth periodic layer
+    // problem (no corner or edge singularity), so the P1 energy-norm error
+    // is O(h). The indenter's work is `2 W(u_h)`, and
+    // `W(u_h) - W(u) = a(u_h - u, u_h - u) / 2 + int_top t . (I_h g - g)`
+    // (`t` the traction, `I_h g` the interpolated profile): both terms are
+    // O(h^2). (The total force does not test convergence here: equilibrium
+    // fixes it exactly on every mesh.)
+    //
+    // The rate is 2, but not in the successive differences of coarse
+    // meshes: the error carries an h^3 term of opposite sign, `e = C h^2
+    // + D h^3` with `D / C` about -1.2 cell sizes, so the observed order
+    // `log2((f_h - f_h/2) / (f_h/2 - f_h/4))` climbs towards 2 like
+    // `2 - O(h)`: 0.85 (k = 2, 4, 8), 1.40 (3, 6, 12), 1.62 (4, 8, 16),
+    // measured at nu 0.3 (0.87, 1.50, 1.71 at nu 0). The test checks the
+    // expansion itself: fitted on k = 3, 4, 6 cells through the height,
+    // `L + C h^2 + D h^3` predicts k = 8 and 12 to 1% of the change, where
+    // a first-order expansion `L + C h + D h^2` misses by 15-28%.
+    let mat = Material {
+        youngs_modulus_pa: 3000.0,
+        poisson_ratio: 0.3,
+    };
+    let ks = [3.0, 4.0, 6.0, 8.0, 12.0];
+    let f: Vec<f64> = ks
         .iter()
-        .map(|&k| {
-            indentation_work(
-                k,
-                Material {
-                    youngs_modulus_pa: 3000.0,
-                    poisson_ratio: 0.3,
-                },
-            )
-        })
+        .map(|&k| indentation_work(k as usize, mat))
         .collect();
     assert!(f.iter().all(|&x| x > 0.0), "{f:?}");
-    let p1 = ((f[0] - f[1]) / (f[1] - f[2])).log2();
-    let p2 = ((f[1] - f[2]) / (f[2] - f[3])).log2();
-    let limit = f[3] - (f[2] - f[3]) / (2f64.powf(p2) - 1.0);
-    eprintln!(
-        "indentation work {f:?} J, observed orders {p1:.2} {p2:.2}, \
-         limit {limit:.4e} J, finest error {:.3}%",
-        100.0 * (f[3] - limit) / limit
-    );
-    // Expected: h^2. Measured on these meshes (k = 1..8 cells through the
-    // height, Kuhn tets): work falling monotonically, observed orders 4.0
-    // then 0.85 (nu 0.3; 2.8 then 1.0 at nu 0.45), i.e. first order in the
-    // last refinement. Why the h^2 rate is not reached is not yet
-    // explained; the test guards monotone convergence at at least the
-    // measured first order.
     assert!(f.windows(2).all(|w| w[0] > w[1]), "{f:?}");
-    assert!(p2 > 0.7, "observed order {p2}");
+    let order = ((f[0] - f[2]) / (f[2] - f[4])).log2();
+    let miss = |p: f64, q: f64| -> [f64; 2] {
+        let (l, c, d) = fit3([ks[0], ks[1], ks[2]], [f[0], f[1], f[2]], p, q);
+        [3, 4].map(|i| {
+            let k = ks[i];
+            let predicted = l + c * k.powf(-p) + d * k.powf(-q);
+            (predicted - f[i]).abs() / (f[2] - f[i])
+        })
+    };
+    let (second, first) = (miss(2.0, 3.0), miss(1.0, 2.0));
+    let (l, _, _) = fit3([ks[0], ks[1], ks[2]], [f[0], f[1], f[2]], 2.0, 3.0);
+    eprintln!(
+        "indentation work {f:?} J; observed order (k = 3, 6, 12) {order:.2}; \
+         limit {l:.5e} J, finest error {:.2}%; prediction misses of k = 8, 12: \
+         {second:.3?} with h^2 + h^3, {first:.3?} with h + h^2",
+        100.0 * (f[4] - l) / l
+    );
+    assert!(
+        second.iter().all(|&m| m < 0.03),
+        "h^2 expansion: {second:?}"
+    );
+    assert!(first.iter().all(|&m| m > 0.1), "h expansion: {first:?}");
+    // Pre-asymptotic but rising towards 2.
+    assert!(order > 1.2 && order < 2.0, "observed order {order}");
 }

@@ -38,6 +38,10 @@ pub struct Model {
     pub support: Vec<bool>,
     /// Fully fixed nodes in the order given (support reactions use it).
     pub fixed: Vec<u32>,
+    /// Young's modulus, Pa.
+    pub youngs_modulus_pa: f64,
+    /// Characteristic length: the diagonal of the rest bounding box, m.
+    pub length_m: f64,
 }
 
 impl Model {
@@ -106,6 +110,12 @@ impl Model {
         }
         let kel = geoms.iter().map(|g| g.stiffness(lambda, mu)).collect();
         let pattern = Pattern::new(n_nodes, &mesh.tets);
+        let length_m = if n_nodes == 0 {
+            0.0
+        } else {
+            let (lo, hi) = mesh.bounds();
+            (hi - lo).norm()
+        };
         Ok(Self {
             tets: mesh.tets.clone(),
             rest: mesh.nodes.clone(),
@@ -116,7 +126,17 @@ impl Model {
             pattern,
             support,
             fixed: fixed.to_vec(),
+            youngs_modulus_pa: e,
+            length_m,
         })
+    }
+
+    /// The absolute force floor of the iterative strategies' convergence
+    /// test, N: `strain x E x L^2` (`L` = [`Model::length_m`]), the force
+    /// a uniform strain of `strain` produces over the model's size. See
+    /// [`super::corotational::IterativeOptions::floor_strain`].
+    pub fn force_floor(&self, strain: f64) -> f64 {
+        strain * self.youngs_modulus_pa * self.length_m * self.length_m
     }
 
     /// Number of nodes.

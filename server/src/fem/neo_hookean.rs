@@ -5,16 +5,34 @@
 //! Each Newton iteration assembles the tangent (constrained DOFs eliminated as
 //! in `direct`, with the remaining gap to the enforced values as the lift),
 //! factors it (same symbolic analysis every time; the rest stiffness is used
-//! when the tangent is not positive definite) and steps. The line search
-//! takes the largest `alpha` in `1, 1/2, 1/4, ...` that keeps every element's
-//! `J > 0` and, once the enforced values are met, decreases the energy
-//! (Armijo). Converged when the free residual is below
-//! `tolerance x |internal force|` and the enforced values are met.
+//! when the tangent is not positive definite) and steps. Converged when the
+//! enforced values are met (to `1e-12` of the largest of them, of their
+//! change in the step and of the displacement) and the free residual passes the test of [`IterativeOptions`]
+//! (`|r| <= max(tolerance |f|, F_floor)`).
+//!
+//! Line search: the largest `alpha` in `1, 1/2, 1/4, ...` that keeps every
+//! element's `J > 0` and, once the enforced values are met, gives a
+//! sufficient decrease. Sufficient decrease is Armijo's on the energy,
+//! `W(u + alpha du) <= W(u) + 1e-4 alpha W'(u) du`, while the energy change
+//! is resolved; near the solution the decrease `~ |r|^2 / k` falls below
+//! the rounding of `W` itself (relative `(|r| / |f|)^2`: 1e-18 at a 1e-9
+//! tolerance, far below `f64::EPSILON`), and Armijo's test then accepts or
+//! rejects on noise, which stalled the reference at first contact. When
+//! `|W(u + alpha du) - W(u)|` is within the rounding bound of the energy
+//! (`(16 + elements) eps` times the summed magnitudes of its terms), the
+//! step is accepted on a sufficient decrease of the free residual instead,
+//! `|r(u + alpha du)| <= (1 - 1e-4 alpha) |r(u)|`, the merit function of
+//! Newton's method for the equations `r = 0`.
+//!
+//! Kinematics in displacement differences (`F = I + H`,
+//! [`super::element::TetGeometry::displacement_gradient`]) and a
+//! cancellation-free energy ([`super::element::neo_hookean_energy`]): at
+//! light load forces and energy keep full relative precision.
 
 use super::assembly::{node_vec, scatter_add};
 use super::constraint::{Constraint, Frame, StepRows};
 use super::corotational::IterativeOptions;
-use super::element::{neo_hookean_density, neo_hookean_element};
+use super::element::{neo_hookean_element_h, neo_hookean_energy, neo_hookean_forces};
 use super::factor::SparseLlt;
 use super::model::Model;
 use super::{DeformationSolver, LocalModel, Prescribed, Solution, SolveError};
@@ -35,9 +53,27 @@ pub struct NeoHookean {
     trial: Vec<f64>,
     f: Vec<f64>,
     fnode: Vec<f64>,
+    ftrial: Vec<f64>,
     good: Vec<f64>,
     solution: Solution,
     support_reactions: Vec<Vector3<f64>>,
+    /// Absolute floor of the convergence test, N.
+    floor: f64,
+}
+
+/// Sufficient-decrease constant of the line search (Armijo's `c1`).
+const ARMIJO: f64 = 1e-4;
+
+/// The energy and the rounding bound of its evaluation, J.
+#[derive(Debug, Clone, Copy)]
+struct Energy {
+    value: f64,
+    rounding: f64,
+}
+
+/// Corner displacements of element `t`.
+fn corner_u(t: &[u32; 4], u: &[f64]) -> [Vector3<f64>; 4] {
+    t.map(|n| node_vec(u, n as usize))
 }
 
 impl NeoHookean {
@@ -55,34 +91,64 @@ impl NeoHookean {
             trial: vec![0.0; n],
             f: vec![0.0; n],
             fnode: vec![0.0; n],
+            ftrial: vec![0.0; n],
             good: vec![0.0; n],
             solution: Solution {
                 displacements: vec![Vector3::zeros(); model.n_nodes()],
                 ..Default::default()
             },
             support_reactions: Vec::new(),
+            floor: model.force_floor(opts.floor_strain),
             opts,
             model,
         })
     }
 
-    /// Total strain energy (J) at displacement `u`, or the first inverted element.
-    fn energy(m: &Model, u: &[f64]) -> Result<f64, SolveError> {
-        let mut w = 0.0;
+    /// Total strain energy (J) at displacement `u` and the bound of its
+    /// rounding, or the first inverted element.
+    fn energy(m: &Model, u: &[f64]) -> Result<Energy, SolveError> {
+        let (mut w, mut mag) = (0.0, 0.0);
         for (e, t) in m.tets.iter().enumerate() {
-            let x = t.map(|n| m.rest[n as usize].coords + node_vec(u, n as usize));
-            let f = m.geoms[e].deformation_gradient(&x);
-            match neo_hookean_density(&f, m.lambda, m.mu) {
-                Some(psi) => w += m.geoms[e].volume * psi,
-                None => {
-                    return Err(SolveError::Inverted {
-                        element: e,
-                        jacobian: f.determinant(),
-                    });
+            let h = m.geoms[e].displacement_gradient(&corner_u(t, u));
+            match neo_hookean_energy(&h, m.lambda, m.mu) {
+                Some(psi) => {
+                    w += m.geoms[e].volume * psi.value;
+                    mag += m.geoms[e].volume * psi.magnitude;
+                }
+                None => return Err(inverted(e, &h)),
+            }
+        }
+        let rounding = (16.0 + m.tets.len() as f64) * f64::EPSILON * mag;
+        Ok(Energy { value: w, rounding })
+    }
+
+    /// Norm of the free-DOF internal force (N, in node bases) at `u`.
+    fn free_residual(&mut self, u: &[f64]) -> Result<f64, SolveError> {
+        let m = &self.model;
+        self.ftrial.fill(0.0);
+        for (e, t) in m.tets.iter().enumerate() {
+            let h = m.geoms[e].displacement_gradient(&corner_u(t, u));
+            let forces = neo_hookean_forces(&m.geoms[e], &h, m.lambda, m.mu)
+                .ok_or_else(|| inverted(e, &h))?;
+            for a in 0..4 {
+                let n = 3 * t[a] as usize;
+                for i in 0..3 {
+                    self.ftrial[n + i] += forces[a][i];
                 }
             }
         }
-        Ok(w)
+        self.frame.to_node_basis(&mut self.ftrial);
+        Ok(self.free_norm(&self.ftrial))
+    }
+
+    /// Norm over the free DOFs (node bases) of a node-basis vector.
+    fn free_norm(&self, v: &[f64]) -> f64 {
+        v.iter()
+            .zip(&self.frame.fixed)
+            .filter(|(_, fixed)| !**fixed)
+            .map(|(x, _)| x * x)
+            .sum::<f64>()
+            .sqrt()
     }
 
     /// Assembles the internal force (into `f`) and the eliminated tangent
@@ -93,14 +159,9 @@ impl NeoHookean {
         self.rhs.fill(0.0);
         self.f.fill(0.0);
         for (e, t) in m.tets.iter().enumerate() {
-            let x = t.map(|n| m.rest[n as usize].coords + node_vec(&self.u, n as usize));
-            let fdef = m.geoms[e].deformation_gradient(&x);
-            let (forces, mut k) = neo_hookean_element(&m.geoms[e], &fdef, m.lambda, m.mu).ok_or(
-                SolveError::Inverted {
-                    element: e,
-                    jacobian: fdef.determinant(),
-                },
-            )?;
+            let h = m.geoms[e].displacement_gradient(&corner_u(t, &self.u));
+            let (forces, mut k) = neo_hookean_element_h(&m.geoms[e], &h, m.lambda, m.mu)
+                .ok_or_else(|| inverted(e, &h))?;
             let mut fe = SVector::<f64, 12>::zeros();
             for a in 0..4 {
                 fe.fixed_rows_mut::<3>(3 * a).copy_from(&forces[a]);
@@ -136,6 +197,8 @@ impl NeoHookean {
         self.u.copy_from_slice(&self.good);
         // The inversion that last shortened a step toward the enforced values.
         let mut blocking: Option<SolveError> = None;
+        // The gap at the start of the step (m), the scale of its tolerance.
+        let mut gap0 = 0.0f64;
         for it in 1..=self.opts.max_outer {
             // Remaining gap to the enforced values, in node bases.
             self.trial.copy_from_slice(&self.u);
@@ -149,29 +212,36 @@ impl NeoHookean {
                 };
                 gap = gap.max(self.lift[d].abs());
             }
+            if it == 1 {
+                gap0 = gap;
+            }
             self.assemble(false)?;
-            let res = (0..self.rhs.len())
-                .filter(|&d| !self.frame.fixed[d])
-                .map(|d| self.fnode[d] * self.fnode[d])
-                .sum::<f64>()
-                .sqrt();
+            let res = self.free_norm(&self.fnode);
             let total = self.f.iter().map(|v| v * v).sum::<f64>().sqrt();
             let scale = self.frame.value.iter().fold(0.0f64, |a, v| a.max(v.abs()));
-            if !res.is_finite() {
+            if !(res.is_finite() && total.is_finite()) {
                 return Err(SolveError::NonFinite("neo-Hookean residual".into()));
             }
-            if gap <= 1e-12 * scale && (res <= self.opts.tolerance * total || res == 0.0) {
+            // Met to 1e-12 of the largest of the enforced values, of the
+            // step's change of them and of the displacement: relative, so
+            // that a 1e-18 m push from rest is applied, and not relative to
+            // the enforced values alone, so that a return to zero (where
+            // `u_c - 0` keeps a rounding residue of the previous values) and
+            // node bases (rounding of `B^T u`) terminate.
+            let umax = self.u.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+            let met = gap <= 1e-12 * scale.max(gap0).max(umax);
+            if met && res <= self.opts.threshold(total, self.floor) {
                 return Ok(it);
             }
             if it == self.opts.max_outer {
-                if gap > 0.0 {
+                if !met {
                     if let Some(e) = blocking {
                         return Err(e);
                     }
                 }
                 return Err(SolveError::NotConverged {
                     iterations: it,
-                    residual: res / total.max(f64::MIN_POSITIVE),
+                    residual: self.opts.relative_residual(res, total, self.floor),
                 });
             }
             if self
@@ -184,11 +254,12 @@ impl NeoHookean {
             }
             self.factor.solve(&mut self.rhs);
             self.frame.to_global_basis(&mut self.rhs);
-            // Line search.
-            let w0 = if gap == 0.0 {
-                Self::energy(&self.model, &self.u)?
+            // Line search (module documentation). While the enforced
+            // values are not met, any step that inverts nothing is taken.
+            let w0 = if met {
+                Some(Self::energy(&self.model, &self.u)?)
             } else {
-                0.0
+                None
             };
             let slope: f64 = self.f.iter().zip(&self.rhs).map(|(a, b)| a * b).sum();
             let mut alpha = 1.0;
@@ -200,9 +271,23 @@ impl NeoHookean {
                 }
                 match Self::energy(&self.model, &self.trial) {
                     Ok(w) => {
-                        let ok = gap > 0.0 || w <= w0 + 1e-4 * alpha * slope + 1e-13 * w0.abs();
-                        if ok {
-                            accepted = true;
+                        accepted = match w0 {
+                            None => true,
+                            Some(w0) => {
+                                let dw = w.value - w0.value;
+                                if dw <= ARMIJO * alpha * slope {
+                                    true
+                                } else if dw.abs() <= w.rounding.max(w0.rounding) {
+                                    let trial = std::mem::take(&mut self.trial);
+                                    let rt = self.free_residual(&trial);
+                                    self.trial = trial;
+                                    rt? <= (1.0 - ARMIJO * alpha) * res
+                                } else {
+                                    false
+                                }
+                            }
+                        };
+                        if accepted {
                             break;
                         }
                     }
@@ -213,10 +298,10 @@ impl NeoHookean {
             if !accepted {
                 return Err(last_err.unwrap_or(SolveError::NotConverged {
                     iterations: it,
-                    residual: res / total.max(f64::MIN_POSITIVE),
+                    residual: self.opts.relative_residual(res, total, self.floor),
                 }));
             }
-            if gap > 0.0 && alpha < 1.0 {
+            if !met && alpha < 1.0 {
                 // Enforced values that cannot be reached without inverting
                 // an element: stop once the steps become negligible.
                 if alpha < 1e-6 {
@@ -263,6 +348,14 @@ impl NeoHookean {
         );
         self.solution.iterations = iterations;
         Ok(&self.solution)
+    }
+}
+
+/// The inversion error of element `e` with displacement gradient `h`.
+fn inverted(element: usize, h: &nalgebra::Matrix3<f64>) -> SolveError {
+    SolveError::Inverted {
+        element,
+        jacobian: 1.0 + super::element::det_minus_one(h),
     }
 }
 

@@ -76,6 +76,38 @@ pub fn try_for_each_chunk<T: Send, E: Send>(
     }
 }
 
+/// Like [`try_for_each_chunk`] over two slices split at the same item
+/// boundaries: item `i` owns `a[i * ua .. (i + 1) * ua]` and
+/// `b[i * ub .. (i + 1) * ub]`; `f(first_item, a_chunk, b_chunk)`.
+pub fn try_for_each_chunk_pair<A: Send, B: Send, E: Send>(
+    par: Par,
+    a: &mut [A],
+    ua: usize,
+    b: &mut [B],
+    ub: usize,
+    min: usize,
+    f: impl Fn(usize, &mut [A], &mut [B]) -> Option<(usize, E)> + Sync + Send,
+) -> Option<(usize, E)> {
+    let items = a.len() / ua.max(1);
+    debug_assert_eq!(items * ub, b.len());
+    let per = chunk_len(par, items, 1, min);
+    match par {
+        Par::Seq => {
+            if items == 0 {
+                None
+            } else {
+                f(0, a, b)
+            }
+        }
+        Par::Rayon(_) => a
+            .par_chunks_mut(per * ua)
+            .zip(b.par_chunks_mut(per * ub))
+            .enumerate()
+            .filter_map(|(i, (ca, cb))| f(i * per, ca, cb))
+            .min_by_key(|(i, _)| *i),
+    }
+}
+
 /// Node-to-element incidence, for summing per-element 12-vectors into a
 /// global DOF vector without write conflicts: node `n` reads the entries
 /// `12 e + 3 a .. 12 e + 3 a + 3` for each `(e, a)` with `tets[e][a] == n`.
