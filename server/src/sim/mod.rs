@@ -4,10 +4,15 @@
 //! * The **deformation loop** runs on its own thread: latest poses -> collision
 //!   with culling for every instrument -> FEM step -> a [`Snapshot`] swapped in
 //!   atomically (latest wins) and a [`Frame`] sent on a `watch` channel (slow
-//!   watchers see only the latest frame).
+//!   watchers see only the latest frame). With the CPU BVH, the snapshot also
+//!   carries the tree refitted to its surface, which every force loop casts on
+//!   read-only. The thread and its rayon pool run at a lower priority
+//!   ([`priority`], [`SimOptions::deformation_nice`]) so that force samples
+//!   preempt the solver.
 //! * The **force loop** of a claimed instrument ([`Claim::force_sample`]) runs in
-//!   the caller's task: a fresh collision query against the latest snapshot's
-//!   surface and the local model of its step. In free-running mode it never
+//!   the caller's thread: a fresh collision query (sequential, on the
+//!   snapshot's tree) against the latest snapshot's surface and the local model
+//!   of its step. In free-running mode it never
 //!   waits for the deformation loop.
 //! * **Stepped mode** makes runs reproducible: deformation step `k` happens at
 //!   simulation time `t_k = k * dt` and uses, per instrument, the latest pose
