@@ -270,7 +270,7 @@ impl Compliance {
 
     /// Keeps a single-precision copy of the factor of `K0` (`4 x` its
     /// nonzeros in bytes, 40 MB on the 48k phantom) for
-    /// [`Compliance::constrained_solve`], a preconditioner: a solve with it
+    /// `Compliance::constrained_solve`, a preconditioner: a solve with it
     /// reads half the memory. The solution of a step never uses it.
     pub fn keep_single(&mut self) {
         self.factor.keep_single();
