@@ -11,9 +11,11 @@ use fissure_server::fem::{
     DeformationSolver, Material, Prescribed, SolveError, SolverOptions, Strategy, build_solver,
 };
 use fissure_server::mesh::TetMesh;
-use fissure_server::mesh::blocks::cube;
 use fissure_server::mesh::phantom;
-use nalgebra::{Point3, Vector3};
+use nalgebra::Vector3;
+
+mod common;
+use common::{block, push};
 
 const BRAIN: Material = Material {
     youngs_modulus_pa: 3000.0,
@@ -24,38 +26,6 @@ const ITERATIVE: [Strategy; 2] = [Strategy::Corotational, Strategy::NeoHookean];
 
 fn max_norm(v: &[Vector3<f64>]) -> f64 {
     v.iter().fold(0.0, |m, x| m.max(x.norm()))
-}
-
-/// A 2 cm cube (`n` cells a side), bottom fixed, and the `contacts` top
-/// nodes nearest the top centre.
-fn block(n: usize, contacts: usize) -> (TetMesh, Vec<u32>, Vec<u32>) {
-    let l = 0.02;
-    let mesh = cube(l, n);
-    let fixed: Vec<u32> = (0..mesh.nodes.len() as u32)
-        .filter(|&i| mesh.nodes[i as usize].z < 1e-12)
-        .collect();
-    let centre = Point3::new(0.5 * l, 0.5 * l, l);
-    let mut top: Vec<u32> = (0..mesh.nodes.len() as u32)
-        .filter(|&i| (mesh.nodes[i as usize].z - l).abs() < 1e-12)
-        .collect();
-    top.sort_by(|&a, &b| {
-        (mesh.nodes[a as usize] - centre)
-            .norm()
-            .total_cmp(&(mesh.nodes[b as usize] - centre).norm())
-            .then(a.cmp(&b))
-    });
-    top.truncate(contacts);
-    (mesh, fixed, top)
-}
-
-fn push(nodes: &[u32], d: Vector3<f64>) -> Vec<Prescribed> {
-    nodes
-        .iter()
-        .map(|&node| Prescribed {
-            node,
-            displacement: d,
-        })
-        .collect()
 }
 
 fn solver(

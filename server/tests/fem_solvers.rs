@@ -8,47 +8,18 @@ use fissure_server::fem::corotational::IterativeOptions;
 use fissure_server::fem::model::Model;
 use fissure_server::fem::skull::{Skull, Sphere};
 use fissure_server::fem::{
-    DeformationSolver, Material, Par, Prescribed, SolveError, SolverOptions, Strategy, build_solver,
+    DeformationSolver, Material, Par, SolveError, SolverOptions, Strategy, build_solver,
 };
 use fissure_server::mesh::TetMesh;
-use fissure_server::mesh::blocks::cube;
 use nalgebra::{Point3, Vector3};
+
+mod common;
+use common::{block, push};
 
 const BRAIN: Material = Material {
     youngs_modulus_pa: 3000.0,
     poisson_ratio: 0.45,
 };
-
-/// A 2 cm cube, bottom fixed, and its top surface nodes nearest the centre.
-fn setup(n: usize, contacts: usize) -> (TetMesh, Vec<u32>, Vec<u32>) {
-    let l = 0.02;
-    let mesh = cube(l, n);
-    let fixed: Vec<u32> = (0..mesh.nodes.len() as u32)
-        .filter(|&i| mesh.nodes[i as usize].z < 1e-12)
-        .collect();
-    let top = Point3::new(0.5 * l, 0.5 * l, l);
-    let mut surface: Vec<u32> = (0..mesh.nodes.len() as u32)
-        .filter(|&i| (mesh.nodes[i as usize].z - l).abs() < 1e-12)
-        .collect();
-    surface.sort_by(|&a, &b| {
-        (mesh.nodes[a as usize] - top)
-            .norm()
-            .total_cmp(&(mesh.nodes[b as usize] - top).norm())
-            .then(a.cmp(&b))
-    });
-    surface.truncate(contacts);
-    (mesh, fixed, surface)
-}
-
-fn push(nodes: &[u32], d: Vector3<f64>) -> Vec<Prescribed> {
-    nodes
-        .iter()
-        .map(|&node| Prescribed {
-            node,
-            displacement: d,
-        })
-        .collect()
-}
 
 fn all_finite(v: &[Vector3<f64>]) -> bool {
     v.iter().all(|x| x.iter().all(|c| c.is_finite()))
@@ -91,7 +62,7 @@ fn solvers(mesh: &TetMesh, fixed: &[u32]) -> Vec<(String, Box<dyn DeformationSol
 
 #[test]
 fn non_finite_input_is_rejected_and_the_last_good_state_kept() {
-    let (mesh, fixed, top) = setup(4, 6);
+    let (mesh, fixed, top) = block(4, 6);
     let good = push(&top, Vector3::new(2e-4, 0.0, -1e-3));
     for (name, mut s) in solvers(&mesh, &fixed) {
         let before = s.solve(&good).unwrap().clone();
@@ -129,7 +100,7 @@ fn non_finite_input_is_rejected_and_the_last_good_state_kept() {
 
 #[test]
 fn an_empty_step_returns_to_rest_and_clears_warm_starts() {
-    let (mesh, fixed, top) = setup(4, 6);
+    let (mesh, fixed, top) = block(4, 6);
     let first = push(&top, Vector3::new(5e-4, 0.0, -1.5e-3));
     let second = push(&top, Vector3::new(-5e-4, 3e-4, -2.5e-3));
     for (name, mut s) in solvers(&mesh, &fixed) {
@@ -154,7 +125,7 @@ fn an_empty_step_returns_to_rest_and_clears_warm_starts() {
 
 #[test]
 fn compliance_cache_is_bounded_least_recently_used() {
-    let (mesh, fixed, top) = setup(4, 8);
+    let (mesh, fixed, top) = block(4, 8);
     let model = Model::new(&mesh, BRAIN, &fixed, &[]).unwrap();
     let mut c = Compliance::new(model.clone(), Recover::All).unwrap();
     let reference = |nodes: &[u32], d: Vector3<f64>| {
@@ -205,7 +176,7 @@ fn compliance_cache_is_bounded_least_recently_used() {
 
 #[test]
 fn parallel_and_sequential_runs_agree() {
-    let (mesh, fixed, top) = setup(5, 12);
+    let (mesh, fixed, top) = block(5, 12);
     for strategy in [Strategy::Compliance, Strategy::Corotational] {
         let run = |par: Par| {
             let opts = SolverOptions {
@@ -235,7 +206,7 @@ fn parallel_and_sequential_runs_agree() {
 fn interactive_tolerance_costs_little_accuracy() {
     // A deep, sheared indentation (3 mm down, 2 mm sideways on a 2 cm cube:
     // rotations of the contact elements of order 0.1 rad).
-    let (mesh, fixed, top) = setup(5, 9);
+    let (mesh, fixed, top) = block(5, 9);
     let build = |opts: IterativeOptions| {
         build_solver(
             Strategy::Corotational,
