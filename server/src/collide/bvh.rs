@@ -106,6 +106,13 @@ fn median_split(items: &mut [Item]) -> usize {
     mid
 }
 
+/// Bin of centroid coordinate `c` among [`SAH_BINS`] equal slabs of
+/// `[lo, lo + ext]` (`ext > 0`).
+#[inline]
+fn sah_bin(c: f64, lo: f64, ext: f64) -> usize {
+    (((c - lo) / ext * SAH_BINS as f64) as usize).min(SAH_BINS - 1)
+}
+
 /// Binned surface-area-heuristic split (Wald 2007): centroids binned into
 /// [`SAH_BINS`] slabs per axis; the plane between two bins minimising
 /// `A(left) n(left) + A(right) n(right)` (the expected number of triangle
@@ -131,9 +138,7 @@ fn sah_split(items: &mut [Item]) -> Option<usize> {
         if ext.is_nan() || ext <= 0.0 {
             continue;
         }
-        let bin = |it: &Item| {
-            (((it.centroid[axis] - clo[axis]) / ext * SAH_BINS as f64) as usize).min(SAH_BINS - 1)
-        };
+        let bin = |it: &Item| sah_bin(it.centroid[axis], clo[axis], ext);
         let mut count = [0usize; SAH_BINS];
         let mut boxes = [empty; SAH_BINS];
         for it in items.iter() {
@@ -171,10 +176,7 @@ fn sah_split(items: &mut [Item]) -> Option<usize> {
     }
     let (_, axis, split) = best?;
     let ext = chi[axis] - clo[axis];
-    let side = |it: &Item| {
-        (((it.centroid[axis] - clo[axis]) / ext * SAH_BINS as f64) as usize).min(SAH_BINS - 1)
-            >= split
-    };
+    let side = |it: &Item| sah_bin(it.centroid[axis], clo[axis], ext) >= split;
     items.sort_unstable_by(|a, b| side(a).cmp(&side(b)).then(a.id.cmp(&b.id)));
     let mid = items.iter().filter(|it| !side(it)).count();
     (mid > 0 && mid < items.len()).then_some(mid)
