@@ -29,7 +29,7 @@ use fissure_server::collide::history::Stage;
 use fissure_server::fem::roi::{RoiCentre, crop};
 use fissure_server::fem::{self, DeformationSolver, Prescribed};
 use fissure_server::mesh::TetMesh;
-use fissure_server::sim::engine::{History, Model};
+use fissure_server::sim::engine::{EnforcedByNode, History, Model};
 use fissure_server::sim::local_model::{ForceModel, ForceWorkspace};
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 use std::collections::{HashMap, VecDeque};
@@ -127,7 +127,7 @@ struct Collision {
     ws: Workspace,
     out: ContactOutput,
     opts: DetectOptions,
-    by_node: Vec<(u32, Vector3<f64>)>,
+    by_node: EnforcedByNode,
 }
 
 fn make_backend(kind: Backend, model: &Model) -> (Box<dyn RayBackend>, String) {
@@ -162,7 +162,7 @@ impl Collision {
                 ws: Workspace::new(),
                 out: ContactOutput::default(),
                 opts: DetectOptions::default(),
-                by_node: Vec::new(),
+                by_node: EnforcedByNode::default(),
             },
             name,
         )
@@ -203,21 +203,11 @@ impl Collision {
         {
             self.out = ContactOutput::default();
         }
-        self.by_node.clear();
-        self.by_node.extend(
-            self.out
-                .enforced
-                .iter()
-                .map(|e| (e.volume_node, e.displacement)),
-        );
-        self.by_node.sort_unstable_by_key(|e| e.0);
+        self.by_node.rebuild(&self.out);
     }
 
     fn displacement_of(&self, node: u32) -> Option<Vector3<f64>> {
-        self.by_node
-            .binary_search_by_key(&node, |e| e.0)
-            .ok()
-            .map(|i| self.by_node[i].1)
+        self.by_node.get(node)
     }
 }
 

@@ -372,7 +372,7 @@ pub struct ContactQuery {
     ws: Workspace,
     out: ContactOutput,
     opts: DetectOptions,
-    by_node: Vec<(u32, Vector3<f64>)>,
+    by_node: EnforcedByNode,
     par: Par,
 }
 
@@ -384,21 +384,51 @@ impl std::fmt::Debug for ContactQuery {
     }
 }
 
+/// A contact output's enforced displacements by volume node, for the local
+/// force model's lookups (sorted; the buffer is reused).
+#[derive(Debug, Clone, Default)]
+pub struct EnforcedByNode(Vec<(u32, Vector3<f64>)>);
+
+impl EnforcedByNode {
+    /// Re-indexes `out`'s enforced displacements.
+    pub fn rebuild(&mut self, out: &ContactOutput) {
+        self.0.clear();
+        self.0
+            .extend(out.enforced.iter().map(|e| (e.volume_node, e.displacement)));
+        self.0.sort_unstable_by_key(|e| e.0);
+    }
+
+    /// Enforced displacement of a volume node, if in contact.
+    pub fn get(&self, node: u32) -> Option<Vector3<f64>> {
+        self.0
+            .binary_search_by_key(&node, |e| e.0)
+            .ok()
+            .map(|i| self.0[i].1)
+    }
+
+    /// Nodes with an enforced displacement.
+    pub fn len(&self) -> usize {
+        self.0.len()
+    }
+
+    /// No node has an enforced displacement.
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+}
+
 /// The result of one query, borrowed from the query's buffers.
 #[derive(Debug)]
 pub struct ContactView<'a> {
     /// Pairs, cancelled pairs and enforced displacements.
     pub output: &'a ContactOutput,
-    by_node: &'a [(u32, Vector3<f64>)],
+    by_node: &'a EnforcedByNode,
 }
 
 impl ContactView<'_> {
     /// Enforced displacement of a volume node, if in contact.
     pub fn displacement_of(&self, node: u32) -> Option<Vector3<f64>> {
-        self.by_node
-            .binary_search_by_key(&node, |e| e.0)
-            .ok()
-            .map(|i| self.by_node[i].1)
+        self.by_node.get(node)
     }
 
     /// Surface vertices in contact.
@@ -423,7 +453,7 @@ impl ContactQuery {
                 unilateral: scene.collision.unilateral,
                 ..DetectOptions::default()
             },
-            by_node: Vec::new(),
+            by_node: EnforcedByNode::default(),
         }
     }
 
@@ -453,17 +483,6 @@ impl ContactQuery {
             *fitted = Some(snap.surface.clone());
         }
         backend.as_mut()
-    }
-
-    fn index(&mut self) {
-        self.by_node.clear();
-        self.by_node.extend(
-            self.out
-                .enforced
-                .iter()
-                .map(|e| (e.volume_node, e.displacement)),
-        );
-        self.by_node.sort_unstable_by_key(|e| e.0);
     }
 
     /// One instrument against the snapshot's surface (the force loop).
@@ -500,7 +519,7 @@ impl ContactQuery {
             tracing::warn!(error = %e, "collision query failed");
             self.out = ContactOutput::default();
         }
-        self.index();
+        self.by_node.rebuild(&self.out);
         ContactView {
             output: &self.out,
             by_node: &self.by_node,
