@@ -102,10 +102,10 @@ pub struct DetectOptions {
     /// other front). The output is the same as with whole lines (`false`, the
     /// paper's pass), which is kept for comparison.
     pub bounded_rays: bool,
-    /// Unilateral contact (off by default, as in the scenes): when a vertex of a surviving pair's
-    /// triangle lies behind the face (depth at least `-skin_m`), only such
-    /// vertices get enforced displacements; a triangle with all three
-    /// vertices in front is projected whole. `false` always projects all
+    /// Unilateral contact (off by default, as in the scenes): when a vertex
+    /// of a surviving pair's triangle lies behind the face (depth at least
+    /// `-skin_m`), only such vertices get enforced displacements; a triangle
+    /// with all three vertices in front is projected whole. `false` always projects all
     /// three vertices, as the paper does: with triangles larger than the
     /// contact, a vertex lying in front of the face is pulled onto it (the
     /// tissue is dragged towards the spatula).
@@ -432,13 +432,10 @@ pub fn detect_many(
         // Unilateral: when a vertex lies behind the face, those in front stay
         // free; a triangle the face pokes into with all three vertices in
         // front is projected whole (else that contact would give no force).
-        let pushes = opts.unilateral
-            && tri
-                .iter()
-                .any(|&v| (s - query.positions[v as usize]).dot(&n) >= -skin);
-        for v in tri {
+        let depths = tri.map(|v| (s - query.positions[v as usize]).dot(&n));
+        let pushes = opts.unilateral && depths.iter().any(|&d| d >= -skin);
+        for (v, depth) in tri.into_iter().zip(depths) {
             let pos = query.positions[v as usize];
-            let depth = (s - pos).dot(&n);
             if pushes && depth < -skin {
                 continue;
             }

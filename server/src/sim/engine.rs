@@ -461,7 +461,6 @@ impl ContactQuery {
     /// query's own backend fitted to its surface.
     /// Its own backend is built on first need (never, while snapshots carry
     /// a tree).
-    #[allow(clippy::too_many_arguments)]
     fn backend_for<'a>(
         backend: &'a mut Option<Box<dyn RayBackend>>,
         fitted: &mut Option<Arc<Vec<Point3<f64>>>>,
