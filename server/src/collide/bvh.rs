@@ -80,15 +80,20 @@ fn half_area(lo: &Point3<f64>, hi: &Point3<f64>) -> f64 {
     e.x * e.y + e.y * e.z + e.z * e.x
 }
 
-/// Median split of the centroids along their longest axis; returns the
-/// size of the left part.
-fn median_split(items: &mut [Item]) -> usize {
+/// Box `(lo, hi)` of the centroids of `items` (not empty).
+fn centroid_bounds(items: &[Item]) -> (Point3<f64>, Point3<f64>) {
     let mut lo = items[0].centroid;
     let mut hi = items[0].centroid;
     for it in items.iter() {
         lo = lo.inf(&it.centroid);
         hi = hi.sup(&it.centroid);
     }
+    (lo, hi)
+}
+
+/// Median split of the centroids (box `[lo, hi]`) along their longest axis;
+/// returns the size of the left part.
+fn median_split(items: &mut [Item], (lo, hi): (Point3<f64>, Point3<f64>)) -> usize {
     let ext = hi - lo;
     let axis = if ext.x >= ext.y && ext.x >= ext.z {
         0
@@ -120,13 +125,7 @@ fn sah_bin(c: f64, lo: f64, ext: f64) -> usize {
 /// the two walls of a fissure end up in separate boxes, where median splits
 /// keep boxes that span the gap. Returns the size of the left part, or `None`
 /// when every centroid falls in one bin on every axis.
-fn sah_split(items: &mut [Item]) -> Option<usize> {
-    let mut clo = items[0].centroid;
-    let mut chi = items[0].centroid;
-    for it in items.iter() {
-        clo = clo.inf(&it.centroid);
-        chi = chi.sup(&it.centroid);
-    }
+fn sah_split(items: &mut [Item], (clo, chi): (Point3<f64>, Point3<f64>)) -> Option<usize> {
     let empty = (
         Point3::from([f64::INFINITY; 3]),
         Point3::from([f64::NEG_INFINITY; 3]),
@@ -414,9 +413,13 @@ impl Bvh {
         if items.len() <= LEAF_SIZE {
             return;
         }
-        let mid = match (depth < SAH_DEPTH).then(|| sah_split(items)).flatten() {
+        let bounds = centroid_bounds(items);
+        let mid = match (depth < SAH_DEPTH)
+            .then(|| sah_split(items, bounds))
+            .flatten()
+        {
             Some(mid) => mid,
-            None => median_split(items),
+            None => median_split(items, bounds),
         };
         let (left, right) = items.split_at_mut(mid);
         Self::split(nodes, parent, left, first, me as u32, depth + 1);
