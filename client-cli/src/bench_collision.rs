@@ -438,9 +438,7 @@ pub fn run_collision_bench(surf: &BenchSurface, opts: &BenchOptions) -> anyhow::
             None,
         )
         .with_context(|| format!("{npf} nodes a face"))?;
-        for node in &mut inst.nodes {
-            node.reach = node.reach.min(opts.max_depth_m);
-        }
+        inst.cap_reach(opts.max_depth_m);
         let row = |method: &str,
                    backend: &str,
                    detect: &DetectOptions,

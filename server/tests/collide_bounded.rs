@@ -60,9 +60,7 @@ fn instrument(reach: Option<f64>) -> Instrument {
     )
     .unwrap();
     if let Some(r) = reach {
-        for n in &mut inst.nodes {
-            n.reach = n.reach.min(r);
-        }
+        inst.cap_reach(r);
     }
     inst
 }

@@ -346,6 +346,15 @@ impl Instrument {
         })
     }
 
+    /// Caps every node's reach at `max_m` (the scenes'
+    /// `collision.max_depth_m`): no pair forms with a triangle farther
+    /// behind a face than that.
+    pub fn cap_reach(&mut self, max_m: f64) {
+        for node in &mut self.nodes {
+            node.reach = node.reach.min(max_m);
+        }
+    }
+
     /// Number of source nodes.
     pub fn len(&self) -> usize {
         self.nodes.len()

@@ -79,9 +79,7 @@ fn build_instrument(
     });
     let mut instrument = Instrument::new(plate, layout, rim)
         .map_err(|e| SimError::Model(format!("instrument {:?}: {e}", spec.name)))?;
-    for node in &mut instrument.nodes {
-        node.reach = node.reach.min(max_depth_m);
-    }
+    instrument.cap_reach(max_depth_m);
     Ok(instrument)
 }
 
