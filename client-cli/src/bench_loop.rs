@@ -20,7 +20,7 @@ use fissure_proto::v1 as pb;
 use fissure_server::scene::Scene;
 use fissure_server::service::{ServeOptions, serve};
 use fissure_server::sim::stats::percentile;
-use fissure_server::sim::{SimOptions, Simulation};
+use fissure_server::sim::{SimOptions, Simulation, priority};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
@@ -40,6 +40,13 @@ pub struct LoopBenchArgs {
     /// Haptic rate of each client, Hz.
     #[arg(long, default_value_t = 1000.0)]
     pub rate_hz: f64,
+    /// Real-time priority (SCHED_FIFO, 1-99) of the server's force loops and
+    /// of the clients' pose threads (a haptic device's servo loop is
+    /// real-time); 0 asks for none. Where it is not permitted, both run at
+    /// normal priority and the report says so.
+    #[arg(long, default_value_t = fissure_server::sim::priority::DEFAULT_FORCE_LOOP_RT_PRIORITY,
+          value_parser = clap::value_parser!(u8).range(0..=99))]
+    pub rt_priority: u8,
     /// Print JSON instead of a table.
     #[arg(long)]
     pub json: bool,
@@ -52,6 +59,7 @@ impl Default for LoopBenchArgs {
             duration_s: 10.0,
             watchers: 4,
             rate_hz: 1000.0,
+            rt_priority: fissure_server::sim::priority::DEFAULT_FORCE_LOOP_RT_PRIORITY,
             json: false,
         }
     }
@@ -74,6 +82,9 @@ pub struct LoopBenchReport {
     pub clients: usize,
     /// Watchers.
     pub watchers: usize,
+    /// Whether the force loops and the clients' pose threads ran under
+    /// `SCHED_FIFO` (`--rt-priority`, where permitted).
+    pub realtime: bool,
     /// Poses sent, all clients.
     pub samples_sent: u64,
     /// Force samples received.
@@ -157,6 +168,7 @@ pub async fn run(args: &LoopBenchArgs) -> anyhow::Result<LoopBenchReport> {
     let options = SimOptions {
         stepped: Some(false),
         max_watchers: args.watchers + 1,
+        force_loop_rt_priority: args.rt_priority,
         ..SimOptions::default()
     };
     let scene_name = scene.name.clone();
@@ -235,7 +247,12 @@ async fn drive(
     };
     let mut senders = Vec::new();
     let mut receivers = Vec::new();
+    let rt_priority = args.rt_priority;
+    // Whether every client thread got its real-time priority (the server's
+    // force loops ask the same of the same process's permissions).
+    let realtime = Arc::new(AtomicBool::new(rt_priority > 0));
     for (client, tx, mut inbound, trajectory) in streams {
+        let realtime_clients = realtime.clone();
         receivers.push(tokio::spawn(async move {
             let _client = client;
             let mut answers = Vec::with_capacity(n as usize);
@@ -255,6 +272,8 @@ async fn drive(
             std::thread::Builder::new()
                 .name("bench-haptic-client".into())
                 .spawn(move || {
+                    let realtime = priority::raise_current_thread(rt_priority).unwrap_or(false);
+                    realtime_clients.fetch_and(realtime, Ordering::Relaxed);
                     let mut sent = Vec::with_capacity(n as usize);
                     for k in 0..n {
                         let due = start + period.mul_f64(k as f64);
@@ -351,6 +370,7 @@ async fn drive(
         rate_hz: args.rate_hz,
         clients: plans.len(),
         watchers: args.watchers,
+        realtime: realtime.load(Ordering::Relaxed),
         samples_sent: sent_total,
         samples_answered: answered,
         missed_samples: missed,
@@ -378,8 +398,20 @@ async fn drive(
 pub fn table(r: &LoopBenchReport) -> String {
     let mut s = format!(
         "bench loop — scene {} ({} surface triangles, loaded in {:.1} s), free-running\n\
-         {} clients at {:.0} Hz (real-time ticks), {} watchers (full frames), {:.2} s\n\n",
-        r.scene, r.surface_triangles, r.load_s, r.clients, r.rate_hz, r.watchers, r.duration_s
+         {} clients at {:.0} Hz (real-time ticks), {} watchers (full frames), {:.2} s\n\
+         force loops and client threads: {}\n\n",
+        r.scene,
+        r.surface_triangles,
+        r.load_s,
+        r.clients,
+        r.rate_hz,
+        r.watchers,
+        r.duration_s,
+        if r.realtime {
+            "SCHED_FIFO"
+        } else {
+            "normal priority"
+        }
     );
     let row = |name: &str, p50: f64, p99: f64, max: f64| {
         format!("{name:<28} {p50:>10.1} {p99:>10.1} {max:>10.1}\n")

@@ -11,12 +11,15 @@ async fn bench_loop_reports_consistent_figures() -> anyhow::Result<()> {
         duration_s: 1.0,
         watchers: 2,
         rate_hz: 1000.0,
+        rt_priority: 0,
         json: true,
     };
     let r = run(&args).await?;
     assert_eq!(r.scene, "cube");
     assert_eq!(r.clients, 2);
     assert_eq!(r.watchers, 2);
+    // 0 asks for no real-time scheduling, and the report says so.
+    assert!(!r.realtime);
     // Every tick sent a pose and every pose was answered (late or not).
     assert_eq!(r.samples_sent, 2000);
     assert_eq!(r.samples_answered, 2000);
@@ -50,5 +53,6 @@ async fn bench_loop_reports_consistent_figures() -> anyhow::Result<()> {
     ] {
         assert!(json.get(key).is_some_and(|v| v.is_number()), "{key}");
     }
+    assert!(json.get("realtime").is_some_and(|v| v.is_boolean()));
     Ok(())
 }

@@ -52,6 +52,12 @@ struct Args {
     /// Above the force loops' so that a force sample preempts the solver.
     #[arg(long, default_value_t = fissure_server::sim::DEFAULT_DEFORMATION_NICE)]
     deformation_nice: i32,
+    /// Real-time priority (SCHED_FIFO, 1-99) each force loop asks for; 0 asks
+    /// for none. Needs CAP_SYS_NICE or an RLIMIT_RTPRIO allowance; without it
+    /// the loops run at normal priority (logged once).
+    #[arg(long, default_value_t = fissure_server::sim::priority::DEFAULT_FORCE_LOOP_RT_PRIORITY,
+          value_parser = clap::value_parser!(u8).range(0..=99))]
+    force_loop_rt_priority: u8,
     /// Log filter (tracing's EnvFilter syntax), e.g. `info` or `fissure_server=debug`.
     #[arg(long, env = "FISSURE_LOG", default_value = "info")]
     log: String,
@@ -96,6 +102,7 @@ async fn main() -> anyhow::Result<()> {
         recording: args.record.clone(),
         max_watchers: args.max_watchers,
         deformation_nice: args.deformation_nice,
+        force_loop_rt_priority: args.force_loop_rt_priority,
     };
     let sim = tokio::task::spawn_blocking(move || Simulation::start(scene, options))
         .await?

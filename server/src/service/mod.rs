@@ -230,6 +230,7 @@ impl Fissure for FissureService {
             .name(format!("force-loop-{name}"))
             .spawn(move || {
                 // The claim lives on this thread and is released when it ends.
+                claim.enter_force_thread();
                 loop {
                     let next = runtime.block_on(async {
                         tokio::select! {

@@ -76,6 +76,10 @@ pub struct SimOptions {
     /// leaves them at the process's priority). Higher than the force loops'
     /// so that a force sample preempts the solver ([`priority`]).
     pub deformation_nice: i32,
+    /// Real-time (`SCHED_FIFO`) priority each force loop asks for, 1-99; 0
+    /// asks for none. Without the privilege a loop runs at normal priority
+    /// ([`priority`]).
+    pub force_loop_rt_priority: u8,
 }
 
 /// Default of [`SimOptions::deformation_nice`].
@@ -89,6 +93,7 @@ impl Default for SimOptions {
             recording: None,
             max_watchers: 16,
             deformation_nice: DEFAULT_DEFORMATION_NICE,
+            force_loop_rt_priority: priority::DEFAULT_FORCE_LOOP_RT_PRIORITY,
         }
     }
 }
@@ -711,6 +716,31 @@ impl std::fmt::Debug for Claim {
 }
 
 impl Claim {
+    /// Prepares the calling thread to run this claim's force loop: asks for
+    /// the real-time priority of [`SimOptions::force_loop_rt_priority`]. Call
+    /// once, on the thread that will call [`Claim::force_sample`]. Whether it
+    /// took is logged (a refusal once per process, at `warn`).
+    pub fn enter_force_thread(&self) {
+        static REFUSED: AtomicBool = AtomicBool::new(false);
+        let asked = self.sim.options.force_loop_rt_priority;
+        match priority::raise_current_thread(asked) {
+            Ok(true) => {
+                tracing::debug!(instrument = %self.name, priority = asked, "force loop runs SCHED_FIFO")
+            }
+            Ok(false) => {}
+            Err(why) => {
+                if !REFUSED.swap(true, Ordering::Relaxed) {
+                    tracing::warn!(
+                        priority = asked,
+                        %why,
+                        "force loops run at normal priority: no real-time scheduling here \
+                         (grant CAP_SYS_NICE or an RLIMIT_RTPRIO allowance, or pass 0 to stop asking)"
+                    );
+                }
+            }
+        }
+    }
+
     /// The claimed instrument's name.
     pub fn instrument(&self) -> &str {
         &self.name
@@ -796,6 +826,10 @@ impl Claim {
             slot.version += 1;
             if sim.stepped {
                 slot.log.push_back((pose, self.history.clone()));
+            } else if let Some((p, h)) = slot.latest.as_mut() {
+                // Reuse the slot's flags (no allocation per sample).
+                *p = pose;
+                h.copy_from(&self.history);
             } else {
                 slot.latest = Some((pose, self.history.clone()));
             }

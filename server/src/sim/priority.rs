@@ -1,13 +1,23 @@
-//! Scheduling priority of the deformation loop.
+//! Scheduling priorities of the loops.
 //!
 //! On a machine with few cores the deformation loop (a solve that can use
 //! every core for tens of milliseconds) and the force loops (one short query
-//! per pose, due every millisecond) compete for the same CPUs. The haptic
-//! loop is the one with a deadline: the deformation thread and its rayon pool
-//! run at a higher *nice* value (lower priority), so that the scheduler lets a
-//! force sample preempt them, and the deformation loop takes the time left.
-//! Raising the force loops' priority instead would need privileges; lowering
-//! one's own never does.
+//! per pose, due every millisecond) compete for the same CPUs, with the gRPC
+//! runtime and the watchers' frames. The haptic loop is the one with a
+//! deadline:
+//!
+//! * the deformation thread and its rayon pool run at a higher *nice* value
+//!   (lower priority), so that the scheduler lets a force sample preempt them
+//!   and the deformation loop takes the time left; lowering one's own priority
+//!   never needs privileges;
+//! * each force loop asks for a real-time policy (`SCHED_FIFO`, priority
+//!   [`DEFAULT_FORCE_LOOP_RT_PRIORITY`] of 1-99), as haptic servo loops do, so
+//!   that no ordinary thread (the runtime encoding frames, another process)
+//!   delays a sample once its pose has arrived. This needs `CAP_SYS_NICE` (or
+//!   an `RLIMIT_RTPRIO` allowance); without it the loop logs why once and runs
+//!   at normal priority. A force loop sleeps between poses and a sample takes
+//!   well under a millisecond, so it cannot monopolise a CPU; Linux's
+//!   real-time throttling (`sched_rt_runtime_us`) bounds it regardless.
 
 /// Sets the nice value of the calling thread to `nice` (Linux: threads are
 /// scheduled individually; 0 leaves the thread as it is). Failures are
@@ -24,6 +34,56 @@ pub fn lower_current_thread(nice: i32) {
     }
     #[cfg(not(target_os = "linux"))]
     tracing::debug!(nice, "thread priorities are only set on Linux");
+}
+
+/// Default real-time priority of the force loops (`SCHED_FIFO`, 1-99; 0 asks
+/// for none). Low in the real-time range: above every ordinary thread, below
+/// the kernel's own real-time threads.
+pub const DEFAULT_FORCE_LOOP_RT_PRIORITY: u8 = 10;
+
+/// Puts the calling thread under `SCHED_FIFO` at `priority` (1-99; 0 leaves
+/// it as it is). `Ok(false)` when nothing was asked; an error (not permitted,
+/// or not Linux) says why, and the thread keeps its policy.
+pub fn raise_current_thread(priority: u8) -> Result<bool, String> {
+    if priority == 0 {
+        return Ok(false);
+    }
+    #[cfg(target_os = "linux")]
+    {
+        use thread_priority::unix::{
+            RealtimeThreadSchedulePolicy, ThreadSchedulePolicy, set_thread_priority_and_policy,
+            thread_native_id,
+        };
+        let value = thread_priority::ThreadPriorityValue::try_from(priority.min(99))
+            .map_err(|e| e.to_string())?;
+        set_thread_priority_and_policy(
+            thread_native_id(),
+            thread_priority::ThreadPriority::Crossplatform(value),
+            ThreadSchedulePolicy::Realtime(RealtimeThreadSchedulePolicy::Fifo),
+        )
+        .map(|()| true)
+        .map_err(|e| format!("{e:?}"))
+    }
+    #[cfg(not(target_os = "linux"))]
+    Err("real-time priorities are only set on Linux".into())
+}
+
+/// Whether the calling thread runs under a real-time policy, and at which
+/// priority (Linux; `None` elsewhere or on error), for tests and logs.
+pub fn current_thread_realtime() -> Option<(bool, u8)> {
+    #[cfg(target_os = "linux")]
+    {
+        use thread_priority::unix::{ThreadSchedulePolicy, thread_schedule_policy};
+        let policy = thread_schedule_policy().ok()?;
+        let rt = matches!(policy, ThreadSchedulePolicy::Realtime(_));
+        let prio = match thread_priority::get_current_thread_priority().ok()? {
+            thread_priority::ThreadPriority::Crossplatform(v) => v.into(),
+            _ => 0,
+        };
+        Some((rt, if rt { prio } else { 0 }))
+    }
+    #[cfg(not(target_os = "linux"))]
+    None
 }
 
 /// The nice value of the calling thread (Linux), for tests and logs.
@@ -66,5 +126,31 @@ mod tests {
         let pool = deformation_pool(9).expect("a pool");
         let in_pool = pool.install(current_thread_nice);
         assert_eq!(in_pool, Some(base.clamp(9, 19)));
+    }
+
+    #[test]
+    fn a_raised_thread_runs_fifo_at_the_priority_or_says_why_not() {
+        let (asked, state) = std::thread::spawn(|| {
+            let asked = raise_current_thread(12);
+            (asked, current_thread_realtime())
+        })
+        .join()
+        .unwrap();
+        match asked {
+            // Privileged (CAP_SYS_NICE or RLIMIT_RTPRIO): the policy took.
+            Ok(true) => assert_eq!(state, Some((true, 12))),
+            Ok(false) => panic!("a non-zero priority was asked"),
+            // Unprivileged: the thread keeps its ordinary policy.
+            Err(why) => {
+                assert!(!why.is_empty());
+                assert_eq!(state.map(|s| s.0), Some(false));
+            }
+        }
+        // 0 asks for nothing.
+        let untouched = std::thread::spawn(|| (raise_current_thread(0), current_thread_realtime()))
+            .join()
+            .unwrap();
+        assert_eq!(untouched.0, Ok(false));
+        assert_eq!(untouched.1.map(|s| s.0), Some(false));
     }
 }
