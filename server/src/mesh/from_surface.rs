@@ -548,9 +548,7 @@ mod tests {
             let a = [pt(), pt(), pt()];
             let shared_n = case % 3;
             let mut b = [pt(), pt(), pt()];
-            for k in 0..shared_n {
-                b[k] = a[k];
-            }
+            b[..shared_n].copy_from_slice(&a[..shared_n]);
             if area2(&a) == 0 || area2(&b) == 0 {
                 continue;
             }
