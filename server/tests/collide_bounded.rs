@@ -201,24 +201,138 @@ proptest! {
     }
 }
 
+/// Rays of one batch clustered in a small region (as a spatula's are), so
+/// that the BVH starts them below the root: the ranged answers still equal the
+/// clipped whole-line answers, with ranges ending exactly at a hit (that hit
+/// is kept), ranges just short of it (dropped), and unbounded rays mixed in.
+#[test]
+fn clustered_ranged_rays_match_the_clipped_whole_line_cast() {
+    let mesh = blocks::cube(0.03, 16);
+    let s = mesh.boundary();
+    let mut pos = Vec::new();
+    s.gather(&mesh.nodes, &mut pos);
+    for p in pos.iter_mut() {
+        p.x += 0.3 * MM * (90.0 * p.y).sin();
+        p.z += 0.3 * MM * (80.0 * p.x).sin();
+    }
+    let tris = s.triangles;
+    let mut bvh = Bvh::new(&tris, &pos).unwrap();
+    let mut brute = BruteForce::new(&tris, &pos).unwrap();
+    let mut x = 12345u64;
+    let mut next = || {
+        x = x
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (x >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let (mut exact_kept, mut short_dropped) = (0, 0);
+    for batch in 0..200 {
+        // A cluster about a point near the cube's surface, up to 5 mm across.
+        let c = Point3::new(
+            0.03 * next(),
+            0.03 * next(),
+            if batch % 2 == 0 { 0.03 } else { 0.0 },
+        );
+        let spread = 5.0 * MM * next();
+        let axis = Vector3::new(next() - 0.5, next() - 0.5, 2.0 * next() - 1.0).normalize();
+        let (mut o, mut d) = (Vec::new(), Vec::new());
+        for _ in 0..40 {
+            o.push(c + Vector3::new(next() - 0.5, next() - 0.5, next() - 0.5) * spread);
+            d.push(
+                (axis + 0.2 * Vector3::new(next() - 0.5, next() - 0.5, next() - 0.5)).normalize(),
+            );
+        }
+        let mut whole = Vec::new();
+        brute.cast(&o, &d, &mut whole);
+        let r: Vec<RayRange> = whole
+            .iter()
+            .enumerate()
+            .map(|(i, h)| match i % 5 {
+                // Ends exactly at the hits.
+                0 => RayRange {
+                    behind: h.behind.map_or(2.0 * MM, |h| -h.t),
+                    front: h.front.map_or(2.0 * MM, |h| h.t),
+                },
+                // Just short of them.
+                1 => RayRange {
+                    behind: h.behind.map_or(-1.0, |h| (-h.t) * (1.0 - 1e-12) - 1e-18),
+                    front: h.front.map_or(-1.0, |h| h.t * (1.0 - 1e-12)),
+                },
+                2 => RayRange::LINE,
+                3 => RayRange {
+                    behind: 3.0 * MM,
+                    front: -1.0,
+                },
+                _ => RayRange {
+                    behind: 10.0 * MM,
+                    front: f64::INFINITY,
+                },
+            })
+            .collect();
+        let clipped: Vec<NodeHits> = whole.iter().zip(&r).map(|(h, r)| r.clip(*h)).collect();
+        for (i, (w, c)) in whole.iter().zip(&clipped).enumerate() {
+            if i % 5 == 0 && w.behind.is_some() {
+                assert!(c.behind.is_some());
+                exact_kept += 1;
+            }
+            if i % 5 == 1 && w.behind.is_some_and(|h| h.t < 0.0) {
+                assert!(c.behind.is_none());
+                short_dropped += 1;
+            }
+        }
+        for backend in [&mut bvh as &mut dyn RayBackend, &mut brute] {
+            let mut got = Vec::new();
+            backend.cast_ranged(&o, &d, &r, &mut got);
+            assert_eq!(got, clipped, "{}, batch {batch}", backend.method());
+        }
+        let mut seq = Vec::new();
+        bvh.cast_ranged_with(&o, &d, &r, faer::Par::Seq, &mut seq);
+        assert_eq!(seq, clipped, "sequential, batch {batch}");
+    }
+    // Not vacuous: the boundary cases occurred.
+    assert!(
+        exact_kept > 100 && short_dropped > 100,
+        "{exact_kept} {short_dropped}"
+    );
+}
+
 /// A deep push through the block in 2 mm steps culls pairs (the far face's
 /// pairs of the paper's Figure 6); bounded rays cancel exactly the same ones.
 #[test]
 fn bounded_rays_cull_the_same_pairs_in_deep_penetration() {
     let b = block(0.0);
-    let inst = instrument(None);
-    let path: Vec<_> = (0..20)
-        .map(|k| {
-            let z = 0.031 - 2e-3 * k as f64;
-            (pose(0.012, 0.01, z, 0.0), pose(0.012, 0.02, z, 0.2))
-        })
-        .collect();
-    let mut bvh = Bvh::new(&b.tris, &b.pos).unwrap();
-    let whole = run(&mut bvh, &b, &inst, &path, false);
-    let bounded = run(&mut bvh, &b, &inst, &path, true);
-    let cancelled: usize = whole.iter().map(|w| w.0.cancelled.len()).sum();
-    assert!(cancelled > 0, "the push must trigger the culling");
-    for (s, (w, c)) in whole.iter().zip(&bounded).enumerate() {
-        assert_eq!(w, c, "step {s}");
+    // Unlimited reach, and reaches shorter than the block: flagged nodes'
+    // front hits on the far side then lie beyond reach, and the second pass
+    // must find those that are pair triangles (20 mm, tilted, fails without
+    // it).
+    for reach in [
+        None,
+        Some(3.0 * MM),
+        Some(6.0 * MM),
+        Some(12.0 * MM),
+        Some(20.0 * MM),
+    ] {
+        let inst = instrument(reach);
+        for tilt in [0.0, 0.2, 0.5] {
+            let path: Vec<_> = (0..30)
+                .map(|k| {
+                    let z = 0.031 - 1.2e-3 * k as f64;
+                    (pose(0.012, 0.01, z, tilt), pose(0.012, 0.02, z, 0.2 - tilt))
+                })
+                .collect();
+            let mut bvh = Bvh::new(&b.tris, &b.pos).unwrap();
+            let whole = run(&mut bvh, &b, &inst, &path, false);
+            let bounded = run(&mut bvh, &b, &inst, &path, true);
+            let cancelled: usize = whole.iter().map(|w| w.0.cancelled.len()).sum();
+            if reach.is_none_or(|r| r > 0.015) {
+                assert!(
+                    cancelled > 0,
+                    "reach {reach:?}: the push must trigger the culling"
+                );
+            }
+            for (s, (w, c)) in whole.iter().zip(&bounded).enumerate() {
+                assert_eq!(w, c, "reach {reach:?}, tilt {tilt}, step {s}");
+            }
+        }
     }
 }

@@ -37,6 +37,12 @@
 //! test is the same code on the same `f64` positions, so answers are identical
 //! to the reference, bit for bit.
 //!
+//! A batch of rays that all look within finite ranges (a spatula's bounded
+//! rays) starts below the root: at the deepest frontier of at most eight nodes
+//! covering the box of all their segments, found once per batch, so the top
+//! levels of the tree are not walked again for every ray (exact: any hit
+//! within a ray's range lies in that box).
+//!
 //! Robustness: leaf boxes are padded by `1e-10 (extent + max |coordinate|)`,
 //! several orders of magnitude above the rounding of the slab and triangle
 //! tests, so that a triangle whose computed hit lies on its box's boundary is
@@ -60,6 +66,13 @@ const PAD: f64 = 1e-10;
 /// and the traversal stack (96 entries) must hold the deepest path. Median
 /// splits below this depth add at most `log2(n) + 2` levels.
 const SAH_DEPTH: usize = 40;
+
+/// Traversal stack of one ray: node, and its box's slab interval `[t0, t1]`.
+/// Depth <= SAH_DEPTH + log2(n) + 2, and the stack grows by at most one
+/// entry a level.
+type Stack = [(u32, f64, f64); 96];
+
+const EMPTY_STACK: Stack = [(0, 0.0, 0.0); 96];
 
 /// Bins per axis of the SAH split.
 const SAH_BINS: usize = 16;
@@ -582,7 +595,15 @@ impl Bvh {
     }
 
     /// The nearest hits of one line within `range` (module documentation).
-    fn cast_one(&self, origin: Point3<f64>, dir: Vector3<f64>, range: RayRange) -> NodeHits {
+    /// `stack` is scratch (reused across rays: no per-ray initialisation).
+    fn cast_one(
+        &self,
+        origin: Point3<f64>,
+        dir: Vector3<f64>,
+        range: RayRange,
+        entry: &[u32],
+        stack: &mut Stack,
+    ) -> NodeHits {
         let mut hits = NodeHits::default();
         if self.nodes.is_empty() || !(range.behind >= 0.0 || range.front > 0.0) {
             return hits;
@@ -611,11 +632,20 @@ impl Bvh {
                 0.0
             }
         };
-        let mut stack = [(0u32, 0.0f64, 0.0f64); 96];
+        // Entry nodes, the nearest on top (pushed last).
         let mut top = 0usize;
-        if let Some((t0, t1)) = self.interval(0, &origin, &inv, &zero) {
-            stack[0] = (0, t0, t1);
-            top = 1;
+        for &k in entry {
+            let Some((t0, t1)) = self.interval(k as usize, &origin, &inv, &zero) else {
+                continue;
+            };
+            let d = dist(t0, t1);
+            let mut at = top;
+            while at > 0 && dist(stack[at - 1].1, stack[at - 1].2) < d {
+                stack[at] = stack[at - 1];
+                at -= 1;
+            }
+            stack[at] = (k, t0, t1);
+            top += 1;
         }
         while top > 0 {
             top -= 1;
@@ -693,19 +723,133 @@ impl Bvh {
             return;
         }
         let range = |i: usize| ranges.get(i).copied().unwrap_or(RayRange::LINE);
+        let entry = Entry::new(self, origins, dirs, ranges);
+        let start = |i: usize| -> &[u32] {
+            if segment(&origins[i], &dirs[i], ranges.get(i)).is_some() {
+                entry.nodes()
+            } else {
+                &[0]
+            }
+        };
         match par {
             Par::Seq => {
+                let mut stack = EMPTY_STACK;
                 for (i, slot) in out.iter_mut().enumerate() {
-                    *slot = self.cast_one(origins[i], dirs[i], range(i));
+                    *slot = self.cast_one(origins[i], dirs[i], range(i), start(i), &mut stack);
                 }
             }
             Par::Rayon(_) => {
                 out.par_iter_mut()
                     .enumerate()
                     .with_min_len(32)
-                    .for_each(|(i, slot)| *slot = self.cast_one(origins[i], dirs[i], range(i)));
+                    .for_each_init(
+                        || EMPTY_STACK,
+                        |stack, (i, slot)| {
+                            *slot = self.cast_one(origins[i], dirs[i], range(i), start(i), stack)
+                        },
+                    );
             }
         }
+    }
+}
+
+/// Most entry nodes a batch of bounded rays starts from.
+const ENTRY_MAX: usize = 8;
+
+/// The segment `[origin + t_lo dir, origin + t_hi dir]` a ranged ray looks
+/// along, when both ends are finite.
+#[inline]
+fn segment(
+    origin: &Point3<f64>,
+    dir: &Vector3<f64>,
+    range: Option<&RayRange>,
+) -> Option<(Point3<f64>, Point3<f64>)> {
+    let r = range?;
+    let t_lo = if r.behind >= 0.0 { -r.behind } else { 0.0 };
+    let t_hi = if r.front > 0.0 { r.front } else { 0.0 };
+    let a = origin + dir * t_lo;
+    let c = origin + dir * t_hi;
+    a.coords
+        .iter()
+        .chain(c.coords.iter())
+        .all(|x| x.is_finite())
+        .then_some((a, c))
+}
+
+/// Where the bounded rays of one batch start their traversal: instead of the
+/// root, the deepest frontier of at most [`ENTRY_MAX`] nodes covering every
+/// node whose box meets `Q`, the box of all the bounded rays' segments
+/// (widened far above rounding). A hit within a ray's range lies on its
+/// segment, hence in `Q`, and inside its leaf's box, so that leaf is below
+/// one of the entry nodes: answers are unchanged, while the top levels of
+/// the tree (the same for every ray of a spatula) are walked once per batch
+/// instead of once per ray. Rays with an unbounded side start at the root.
+struct Entry {
+    nodes: [u32; ENTRY_MAX],
+    len: usize,
+}
+
+impl Entry {
+    fn new(bvh: &Bvh, origins: &[Point3<f64>], dirs: &[Vector3<f64>], ranges: &[RayRange]) -> Self {
+        let mut entry = Self {
+            nodes: [0; ENTRY_MAX],
+            len: 0,
+        };
+        let mut lo = Point3::from([f64::INFINITY; 3]);
+        let mut hi = Point3::from([f64::NEG_INFINITY; 3]);
+        for ((o, d), r) in origins.iter().zip(dirs).zip(ranges) {
+            if let Some((a, c)) = segment(o, d, Some(r)) {
+                lo = lo.inf(&a.inf(&c));
+                hi = hi.sup(&a.sup(&c));
+            }
+        }
+        if bvh.nodes.is_empty() || lo.x > hi.x {
+            return entry;
+        }
+        let size = lo.coords.abs().max().max(hi.coords.abs().max());
+        let margin = 1e-9 * ((hi - lo).max() + size) + 1e-12;
+        let (lo, hi) = (lo.map(|x| x - margin), hi.map(|x| x + margin));
+        let meets = |k: u32| {
+            let nd = &bvh.nodes[k as usize];
+            (0..3).all(|a| f64::from(nd.lo[a]) <= hi[a] && f64::from(nd.hi[a]) >= lo[a])
+        };
+        if !meets(0) {
+            // No bounded ray can hit anything: they start from no node.
+            return entry;
+        }
+        entry.len = 1;
+        loop {
+            let mut next = [0u32; ENTRY_MAX];
+            let mut len = 0;
+            let mut grew = false;
+            for &k in entry.nodes() {
+                let nd = &bvh.nodes[k as usize];
+                let kids = if nd.count > 0 {
+                    [Some(k), None]
+                } else {
+                    grew = true;
+                    [Some(k + 1), Some(nd.index)]
+                };
+                for c in kids.into_iter().flatten() {
+                    if nd.count > 0 || meets(c) {
+                        if len == ENTRY_MAX {
+                            return entry;
+                        }
+                        next[len] = c;
+                        len += 1;
+                    }
+                }
+            }
+            if !grew {
+                return entry;
+            }
+            entry.nodes = next;
+            entry.len = len;
+        }
+    }
+
+    fn nodes(&self) -> &[u32] {
+        &self.nodes[..self.len]
     }
 }
 

@@ -99,7 +99,11 @@ pub struct DetectOptions {
     /// Casts each line only as far as an answer can matter (the default):
     /// behind up to the node's reach (the pair rule ignores farther hits), and
     /// in front only from nodes whose history flag is on (the culling reads no
-    /// other front). The output is the same as with whole lines (`false`, the
+    /// other front), up to the node's reach. The culling only asks whether a
+    /// flagged node's nearest front hit is one of the instrument's candidate
+    /// pair triangles, so a flagged line with nothing in front within reach
+    /// is cast again, beyond it, only when it meets the box of those
+    /// triangles. The output is the same as with whole lines (`false`, the
     /// paper's pass), which is kept for comparison.
     pub bounded_rays: bool,
     /// Unilateral contact (off by default, as in the scenes): when a vertex
@@ -199,10 +203,20 @@ pub struct Workspace {
     pub origins: Vec<Point3<f64>>,
     /// Scene-frame ray directions (last query).
     pub dirs: Vec<Vector3<f64>>,
-    /// Backend answers per ray (last query).
+    /// Backend answers per ray (last query). With bounded rays, a flagged
+    /// node's front hit is its nearest one when that lies within the node's
+    /// reach or could be a pair's triangle (see [`DetectOptions::bounded_rays`]);
+    /// farther ones are not looked for and read `None`.
     pub hits: Vec<NodeHits>,
     offsets: Vec<usize>,
     ranges: Vec<RayRange>,
+    /// Second pass of flagged rays: ray index, then its origin, direction
+    /// and answer.
+    recast: Vec<usize>,
+    recast_origins: Vec<Point3<f64>>,
+    recast_dirs: Vec<Vector3<f64>>,
+    recast_ranges: Vec<RayRange>,
+    recast_hits: Vec<NodeHits>,
     candidates: Vec<Pair>,
     mark: Vec<u32>,
     stamp: u32,
@@ -325,7 +339,11 @@ pub fn detect_many(
                     let flagged = opts.culling && flags.get(i).copied().unwrap_or(false);
                     RayRange {
                         behind: widen(node.reach + skin),
-                        front: if flagged { f64::INFINITY } else { -1.0 },
+                        front: if flagged {
+                            front_reach(node.reach)
+                        } else {
+                            -1.0
+                        },
                     }
                 } else {
                     RayRange::LINE
@@ -377,6 +395,71 @@ pub fn detect_many(
                     node: i as u32,
                     triangle: hit.triangle,
                     t: hit.t,
+                });
+            }
+        }
+    }
+
+    // 3a. Flagged lines with nothing in front within reach: their nearest
+    // front hit matters only if it is a candidate triangle of their
+    // instrument, so they are cast again, beyond reach, only when they meet
+    // the box of those triangles (which holds any such hit).
+    if opts.culling && opts.bounded_rays {
+        ws.recast.clear();
+        ws.recast_origins.clear();
+        ws.recast_dirs.clear();
+        ws.recast_ranges.clear();
+        let mut c = 0;
+        for (k, tool) in tools.iter().enumerate() {
+            let first = ws.offsets[k];
+            let mut lo = Point3::from([f64::INFINITY; 3]);
+            let mut hi = Point3::from([f64::NEG_INFINITY; 3]);
+            while c < ws.candidates.len() && ws.candidates[c].instrument as usize == k {
+                for v in query.triangles[ws.candidates[c].triangle as usize] {
+                    let p = query.positions[v as usize];
+                    lo = lo.inf(&p);
+                    hi = hi.sup(&p);
+                }
+                c += 1;
+            }
+            if lo.x > hi.x {
+                continue;
+            }
+            let size = lo.coords.abs().max().max(hi.coords.abs().max());
+            let margin = 1e-9 * ((hi - lo).max() + size) + 1e-12;
+            let (lo, hi) = (lo.map(|x| x - margin), hi.map(|x| x + margin));
+            for (i, &flag) in tool.history.flags().iter().enumerate() {
+                let g = first + i;
+                if !flag || ws.hits[g].front.is_some() {
+                    continue;
+                }
+                let beyond = ws.ranges[g].front;
+                if !beyond.is_finite() {
+                    continue;
+                }
+                let o = ws.origins[g] + ws.dirs[g] * skin;
+                if line_meets_box(&o, &ws.dirs[g], beyond, &lo, &hi) {
+                    ws.recast.push(g);
+                    ws.recast_origins.push(o);
+                    ws.recast_dirs.push(ws.dirs[g]);
+                    ws.recast_ranges.push(RayRange {
+                        behind: -1.0,
+                        front: f64::INFINITY,
+                    });
+                }
+            }
+        }
+        if !ws.recast.is_empty() {
+            backend.cast_ranged(
+                &ws.recast_origins,
+                &ws.recast_dirs,
+                &ws.recast_ranges,
+                &mut ws.recast_hits,
+            );
+            for (j, &g) in ws.recast.iter().enumerate() {
+                ws.hits[g].front = ws.recast_hits[j].front.map(|mut h| {
+                    h.t += skin;
+                    h
                 });
             }
         }
@@ -460,6 +543,45 @@ pub fn detect_many(
         ws.slot[e.surface_vertex as usize] = NONE;
     }
     Ok(())
+}
+
+/// How far in front a flagged node's line is cast in the first pass, m: its
+/// reach (hits there are found with the behind ones, from the same region
+/// of the tree).
+#[inline]
+fn front_reach(reach: f64) -> f64 {
+    if reach.is_finite() {
+        widen(reach)
+    } else {
+        f64::INFINITY
+    }
+}
+
+/// Whether the part `t > beyond` of the line `o + t d` meets the box
+/// `[lo, hi]` (slab test; a zero direction component needs `o` within that
+/// slab).
+fn line_meets_box(
+    o: &Point3<f64>,
+    d: &Vector3<f64>,
+    beyond: f64,
+    lo: &Point3<f64>,
+    hi: &Point3<f64>,
+) -> bool {
+    let (mut t0, mut t1) = (beyond, f64::INFINITY);
+    for a in 0..3 {
+        if d[a] == 0.0 {
+            if o[a] < lo[a] || o[a] > hi[a] {
+                return false;
+            }
+        } else {
+            let inv = 1.0 / d[a];
+            let (ta, tb) = ((lo[a] - o[a]) * inv, (hi[a] - o[a]) * inv);
+            t0 = t0.max(ta.min(tb));
+            t1 = t1.min(ta.max(tb));
+        }
+    }
+    // Widened: a hit exactly on the box boundary must not be missed.
+    t0 <= t1 + 1e-9 * (t1.abs() + 1.0)
 }
 
 /// `x` plus a relative margin far above the rounding of the tests it bounds

@@ -175,17 +175,14 @@ impl WatertightRay {
         }
     }
 
-    /// Sheared 2D position of a vertex relative to the origin, and its scaled
-    /// depth along the line.
+    /// Sheared 2D position of a vertex relative to the origin, and its
+    /// unscaled depth along the line (times `sz`: the scaled depth, which
+    /// only a hit needs).
     #[inline(always)]
     fn shear(&self, p: &Point3<f64>) -> (f64, f64, f64) {
         let d = p - self.origin;
         let z = d[self.kz];
-        (
-            d[self.kx] - self.sx * z,
-            d[self.ky] - self.sy * z,
-            self.sz * z,
-        )
+        (d[self.kx] - self.sx * z, d[self.ky] - self.sy * z, z)
     }
 
     /// The watertight line-triangle test with the module's tie rule; `t` is
@@ -231,6 +228,7 @@ impl WatertightRay {
         if degenerate_or_parallel(&self.dir, a, b, c) {
             return None;
         }
+        let (az, bz, cz) = (self.sz * az, self.sz * bz, self.sz * cz);
         let t = (u * az + v * bz + w * cz) / det;
         let inv = 1.0 / det;
         let hit = RayHit {

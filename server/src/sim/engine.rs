@@ -689,21 +689,13 @@ impl Deformer {
 /// nodes the instrument leaves.
 fn held_force_model(contacts: &ContactOutput, reactions: &[Vector3<f64>]) -> ForceModel {
     let m = contacts.enforced.len();
-    ForceModel {
-        nodes: contacts.enforced.iter().map(|e| e.volume_node).collect(),
-        owner: contacts.enforced.iter().map(|e| e.instrument).collect(),
-        u0: contacts.enforced.iter().map(|e| e.displacement).collect(),
-        r0: reactions.to_vec(),
-        rest: Vec::new(),
-        stiffness: DMatrix::zeros(3 * m, 3 * m),
-        index: contacts
-            .enforced
-            .iter()
-            .enumerate()
-            .map(|(i, e)| (e.volume_node, i))
-            .collect(),
-        frame: 0,
-    }
+    ForceModel::new(
+        contacts.enforced.iter().map(|e| e.volume_node).collect(),
+        contacts.enforced.iter().map(|e| e.instrument).collect(),
+        contacts.enforced.iter().map(|e| e.displacement).collect(),
+        reactions.to_vec(),
+        DMatrix::zeros(3 * m, 3 * m),
+    )
 }
 
 /// The local force model of a step: the condensed stiffness `S = C^-1` of
@@ -737,19 +729,17 @@ pub fn force_model_from(
         }
     };
     let nodes: Vec<u32> = local.nodes.iter().map(|&n| node_map(n)).collect();
-    ForceModel {
-        owner: nodes
-            .iter()
-            .map(|n| owner_of.get(n).copied().unwrap_or(u16::MAX))
-            .collect(),
-        u0: local.displacements.clone(),
-        r0: local.reactions.clone(),
-        rest: Vec::new(),
-        stiffness,
-        index: nodes.iter().enumerate().map(|(i, &n)| (n, i)).collect(),
+    let owner = nodes
+        .iter()
+        .map(|n| owner_of.get(n).copied().unwrap_or(u16::MAX))
+        .collect();
+    ForceModel::new(
         nodes,
-        frame: 0,
-    }
+        owner,
+        local.displacements.clone(),
+        local.reactions.clone(),
+        stiffness,
+    )
 }
 
 impl Model {
