@@ -806,9 +806,7 @@ impl Entry {
         if bvh.nodes.is_empty() || lo.x > hi.x {
             return entry;
         }
-        let size = lo.coords.abs().max().max(hi.coords.abs().max());
-        let margin = 1e-9 * ((hi - lo).max() + size) + 1e-12;
-        let (lo, hi) = (lo.map(|x| x - margin), hi.map(|x| x + margin));
+        let (lo, hi) = super::widen_box(lo, hi);
         let meets = |k: u32| {
             let nd = &bvh.nodes[k as usize];
             (0..3).all(|a| f64::from(nd.lo[a]) <= hi[a] && f64::from(nd.hi[a]) >= lo[a])

@@ -425,9 +425,7 @@ pub fn detect_many(
             if lo.x > hi.x {
                 continue;
             }
-            let size = lo.coords.abs().max().max(hi.coords.abs().max());
-            let margin = 1e-9 * ((hi - lo).max() + size) + 1e-12;
-            let (lo, hi) = (lo.map(|x| x - margin), hi.map(|x| x + margin));
+            let (lo, hi) = super::widen_box(lo, hi);
             for (i, &flag) in tool.history.flags().iter().enumerate() {
                 let g = first + i;
                 if !flag || ws.hits[g].front.is_some() {

@@ -143,6 +143,17 @@ pub trait RayBackend: Send {
     }
 }
 
+/// The box `[lo, hi]` (m) widened on every side by a margin far above the
+/// rounding of the points it was built from and of the tests run against it
+/// (`1e-9` of its extent plus its largest coordinate, plus 1 pm): a box meant
+/// to hold every point of some segments or triangles must not lose one to
+/// rounding.
+pub(crate) fn widen_box(lo: Point3<f64>, hi: Point3<f64>) -> (Point3<f64>, Point3<f64>) {
+    let size = lo.coords.abs().max().max(hi.coords.abs().max());
+    let margin = 1e-9 * ((hi - lo).max() + size) + 1e-12;
+    (lo.map(|x| x - margin), hi.map(|x| x + margin))
+}
+
 /// Errors in a surface handed to a backend.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum SurfaceError {
