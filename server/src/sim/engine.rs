@@ -694,7 +694,7 @@ fn held_force_model(contacts: &ContactOutput, reactions: &[Vector3<f64>]) -> For
         contacts.enforced.iter().map(|e| e.instrument).collect(),
         contacts.enforced.iter().map(|e| e.displacement).collect(),
         reactions.to_vec(),
-        DMatrix::zeros(3 * m, 3 * m),
+        &DMatrix::zeros(3 * m, 3 * m),
     )
 }
 
@@ -738,7 +738,7 @@ pub fn force_model_from(
         owner,
         local.displacements.clone(),
         local.reactions.clone(),
-        stiffness,
+        &stiffness,
     )
 }
 

@@ -29,8 +29,8 @@ use std::collections::HashMap;
 
 /// The local model published with each snapshot.
 ///
-/// Built by [`ForceModel::new`], which also splits the stiffness into one
-/// dense block per instrument (below); the public fields are for reading.
+/// Built by [`ForceModel::new`], which keeps of the condensed stiffness only
+/// one dense block per instrument (below); the public fields are for reading.
 #[derive(Debug, Clone, Default)]
 pub struct ForceModel {
     /// Volume nodes of the contact set.
@@ -43,8 +43,6 @@ pub struct ForceModel {
     pub r0: Vec<Vector3<f64>>,
     /// Rest positions of the nodes, m (for torques).
     pub rest: Vec<nalgebra::Point3<f64>>,
-    /// Condensed stiffness `S`, 3m x 3m, N/m.
-    pub stiffness: DMatrix<f64>,
     /// Node -> index in `nodes`.
     pub index: HashMap<u32, usize>,
     /// The frame that built it (identifies it for the force loop's caches).
@@ -161,7 +159,7 @@ impl ForceModel {
         owner: Vec<u16>,
         u0: Vec<Vector3<f64>>,
         r0: Vec<Vector3<f64>>,
-        stiffness: DMatrix<f64>,
+        stiffness: &DMatrix<f64>,
     ) -> Self {
         let m = nodes.len();
         assert!(
@@ -209,7 +207,6 @@ impl ForceModel {
             u0,
             r0,
             rest: Vec::new(),
-            stiffness,
             frame: 0,
             blocks,
         }
@@ -355,8 +352,7 @@ mod tests {
             Vector3::new(r0f[0], r0f[1], r0f[2]),
             Vector3::new(r0f[3], r0f[4], r0f[5]),
         ];
-        let mut model =
-            ForceModel::new(vec![10, 11], vec![0, 0], u0.clone(), r0.clone(), s.clone());
+        let mut model = ForceModel::new(vec![10, 11], vec![0, 0], u0.clone(), r0.clone(), &s);
         model.rest = vec![nalgebra::Point3::origin(); 2];
         model.frame = 1;
         let mut ws = ForceWorkspace::default();
@@ -395,6 +391,7 @@ mod tests {
     /// `du = 0`), with a dense inverse.
     fn reference(
         model: &ForceModel,
+        s: &DMatrix<f64>,
         instrument: u16,
         fresh: &dyn Fn(u32) -> Option<Vector3<f64>>,
         handle: &Vector3<f64>,
@@ -413,7 +410,6 @@ mod tests {
                 (false, _) => c.extend(3 * i..3 * i + 3),
             }
         }
-        let s = &model.stiffness;
         let r0 = DVector::from_iterator(3 * m, model.r0.iter().flat_map(|r| r.iter().copied()));
         let sdu = s * &du;
         let mut x = DVector::zeros(3 * m);
@@ -464,7 +460,7 @@ mod tests {
             .map(|_| Vector3::new(next(), next(), next()))
             .collect();
         let nodes: Vec<u32> = (0..m as u32).map(|i| 100 + 3 * i).collect();
-        let mut model = ForceModel::new(nodes.clone(), owner, u0.clone(), r0, s);
+        let mut model = ForceModel::new(nodes.clone(), owner, u0.clone(), r0, &s);
         model.rest = (0..m)
             .map(|_| nalgebra::Point3::new(next(), next(), next()) * 0.01)
             .collect();
@@ -482,7 +478,7 @@ mod tests {
                     ((n / 3 + sample) % 3 != 0).then(|| u0[i] + shift)
                 };
                 let got = model.instrument_force(instrument, fresh, &handle, &mut ws);
-                let want = reference(&model, instrument, &fresh, &handle);
+                let want = reference(&model, &s, instrument, &fresh, &handle);
                 let scale = want.force.norm().max(1.0);
                 assert!(
                     (got.force - want.force).norm() < 1e-9 * scale,
