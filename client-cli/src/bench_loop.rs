@@ -3,6 +3,12 @@
 //! at the haptic rate, each pose sent on its own tick of the wall clock, and a
 //! number of watchers receiving full deformation frames.
 //!
+//! The server runs as `fissure-server` runs it, on a transport runtime of its
+//! own ([`Transport`]). Each client is a device bridge of its own, as a
+//! separate process would be: a connection thread with a single-threaded
+//! runtime (its I/O never queues behind the server's or the watchers') and a
+//! servo thread, both real-time where permitted (`--rt-priority`).
+//!
 //! A client's pose `k` is due at `start + k / rate`; it is sent at its tick
 //! whether or not earlier answers came back (as a haptic device's servo loop
 //! does). Its answer is *missed* when it arrives after tick `k + 1` is due, or
@@ -18,7 +24,7 @@ use crate::trajectory::{BUNDLED, Trajectory, Waypoint};
 use anyhow::{Context, bail};
 use fissure_proto::v1 as pb;
 use fissure_server::scene::Scene;
-use fissure_server::service::{ServeOptions, serve};
+use fissure_server::service::{ServeOptions, Transport};
 use fissure_server::sim::stats::percentile;
 use fissure_server::sim::{SimOptions, Simulation, priority};
 use std::sync::Arc;
@@ -47,6 +53,11 @@ pub struct LoopBenchArgs {
     #[arg(long, default_value_t = fissure_server::sim::priority::DEFAULT_FORCE_LOOP_RT_PRIORITY,
           value_parser = clap::value_parser!(u8).range(0..=99))]
     pub rt_priority: u8,
+    /// Real-time priority (SCHED_FIFO, 1-99) of the server's gRPC transport
+    /// threads (`fissure-server --transport-rt-priority`); 0 asks for none.
+    #[arg(long, default_value_t = fissure_server::sim::priority::DEFAULT_TRANSPORT_RT_PRIORITY,
+          value_parser = clap::value_parser!(u8).range(0..=99))]
+    pub transport_rt_priority: u8,
     /// Print JSON instead of a table.
     #[arg(long)]
     pub json: bool,
@@ -60,6 +71,7 @@ impl Default for LoopBenchArgs {
             watchers: 4,
             rate_hz: 1000.0,
             rt_priority: fissure_server::sim::priority::DEFAULT_FORCE_LOOP_RT_PRIORITY,
+            transport_rt_priority: fissure_server::sim::priority::DEFAULT_TRANSPORT_RT_PRIORITY,
             json: false,
         }
     }
@@ -85,12 +97,19 @@ pub struct LoopBenchReport {
     /// Whether the force loops and the clients' pose threads ran under
     /// `SCHED_FIFO` (`--rt-priority`, where permitted).
     pub realtime: bool,
+    /// Whether the server's gRPC transport threads ran under `SCHED_FIFO`
+    /// (`--transport-rt-priority`, where permitted).
+    pub transport_realtime: bool,
     /// Poses sent, all clients.
     pub samples_sent: u64,
     /// Force samples received.
     pub samples_answered: u64,
     /// Samples whose answer came after the next tick was due, or never.
     pub missed_samples: u64,
+    /// Of those, the ones whose round trip alone was longer than a tick
+    /// period, or that were never answered; the others left the client late
+    /// (the client machine's scheduling, `send_lag_p99_us`).
+    pub missed_by_round_trip: u64,
     /// Round trip, client side: median, 99th percentile, maximum.
     pub rtt_p50_us: f64,
     pub rtt_p99_us: f64,
@@ -175,11 +194,18 @@ pub async fn run(args: &LoopBenchArgs) -> anyhow::Result<LoopBenchReport> {
     let loading = Instant::now();
     let sim = tokio::task::spawn_blocking(move || Simulation::start(scene, options)).await??;
     let load_s = loading.elapsed().as_secs_f64();
-    let server = serve("127.0.0.1:0".parse()?, ServeOptions::default()).await?;
+    // The server's transport on its own runtime, as `fissure-server` runs it;
+    // the clients below have runtimes of their own, as separate processes do.
+    let transport = Transport::new(args.transport_rt_priority)?;
+    let server = transport
+        .serve("127.0.0.1:0".parse()?, ServeOptions::default())
+        .await?;
     server.set_simulation(sim.clone()).await;
     let url = format!("http://{}", server.addr);
     let result = drive(args, &url, &sim, &plans).await;
     server.shutdown().await?;
+    let transport_realtime = transport.realtime();
+    drop(transport);
     tokio::task::spawn_blocking({
         let sim = sim.clone();
         move || sim.shutdown()
@@ -188,6 +214,7 @@ pub async fn run(args: &LoopBenchArgs) -> anyhow::Result<LoopBenchReport> {
     let mut report = result?;
     report.scene = scene_name;
     report.load_s = load_s;
+    report.transport_realtime = transport_realtime;
     report.surface_triangles = sim.model().surface.triangles.len();
     Ok(report)
 }
@@ -226,18 +253,76 @@ async fn drive(
 
     let period = Duration::from_secs_f64(1.0 / args.rate_hz);
     let n = (args.duration_s * args.rate_hz).round() as u64;
-    // Streams open and claimed before the clock starts.
-    let mut streams = Vec::new();
+    let rt_priority = args.rt_priority;
+    // Whether every client thread got its real-time priority (the server's
+    // force loops ask the same of the same process's permissions).
+    let realtime = Arc::new(AtomicBool::new(rt_priority > 0));
+    // Each client is a device bridge of its own: a connection thread with
+    // its own single-threaded runtime (its I/O never waits for the server's
+    // runtime) and a servo thread sending the poses on their ticks.
+    let mut receivers = Vec::new();
+    let mut txs = Vec::new();
     for (name, trajectory) in plans {
-        let mut client = connect(url).await?;
         let (tx, rx) = tokio::sync::mpsc::channel::<pb::PoseSample>(4096);
-        let req = haptic_request(tokio_stream::wrappers::ReceiverStream::new(rx), name, None)?;
-        let inbound = client
-            .haptic(req)
-            .await
-            .with_context(|| format!("claiming instrument {name:?}"))?
-            .into_inner();
-        streams.push((client, tx, inbound, trajectory.clone()));
+        let (ready_tx, ready_rx) = std::sync::mpsc::sync_channel::<anyhow::Result<()>>(1);
+        let (url, name) = (url.to_owned(), name.clone());
+        let realtime_conn = realtime.clone();
+        let conn = std::thread::Builder::new()
+            .name("bench-client-io".into())
+            .spawn(move || -> anyhow::Result<Vec<Answer>> {
+                let rt_ok = priority::raise_current_thread(rt_priority).unwrap_or(false);
+                realtime_conn.fetch_and(rt_ok, Ordering::Relaxed);
+                let rt = tokio::runtime::Builder::new_current_thread()
+                    .enable_all()
+                    .build()
+                    .context("starting a client runtime")?;
+                rt.block_on(async move {
+                    let claimed = async {
+                        let mut client = connect(&url).await?;
+                        let req = haptic_request(
+                            tokio_stream::wrappers::ReceiverStream::new(rx),
+                            &name,
+                            None,
+                        )?;
+                        let inbound = client
+                            .haptic(req)
+                            .await
+                            .with_context(|| format!("claiming instrument {name:?}"))?
+                            .into_inner();
+                        anyhow::Ok((client, inbound))
+                    }
+                    .await;
+                    let (client, mut inbound) = match claimed {
+                        Ok(c) => {
+                            let _ = ready_tx.send(Ok(()));
+                            c
+                        }
+                        Err(e) => {
+                            let _ = ready_tx.send(Err(anyhow::anyhow!("{e:#}")));
+                            return Err(e);
+                        }
+                    };
+                    let _client = client;
+                    let mut answers = Vec::with_capacity(n as usize);
+                    while let Ok(Some(s)) = inbound.message().await {
+                        answers.push(Answer {
+                            sequence: s.sequence,
+                            arrived: Instant::now(),
+                            server_us: s.server_compute_us,
+                            model_age_s: s.model_age_s,
+                            contact_count: s.contact_count,
+                            rejected: s.rejection.is_some(),
+                        });
+                    }
+                    Ok(answers)
+                })
+            })
+            .context("starting a client thread")?;
+        tokio::task::spawn_blocking(move || ready_rx.recv())
+            .await?
+            .map_err(|_| anyhow::anyhow!("a client thread ended before claiming"))??;
+        receivers.push(conn);
+        txs.push((tx, trajectory.clone()));
     }
     let start = Instant::now() + Duration::from_millis(50);
     let frame_at_start = {
@@ -246,28 +331,8 @@ async fn drive(
         sim.snapshot().frame
     };
     let mut senders = Vec::new();
-    let mut receivers = Vec::new();
-    let rt_priority = args.rt_priority;
-    // Whether every client thread got its real-time priority (the server's
-    // force loops ask the same of the same process's permissions).
-    let realtime = Arc::new(AtomicBool::new(rt_priority > 0));
-    for (client, tx, mut inbound, trajectory) in streams {
+    for (tx, trajectory) in txs {
         let realtime_clients = realtime.clone();
-        receivers.push(tokio::spawn(async move {
-            let _client = client;
-            let mut answers = Vec::with_capacity(n as usize);
-            while let Ok(Some(s)) = inbound.message().await {
-                answers.push(Answer {
-                    sequence: s.sequence,
-                    arrived: Instant::now(),
-                    server_us: s.server_compute_us,
-                    model_age_s: s.model_age_s,
-                    contact_count: s.contact_count,
-                    rejected: s.rejection.is_some(),
-                });
-            }
-            answers
-        }));
         senders.push(
             std::thread::Builder::new()
                 .name("bench-haptic-client".into())
@@ -307,11 +372,13 @@ async fn drive(
     counting.store(false, Ordering::Relaxed);
     let mut answers_all = Vec::new();
     for r in receivers {
-        answers_all.push(
-            tokio::time::timeout(Duration::from_secs(10), r)
-                .await
-                .context("the server did not end a haptic stream")??,
-        );
+        let joined = tokio::time::timeout(
+            Duration::from_secs(10),
+            tokio::task::spawn_blocking(move || r.join()),
+        )
+        .await
+        .context("the server did not end a haptic stream")??;
+        answers_all.push(joined.map_err(|_| anyhow::anyhow!("a client thread panicked"))??);
     }
     let mut delivered = Vec::new();
     for (task, count) in watchers {
@@ -324,6 +391,7 @@ async fn drive(
     let mut server = Vec::new();
     let mut lag = Vec::new();
     let mut missed = 0u64;
+    let mut missed_by_round_trip = 0u64;
     let mut answered = 0u64;
     let mut sent_total = 0u64;
     let (mut age_max, mut contact_max) = (0.0f64, 0u32);
@@ -352,9 +420,15 @@ async fn drive(
                     contact_max = contact_max.max(a.contact_count);
                     if a.arrived > next_due {
                         missed += 1;
+                        if a.arrived.saturating_duration_since(at) > period {
+                            missed_by_round_trip += 1;
+                        }
                     }
                 }
-                None => missed += 1,
+                None => {
+                    missed += 1;
+                    missed_by_round_trip += 1;
+                }
             }
         }
     }
@@ -374,6 +448,7 @@ async fn drive(
         samples_sent: sent_total,
         samples_answered: answered,
         missed_samples: missed,
+        missed_by_round_trip,
         rtt_p50_us: percentile(&rtt, 0.5),
         rtt_p99_us: percentile(&rtt, 0.99),
         rtt_max_us: last(&rtt),
@@ -399,7 +474,7 @@ pub fn table(r: &LoopBenchReport) -> String {
     let mut s = format!(
         "bench loop — scene {} ({} surface triangles, loaded in {:.1} s), free-running\n\
          {} clients at {:.0} Hz (real-time ticks), {} watchers (full frames), {:.2} s\n\
-         force loops and client threads: {}\n\n",
+         force loops and client threads: {}, server transport: {}\n\n",
         r.scene,
         r.surface_triangles,
         r.load_s,
@@ -408,6 +483,11 @@ pub fn table(r: &LoopBenchReport) -> String {
         r.watchers,
         r.duration_s,
         if r.realtime {
+            "SCHED_FIFO"
+        } else {
+            "normal priority"
+        },
+        if r.transport_realtime {
             "SCHED_FIFO"
         } else {
             "normal priority"
@@ -428,7 +508,8 @@ pub fn table(r: &LoopBenchReport) -> String {
     ));
     s.push_str(&row("round trip", r.rtt_p50_us, r.rtt_p99_us, r.rtt_max_us));
     s.push_str(&format!(
-        "\nsamples sent {}, answered {}, missed {} (answer after the next tick or never)\n\
+        "\nsamples sent {}, answered {}, missed {} (answer after the next tick or never; \
+         {} of them by a round trip over one period)\n\
          client send lag p99 {:.1} us\n\
          deformation: {:.1} Hz, step p50 {:.2} ms, p99 {:.2} ms, {} frames, {} failed\n\
          watchers: {} frames delivered in all, {} to the slowest\n\
@@ -436,6 +517,7 @@ pub fn table(r: &LoopBenchReport) -> String {
         r.samples_sent,
         r.samples_answered,
         r.missed_samples,
+        r.missed_by_round_trip,
         r.send_lag_p99_us,
         r.deform_hz,
         r.deform_step_p50_ms,

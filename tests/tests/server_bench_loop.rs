@@ -12,6 +12,7 @@ async fn bench_loop_reports_consistent_figures() -> anyhow::Result<()> {
         watchers: 2,
         rate_hz: 1000.0,
         rt_priority: 0,
+        transport_rt_priority: 0,
         json: true,
     };
     let r = run(&args).await?;
@@ -20,10 +21,12 @@ async fn bench_loop_reports_consistent_figures() -> anyhow::Result<()> {
     assert_eq!(r.watchers, 2);
     // 0 asks for no real-time scheduling, and the report says so.
     assert!(!r.realtime);
+    assert!(!r.transport_realtime);
     // Every tick sent a pose and every pose was answered (late or not).
     assert_eq!(r.samples_sent, 2000);
     assert_eq!(r.samples_answered, 2000);
     assert!(r.missed_samples <= r.samples_sent);
+    assert!(r.missed_by_round_trip <= r.missed_samples);
     assert!(r.duration_s >= 0.999, "{}", r.duration_s);
     for (name, v) in [
         ("rtt_p50_us", r.rtt_p50_us),
@@ -54,5 +57,9 @@ async fn bench_loop_reports_consistent_figures() -> anyhow::Result<()> {
         assert!(json.get(key).is_some_and(|v| v.is_number()), "{key}");
     }
     assert!(json.get("realtime").is_some_and(|v| v.is_boolean()));
+    assert!(
+        json.get("transport_realtime")
+            .is_some_and(|v| v.is_boolean())
+    );
     Ok(())
 }

@@ -3,7 +3,7 @@
 use anyhow::{Context, bail};
 use clap::Parser;
 use fissure_server::scene::{DEFAULT_SCENE, Scene};
-use fissure_server::service::{ServeOptions, serve};
+use fissure_server::service::{ServeOptions, Transport};
 use fissure_server::sim::{SimOptions, Simulation};
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -58,13 +58,20 @@ struct Args {
     #[arg(long, default_value_t = fissure_server::sim::priority::DEFAULT_FORCE_LOOP_RT_PRIORITY,
           value_parser = clap::value_parser!(u8).range(0..=99))]
     force_loop_rt_priority: u8,
+    /// Real-time priority (SCHED_FIFO, 1-99) of the gRPC transport's threads,
+    /// which read poses off the sockets and write force samples back; 0 asks
+    /// for none. Keep it below --force-loop-rt-priority. Same privileges as
+    /// the force loops; without them the transport runs at normal priority
+    /// (logged once).
+    #[arg(long, default_value_t = fissure_server::sim::priority::DEFAULT_TRANSPORT_RT_PRIORITY,
+          value_parser = clap::value_parser!(u8).range(0..=99))]
+    transport_rt_priority: u8,
     /// Log filter (tracing's EnvFilter syntax), e.g. `info` or `fissure_server=debug`.
     #[arg(long, env = "FISSURE_LOG", default_value = "info")]
     log: String,
 }
 
-#[tokio::main]
-async fn main() -> anyhow::Result<()> {
+fn main() -> anyhow::Result<()> {
     let args = Args::parse();
     tracing_subscriber::fmt()
         .with_env_filter(
@@ -72,6 +79,17 @@ async fn main() -> anyhow::Result<()> {
         )
         .with_writer(std::io::stderr)
         .init();
+    // Two runtimes: the transport serves the calls on real-time threads; this
+    // one loads the scene, starts the simulation and waits for signals, at
+    // normal priority (the simulation's threads inherit it).
+    let transport =
+        Transport::new(args.transport_rt_priority).context("starting the gRPC transport")?;
+    tokio::runtime::Runtime::new()
+        .context("starting the async runtime")?
+        .block_on(run(args, &transport))
+}
+
+async fn run(args: Args, transport: &Transport) -> anyhow::Result<()> {
     if !args.listen.ip().is_loopback() && !args.allow_remote {
         bail!(
             "--listen {} is not a loopback address; pass --allow-remote to expose the server to the network",
@@ -87,14 +105,15 @@ async fn main() -> anyhow::Result<()> {
     };
     let (scene, _) =
         Scene::load(&args.scene).with_context(|| format!("loading scene {:?}", args.scene))?;
-    let server = serve(
-        args.listen,
-        ServeOptions {
-            token: args.token.clone(),
-            tls,
-        },
-    )
-    .await?;
+    let server = transport
+        .serve(
+            args.listen,
+            ServeOptions {
+                token: args.token.clone(),
+                tls,
+            },
+        )
+        .await?;
     tracing::info!(addr = %server.addr, scene = %scene.name, "listening; loading the scene");
     let options = SimOptions {
         stepped: args.stepped.then_some(true),

@@ -17,12 +17,31 @@
 //!   an `RLIMIT_RTPRIO` allowance); without it the loop logs why once and runs
 //!   at normal priority. A force loop sleeps between poses and a sample takes
 //!   well under a millisecond, so it cannot monopolise a CPU; Linux's
-//!   real-time throttling (`sched_rt_runtime_us`) bounds it regardless.
+//!   real-time throttling (`sched_rt_runtime_us`) bounds it regardless;
+//! * the gRPC transport (the runtime whose workers read poses off the sockets
+//!   and write force samples back, [`crate::service::transport_runtime`]) asks
+//!   for `SCHED_FIFO` one step below the force loops
+//!   ([`DEFAULT_TRANSPORT_RT_PRIORITY`]). A pose crosses it twice per round
+//!   trip; at normal priority each crossing waits, now and then, a scheduler
+//!   slice (about a millisecond) behind the solver, and a 1 kHz sample is then
+//!   late. Its workers sleep in `epoll` between messages.
+//!
+//! Linux threads inherit the policy of the thread that creates them, so a
+//! thread spawned from a real-time worker is real-time too: every loop sets
+//! its own policy when it starts ([`lower_current_thread`] and
+//! [`raise_current_thread`] both leave a real-time thread at normal policy
+//! when asked for none).
 
 /// Sets the nice value of the calling thread to `nice` (Linux: threads are
 /// scheduled individually; 0 leaves the thread as it is). Failures are
 /// logged, not fatal: the loops still work, only with less isolation.
+///
+/// A thread that inherited a real-time policy (spawned from a real-time
+/// thread) is first put back under the normal policy.
 pub fn lower_current_thread(nice: i32) {
+    if let Err(why) = leave_realtime() {
+        tracing::warn!(%why, "a thread that inherited a real-time policy keeps it");
+    }
     if nice <= 0 {
         return;
     }
@@ -36,17 +55,56 @@ pub fn lower_current_thread(nice: i32) {
     tracing::debug!(nice, "thread priorities are only set on Linux");
 }
 
+/// Puts the calling thread back under the normal policy (`SCHED_OTHER`, nice
+/// 0) if it runs under a real-time one; does nothing otherwise. Leaving a
+/// real-time policy never needs privileges.
+pub fn leave_realtime() -> Result<(), String> {
+    #[cfg(target_os = "linux")]
+    {
+        use thread_priority::unix::{
+            NormalThreadSchedulePolicy, ThreadSchedulePolicy, set_thread_priority_and_policy,
+            thread_native_id, thread_schedule_policy,
+        };
+        let policy = thread_schedule_policy().map_err(|e| format!("{e:?}"))?;
+        if !matches!(policy, ThreadSchedulePolicy::Realtime(_)) {
+            return Ok(());
+        }
+        // The crate maps its 0-99 scale onto nice values; the nice value is
+        // then set exactly (0, which a thread that held a real-time policy
+        // may always set).
+        let value =
+            thread_priority::ThreadPriorityValue::try_from(48u8).map_err(|e| e.to_string())?;
+        set_thread_priority_and_policy(
+            thread_native_id(),
+            thread_priority::ThreadPriority::Crossplatform(value),
+            ThreadSchedulePolicy::Normal(NormalThreadSchedulePolicy::Other),
+        )
+        .map_err(|e| format!("{e:?}"))?;
+        rustix::process::setpriority_process(Some(rustix::thread::gettid()), 0)
+            .map_err(|e| e.to_string())
+    }
+    #[cfg(not(target_os = "linux"))]
+    Ok(())
+}
+
 /// Default real-time priority of the force loops (`SCHED_FIFO`, 1-99; 0 asks
 /// for none). Low in the real-time range: above every ordinary thread, below
 /// the kernel's own real-time threads.
 pub const DEFAULT_FORCE_LOOP_RT_PRIORITY: u8 = 10;
 
-/// Puts the calling thread under `SCHED_FIFO` at `priority` (1-99; 0 leaves
-/// it as it is). `Ok(false)` when nothing was asked; an error (not permitted,
-/// or not Linux) says why, and the thread keeps its policy.
+/// Default real-time priority of the gRPC transport's workers (`SCHED_FIFO`;
+/// 0 asks for none): one below the force loops, so that the transport never
+/// preempts a force sample and preempts every ordinary thread.
+pub const DEFAULT_TRANSPORT_RT_PRIORITY: u8 = 9;
+
+/// Puts the calling thread under `SCHED_FIFO` at `priority` (1-99). With 0
+/// it asks for none: a thread that inherited a real-time policy is put back
+/// under the normal one ([`leave_realtime`]). `Ok(false)` when nothing was
+/// asked; an error (not permitted, or not Linux) says why, and the thread
+/// keeps its policy.
 pub fn raise_current_thread(priority: u8) -> Result<bool, String> {
     if priority == 0 {
-        return Ok(false);
+        return leave_realtime().map(|()| false);
     }
     #[cfg(target_os = "linux")]
     {
