@@ -110,6 +110,17 @@ pub struct LoopBenchReport {
     /// period, or that were never answered; the others left the client late
     /// (the client machine's scheduling, `send_lag_p99_us`).
     pub missed_by_round_trip: u64,
+    /// Of the missed samples, those during which no stall probe saw the
+    /// machine stall: the ones the server and the clients are answerable for.
+    pub missed_outside_stalls: u64,
+    /// Stalls of the machine: wake-ups of the stall probes (one real-time
+    /// thread pinned to each CPU, sleeping to the same ticks and doing
+    /// nothing else) later than [`STALL_THRESHOLD_US`].
+    pub machine_stalls: u64,
+    /// The latest such wake-up.
+    pub machine_stall_max_us: f64,
+    /// CPUs that had a stall probe.
+    pub stall_probe_cpus: usize,
     /// Round trip, client side: median, 99th percentile, maximum.
     pub rtt_p50_us: f64,
     pub rtt_p99_us: f64,
@@ -149,6 +160,60 @@ struct Answer {
     model_age_s: f64,
     contact_count: u32,
     rejected: bool,
+}
+
+/// A probe's wake-up later than this counts as a stall of the machine, us:
+/// on an idle machine a real-time sleep loop wakes within tens of
+/// microseconds, and a stall this long, added to a round trip of a few
+/// hundred, can make a sample miss its tick.
+pub const STALL_THRESHOLD_US: f64 = 250.0;
+
+/// A late wake-up of a stall probe: it was due at `due` and woke `late`
+/// after.
+#[derive(Debug, Clone, Copy)]
+struct Stall {
+    due: Instant,
+    late: Duration,
+}
+
+impl Stall {
+    /// Whether the stall overlaps the interval `from..=to`.
+    fn overlaps(&self, from: Instant, to: Instant) -> bool {
+        self.due <= to && self.due + self.late >= from
+    }
+}
+
+/// A stall probe: on CPU `cpu` (pinned where permitted), real-time at
+/// `rt_priority` where permitted, sleeps to the `n` ticks of `period` from
+/// `start` (offset by half a period, between the clients' ticks) and records
+/// the wake-ups later than [`STALL_THRESHOLD_US`]. It measures the machine
+/// (the hypervisor, the kernel, other tenants), not the server: it does
+/// nothing but sleep.
+fn stall_probe(
+    cpu: usize,
+    rt_priority: u8,
+    start: Instant,
+    period: Duration,
+    n: u64,
+) -> Vec<Stall> {
+    if let Err(why) = priority::pin_current_thread(cpu) {
+        tracing::debug!(cpu, %why, "stall probe not pinned");
+    }
+    let _ = priority::raise_current_thread(rt_priority);
+    let threshold = Duration::from_secs_f64(STALL_THRESHOLD_US * 1e-6);
+    let mut stalls = Vec::new();
+    for k in 0..n {
+        let due = start + period.mul_f64(k as f64 + 0.5);
+        let now = Instant::now();
+        if due > now {
+            std::thread::sleep(due - now);
+        }
+        let late = Instant::now().saturating_duration_since(due);
+        if late > threshold {
+            stalls.push(Stall { due, late });
+        }
+    }
+    stalls
 }
 
 /// Pose `k` of a ping-pong walk over the trajectory's waypoints.
@@ -359,6 +424,16 @@ async fn drive(
                 .context("starting a client thread")?,
         );
     }
+    // One stall probe per CPU: the machine's own ability to hold the ticks.
+    let mut probes = Vec::new();
+    for cpu in priority::allowed_cpus().unwrap_or_default() {
+        probes.push(
+            std::thread::Builder::new()
+                .name("bench-stall-probe".into())
+                .spawn(move || stall_probe(cpu, rt_priority, start, period, n))
+                .context("starting a stall probe")?,
+        );
+    }
     let mut sent_all = Vec::new();
     for s in senders {
         sent_all.push(
@@ -369,6 +444,15 @@ async fn drive(
     }
     let end = Instant::now();
     let frame_at_end = sim.snapshot().frame;
+    let mut stalls = Vec::new();
+    let probe_cpus = probes.len();
+    for p in probes {
+        stalls.extend(
+            tokio::task::spawn_blocking(move || p.join())
+                .await?
+                .map_err(|_| anyhow::anyhow!("a stall probe panicked"))?,
+        );
+    }
     counting.store(false, Ordering::Relaxed);
     let mut answers_all = Vec::new();
     for r in receivers {
@@ -392,6 +476,7 @@ async fn drive(
     let mut lag = Vec::new();
     let mut missed = 0u64;
     let mut missed_by_round_trip = 0u64;
+    let mut missed_outside_stalls = 0u64;
     let mut answered = 0u64;
     let mut sent_total = 0u64;
     let (mut age_max, mut contact_max) = (0.0f64, 0u32);
@@ -405,11 +490,8 @@ async fn drive(
             }
         }
         for (k, (&at, a)) in sent.iter().zip(&arrival).enumerate() {
-            lag.push(
-                at.saturating_duration_since(start + period.mul_f64(k as f64))
-                    .as_secs_f64()
-                    * 1e6,
-            );
+            let due = start + period.mul_f64(k as f64);
+            lag.push(at.saturating_duration_since(due).as_secs_f64() * 1e6);
             let next_due = start + period.mul_f64((k + 1) as f64);
             match a {
                 Some(a) => {
@@ -423,11 +505,17 @@ async fn drive(
                         if a.arrived.saturating_duration_since(at) > period {
                             missed_by_round_trip += 1;
                         }
+                        if !stalls.iter().any(|s| s.overlaps(due, a.arrived)) {
+                            missed_outside_stalls += 1;
+                        }
                     }
                 }
                 None => {
                     missed += 1;
                     missed_by_round_trip += 1;
+                    if !stalls.iter().any(|s| s.overlaps(due, end)) {
+                        missed_outside_stalls += 1;
+                    }
                 }
             }
         }
@@ -449,6 +537,13 @@ async fn drive(
         samples_answered: answered,
         missed_samples: missed,
         missed_by_round_trip,
+        missed_outside_stalls,
+        machine_stalls: stalls.len() as u64,
+        machine_stall_max_us: stalls
+            .iter()
+            .map(|s| s.late.as_secs_f64() * 1e6)
+            .fold(0.0, f64::max),
+        stall_probe_cpus: probe_cpus,
         rtt_p50_us: percentile(&rtt, 0.5),
         rtt_p99_us: percentile(&rtt, 0.99),
         rtt_max_us: last(&rtt),
@@ -509,7 +604,8 @@ pub fn table(r: &LoopBenchReport) -> String {
     s.push_str(&row("round trip", r.rtt_p50_us, r.rtt_p99_us, r.rtt_max_us));
     s.push_str(&format!(
         "\nsamples sent {}, answered {}, missed {} (answer after the next tick or never; \
-         {} of them by a round trip over one period)\n\
+         {} of them by a round trip over one period, {} outside machine stalls)\n\
+         machine: {} stalls (stall probes on {} CPUs woke over {:.0} us late), max {:.0} us\n\
          client send lag p99 {:.1} us\n\
          deformation: {:.1} Hz, step p50 {:.2} ms, p99 {:.2} ms, {} frames, {} failed\n\
          watchers: {} frames delivered in all, {} to the slowest\n\
@@ -518,6 +614,11 @@ pub fn table(r: &LoopBenchReport) -> String {
         r.samples_answered,
         r.missed_samples,
         r.missed_by_round_trip,
+        r.missed_outside_stalls,
+        r.machine_stalls,
+        r.stall_probe_cpus,
+        STALL_THRESHOLD_US,
+        r.machine_stall_max_us,
         r.send_lag_p99_us,
         r.deform_hz,
         r.deform_step_p50_ms,
@@ -563,5 +664,41 @@ mod tests {
         let xs: Vec<f64> = (0..9).map(|k| ping_pong(&pts, k).x_m).collect();
         assert_eq!(xs, [0.0, 1.0, 2.0, 3.0, 2.0, 1.0, 0.0, 1.0, 2.0]);
         assert_eq!(ping_pong(&pts[..1], 5).x_m, 0.0);
+    }
+
+    #[test]
+    fn a_stall_explains_the_samples_whose_interval_it_touches() {
+        let t0 = Instant::now();
+        let ms = |x: f64| t0 + Duration::from_secs_f64(x * 1e-3);
+        // Due at 10 ms, woke 1.5 ms late: covers 10..11.5 ms.
+        let s = Stall {
+            due: ms(10.0),
+            late: Duration::from_micros(1500),
+        };
+        // A sample sent at 9 ms and answered at 10.2 ms: inside.
+        assert!(s.overlaps(ms(9.0), ms(10.2)));
+        // One spanning the whole stall, one starting inside it.
+        assert!(s.overlaps(ms(9.5), ms(12.0)));
+        assert!(s.overlaps(ms(11.0), ms(12.4)));
+        // Touching ends count.
+        assert!(s.overlaps(ms(11.5), ms(12.0)));
+        assert!(s.overlaps(ms(8.0), ms(10.0)));
+        // Wholly before or after: not explained.
+        assert!(!s.overlaps(ms(7.0), ms(9.9)));
+        assert!(!s.overlaps(ms(11.6), ms(12.8)));
+    }
+
+    #[test]
+    fn a_stall_probe_reports_only_late_wake_ups() {
+        let period = Duration::from_millis(1);
+        let start = Instant::now();
+        let stalls = stall_probe(0, 0, start, period, 50);
+        assert!(stalls.len() <= 50);
+        for s in &stalls {
+            assert!(s.late.as_secs_f64() * 1e6 > STALL_THRESHOLD_US);
+            assert!(s.due >= start && s.due <= start + period.mul_f64(50.0));
+        }
+        // The probe slept to its last tick.
+        assert!(start.elapsed() >= period.mul_f64(49.5));
     }
 }

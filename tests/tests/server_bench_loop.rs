@@ -27,6 +27,19 @@ async fn bench_loop_reports_consistent_figures() -> anyhow::Result<()> {
     assert_eq!(r.samples_answered, 2000);
     assert!(r.missed_samples <= r.samples_sent);
     assert!(r.missed_by_round_trip <= r.missed_samples);
+    assert!(r.missed_outside_stalls <= r.missed_samples);
+    // A stall probe ran on every CPU the process may use.
+    #[cfg(target_os = "linux")]
+    assert_eq!(
+        r.stall_probe_cpus,
+        fissure_server::sim::priority::allowed_cpus().map_or(0, |c| c.len())
+    );
+    assert!(r.stall_probe_cpus >= 1 || !cfg!(target_os = "linux"));
+    if r.machine_stalls == 0 {
+        assert_eq!(r.machine_stall_max_us, 0.0);
+    } else {
+        assert!(r.machine_stall_max_us > fissure_cli::bench_loop::STALL_THRESHOLD_US);
+    }
     assert!(r.duration_s >= 0.999, "{}", r.duration_s);
     for (name, v) in [
         ("rtt_p50_us", r.rtt_p50_us),
@@ -53,6 +66,8 @@ async fn bench_loop_reports_consistent_figures() -> anyhow::Result<()> {
         "deform_hz",
         "frames_delivered",
         "missed_samples",
+        "missed_outside_stalls",
+        "machine_stalls",
     ] {
         assert!(json.get(key).is_some_and(|v| v.is_number()), "{key}");
     }

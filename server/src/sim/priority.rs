@@ -126,6 +126,34 @@ pub fn raise_current_thread(priority: u8) -> Result<bool, String> {
     Err("real-time priorities are only set on Linux".into())
 }
 
+/// The CPUs the calling thread may run on (Linux; `None` elsewhere or on
+/// error), in increasing order.
+pub fn allowed_cpus() -> Option<Vec<usize>> {
+    #[cfg(target_os = "linux")]
+    {
+        let set = rustix::thread::sched_getaffinity(None).ok()?;
+        Some(
+            (0..rustix::thread::CpuSet::MAX_CPU)
+                .filter(|&c| set.is_set(c))
+                .collect(),
+        )
+    }
+    #[cfg(not(target_os = "linux"))]
+    None
+}
+
+/// Restricts the calling thread to CPU `cpu` (Linux); an error says why.
+pub fn pin_current_thread(cpu: usize) -> Result<(), String> {
+    #[cfg(target_os = "linux")]
+    {
+        let mut set = rustix::thread::CpuSet::new();
+        set.set(cpu);
+        rustix::thread::sched_setaffinity(None, &set).map_err(|e| e.to_string())
+    }
+    #[cfg(not(target_os = "linux"))]
+    Err(format!("threads are only pinned on Linux (CPU {cpu})"))
+}
+
 /// Whether the calling thread runs under a real-time policy, and at which
 /// priority (Linux; `None` elsewhere or on error), for tests and logs.
 pub fn current_thread_realtime() -> Option<(bool, u8)> {
@@ -210,5 +238,31 @@ mod tests {
             .unwrap();
         assert_eq!(untouched.0, Ok(false));
         assert_eq!(untouched.1.map(|s| s.0), Some(false));
+    }
+
+    #[test]
+    fn a_pinned_thread_runs_on_its_cpu_only() {
+        let cpus = allowed_cpus().expect("sched_getaffinity works on Linux");
+        assert!(!cpus.is_empty());
+        assert!(cpus.windows(2).all(|w| w[0] < w[1]));
+        let last = *cpus.last().unwrap();
+        let (pinned, now_allowed, ran_on) = std::thread::spawn(move || {
+            let pinned = pin_current_thread(last);
+            std::thread::yield_now();
+            (pinned, allowed_cpus(), rustix::thread::sched_getcpu())
+        })
+        .join()
+        .unwrap();
+        assert_eq!(pinned, Ok(()));
+        assert_eq!(now_allowed, Some(vec![last]));
+        assert_eq!(ran_on, last);
+        // A CPU the thread may not use is refused with a reason.
+        let absent = rustix::thread::CpuSet::MAX_CPU - 1;
+        if !cpus.contains(&absent) {
+            let refused = std::thread::spawn(move || pin_current_thread(absent))
+                .join()
+                .unwrap();
+            assert!(refused.is_err_and(|why| !why.is_empty()));
+        }
     }
 }
