@@ -231,6 +231,7 @@ impl Fissure for FissureService {
         let mut inbound = req.into_inner();
         let (tx, rx) = tokio::sync::mpsc::channel::<Result<pb::ForceSample, Status>>(64);
         let mut stopping = self.stopping.subscribe();
+        let stopped = self.stopping.subscribe();
         let mut budget = (!sim.is_stepped())
             .then(|| PoseBudget::new(MAX_POSE_RATE_FACTOR * sim.scene().loops.haptic_rate_hz));
         // The stream is read on the runtime, by a task of its own: the force
@@ -258,7 +259,11 @@ impl Fissure for FissureService {
                 // The claim lives on this thread and is released when it ends.
                 claim.enter_force_thread();
                 loop {
-                    let next = pose_rx.blocking_recv().unwrap_or(Inbound::Stopping);
+                    let mut next = pose_rx.blocking_recv().unwrap_or(Inbound::Stopping);
+                    // Shutdown goes before poses already queued.
+                    if *stopped.borrow() {
+                        next = Inbound::Stopping;
+                    }
                     let msg = match next {
                         Inbound::Pose(m) => m,
                         Inbound::End => break,
