@@ -68,6 +68,11 @@ async fn force_loop_never_waits_for_a_slow_deformation_step() -> anyhow::Result<
         size_m: 0.04,
         cells: 12,
     };
+    // A short interval, so that a step (over 100 ms on a fast idle machine)
+    // outlasts 10 intervals and the model goes stale while it runs (with the
+    // scene's 20 ms that needed steps over 200 ms, which only a loaded
+    // machine gave).
+    scene.loops.deformation_interval_s = 0.005;
     let dt = scene.loops.deformation_interval_s;
     let server = TestServer::start_scene(scene, free_running(), ServeOptions::default()).await?;
     let mut client = server.client().await?;
