@@ -112,9 +112,12 @@ pub struct LoopBenchReport {
     pub missed_by_round_trip: u64,
     /// Of the missed samples, those during which no stall probe saw the
     /// machine stall: the ones the server and the clients are answerable for.
+    /// An upper bound: a probe samples its CPU once a period, so a stall that
+    /// starts and ends between two of its wake-ups goes unseen.
     pub missed_outside_stalls: u64,
-    /// Stalls of the machine: wake-ups of the stall probes (one real-time
-    /// thread pinned to each CPU, sleeping to the same ticks and doing
+    /// Stalls of the machine: wake-ups of the stall probes (one thread pinned
+    /// to each CPU, real-time above the server's and the clients' threads
+    /// ([`STALL_PROBE_RT_PRIORITY`]), sleeping to the same ticks and doing
     /// nothing else) later than [`STALL_THRESHOLD_US`].
     pub machine_stalls: u64,
     /// The latest such wake-up.
@@ -168,6 +171,12 @@ struct Answer {
 /// hundred, can make a sample miss its tick.
 pub const STALL_THRESHOLD_US: f64 = 250.0;
 
+/// Real-time priority of the stall probes when the run asks for real-time
+/// threads: above every thread of the server and the clients, so that only
+/// the machine (the hypervisor, the kernel) can delay a probe, never the
+/// server's own work.
+pub const STALL_PROBE_RT_PRIORITY: u8 = 90;
+
 /// A late wake-up of a stall probe: it was due at `due` and woke `late`
 /// after.
 #[derive(Debug, Clone, Copy)]
@@ -184,7 +193,8 @@ impl Stall {
 }
 
 /// A stall probe: on CPU `cpu` (pinned where permitted), real-time at
-/// `rt_priority` where permitted, sleeps to the `n` ticks of `period` from
+/// `rt_priority` where permitted (0: normal priority, and the probe then also
+/// sees the delays of the run's own threads), sleeps to the `n` ticks of `period` from
 /// `start` (offset by half a period, between the clients' ticks) and records
 /// the wake-ups later than [`STALL_THRESHOLD_US`]. It measures the machine
 /// (the hypervisor, the kernel, other tenants), not the server: it does
@@ -430,7 +440,14 @@ async fn drive(
         probes.push(
             std::thread::Builder::new()
                 .name("bench-stall-probe".into())
-                .spawn(move || stall_probe(cpu, rt_priority, start, period, n))
+                .spawn(move || {
+                    let probe_priority = if rt_priority > 0 {
+                        STALL_PROBE_RT_PRIORITY
+                    } else {
+                        0
+                    };
+                    stall_probe(cpu, probe_priority, start, period, n)
+                })
                 .context("starting a stall probe")?,
         );
     }
