@@ -69,9 +69,9 @@ pub fn leave_realtime() -> Result<(), String> {
         if !matches!(policy, ThreadSchedulePolicy::Realtime(_)) {
             return Ok(());
         }
-        // The crate maps its 0-99 scale onto nice values; the nice value is
-        // then set exactly (0, which a thread that held a real-time policy
-        // may always set).
+        // The crate maps its 0-99 scale onto nice values (48 is nice 0); the
+        // nice value is then set exactly, in case that mapping changes (the
+        // transport's test checks SCHED_OTHER at nice 0).
         let value =
             thread_priority::ThreadPriorityValue::try_from(48u8).map_err(|e| e.to_string())?;
         set_thread_priority_and_policy(
