@@ -192,10 +192,19 @@ impl Stall {
     }
 }
 
+/// Sleeps the calling thread until `due` (returns at once if it is past).
+fn sleep_until(due: Instant) {
+    let now = Instant::now();
+    if due > now {
+        std::thread::sleep(due - now);
+    }
+}
+
 /// A stall probe: on CPU `cpu` (pinned where permitted), real-time at
 /// `rt_priority` where permitted (0: normal priority, and the probe then also
-/// sees the delays of the run's own threads), sleeps to the `n` ticks of `period` from
-/// `start` (offset by half a period, between the clients' ticks) and records
+/// sees the delays of the run's own threads), sleeps to the `n` ticks of
+/// `period` from `start` (offset by half a period, between the clients'
+/// ticks) and records
 /// the wake-ups later than [`STALL_THRESHOLD_US`]. It measures the machine
 /// (the hypervisor, the kernel, other tenants), not the server: it does
 /// nothing but sleep.
@@ -214,10 +223,7 @@ fn stall_probe(
     let mut stalls = Vec::new();
     for k in 0..n {
         let due = start + period.mul_f64(k as f64 + 0.5);
-        let now = Instant::now();
-        if due > now {
-            std::thread::sleep(due - now);
-        }
+        sleep_until(due);
         let late = Instant::now().saturating_duration_since(due);
         if late > threshold {
             stalls.push(Stall { due, late });
@@ -416,11 +422,7 @@ async fn drive(
                     realtime_clients.fetch_and(realtime, Ordering::Relaxed);
                     let mut sent = Vec::with_capacity(n as usize);
                     for k in 0..n {
-                        let due = start + period.mul_f64(k as f64);
-                        let now = Instant::now();
-                        if due > now {
-                            std::thread::sleep(due - now);
-                        }
+                        sleep_until(start + period.mul_f64(k as f64));
                         let p = ping_pong(&trajectory.points, k);
                         let mut msg = crate::replay::pose_message(p, k + 1);
                         msg.t_s = k as f64 * period.as_secs_f64();

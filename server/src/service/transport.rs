@@ -4,9 +4,9 @@
 //! A force sample crosses the transport twice: its pose is read off the
 //! socket and handed to the force loop, its answer is handed back and written
 //! out. On a machine whose CPUs are busy with the deformation solve, a
-//! normal-priority worker woken for either crossing waits, now and then, for
-//! the scheduler to end the solver's slice (about a millisecond on Linux),
-//! and a 1 kHz sample then misses its tick. Under `SCHED_FIFO`
+//! normal-priority worker woken for either crossing ran, now and then, about
+//! a millisecond late (measured with `fissure bench loop`), and a 1 kHz
+//! sample then missed its tick. Under `SCHED_FIFO`
 //! ([`priority::DEFAULT_TRANSPORT_RT_PRIORITY`], one below the force loops)
 //! a woken worker runs at once. The workers sleep in `epoll` between messages
 //! and the pose rate of each stream is bounded

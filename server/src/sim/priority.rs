@@ -19,11 +19,11 @@
 //!   well under a millisecond, so it cannot monopolise a CPU; Linux's
 //!   real-time throttling (`sched_rt_runtime_us`) bounds it regardless;
 //! * the gRPC transport (the runtime whose workers read poses off the sockets
-//!   and write force samples back, [`crate::service::transport_runtime`]) asks
-//!   for `SCHED_FIFO` one step below the force loops
+//!   and write force samples back, [`crate::service::Transport`]) asks for
+//!   `SCHED_FIFO` one step below the force loops
 //!   ([`DEFAULT_TRANSPORT_RT_PRIORITY`]). A pose crosses it twice per round
-//!   trip; at normal priority each crossing waits, now and then, a scheduler
-//!   slice (about a millisecond) behind the solver, and a 1 kHz sample is then
+//!   trip; at normal priority, beside the solver, a woken worker now and then
+//!   ran about a millisecond late (measured), and a 1 kHz sample was then
 //!   late. Its workers sleep in `epoll` between messages.
 //!
 //! Linux threads inherit the policy of the thread that creates them, so a
