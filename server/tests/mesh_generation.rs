@@ -43,10 +43,18 @@ fn report(name: &str, params: &PhantomParams) {
 #[ignore]
 fn preset_counts_and_times() {
     for name in phantom::PRESETS {
-        report(name, &phantom::preset_params(name).expect("known"));
+        let params = phantom::preset_params(name).expect("known");
+        report(name, &params);
+        report(
+            &format!("{name} --proven"),
+            &PhantomParams {
+                proven: true,
+                ..params
+            },
+        );
     }
     if let Ok(spec) = std::env::var("PHANTOM_SWEEP") {
-        // "h,surface,levels,band,rate;..."
+        // "h,surface,levels,band,rate[,proven];..."
         for item in spec.split(';') {
             let v: Vec<f64> = item
                 .split(',')
@@ -58,6 +66,8 @@ fn preset_counts_and_times() {
             p.levels = v[2] as u32;
             p.band = v[3];
             p.rate = v[4];
+            p.proven = v.get(5).is_some_and(|&x| x != 0.0);
+            p.fissures = phantom::FissureSizes::default();
             report(item, &p);
         }
     }

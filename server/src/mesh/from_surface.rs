@@ -295,7 +295,8 @@ fn coplanar_segment_triangle(p: &Point3<f64>, q: &Point3<f64>, t: &[Point3<f64>;
 }
 
 /// Validates the surface and meshes the solid it bounds with isosurface
-/// stuffing. Boundary vertices of the result lie on the input surface to
+/// stuffing ([`stuffing::stuff_proven`]: uniform at the surface, graded inside
+/// by `rate`, dihedral angles within the proven bounds). Boundary vertices of the result lie on the input surface to
 /// within `1e-6 * spacing` (cut points) or exactly on it (warped vertices at
 /// cut points); sharp edges and corners of the input are rounded off at the
 /// scale of the spacing.
@@ -318,7 +319,7 @@ pub fn mesh_surface(
         band: params.spacing,
         rate: params.rate,
     };
-    Ok(stuffing::stuff(&field, &lattice, &grading)?)
+    Ok(stuffing::stuff_proven(&field, &lattice, &grading)?)
 }
 
 #[cfg(test)]

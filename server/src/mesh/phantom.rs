@@ -131,6 +131,12 @@ pub struct PhantomParams {
     pub rate: f64,
     /// Fissure sizes.
     pub fissures: FissureSizes,
+    /// Mesh with [`stuffing::stuff_proven`]: the whole surface at `spacing`
+    /// (`surface_size` ignored), the interior graded by `band` and `rate`,
+    /// dihedral angles within the proven bounds. The presets leave it off:
+    /// their counts need a coarser surface away from the fissures, which
+    /// only the surface-graded lattice gives (angles measured, not proven).
+    pub proven: bool,
 }
 
 /// The geometry of the phantom as a signed distance field.
@@ -286,6 +292,7 @@ pub fn preset_params(name: &str) -> Result<PhantomParams, PhantomError> {
                 sylvian_width: 0.0065,
                 ..fissures
             },
+            proven: false,
         },
         "paper-34k" => PhantomParams {
             spacing: 0.0044,
@@ -294,6 +301,7 @@ pub fn preset_params(name: &str) -> Result<PhantomParams, PhantomError> {
             band: 0.0,
             rate: 2.0,
             fissures,
+            proven: false,
         },
         "paper-48k" => PhantomParams {
             spacing: 0.004,
@@ -302,6 +310,7 @@ pub fn preset_params(name: &str) -> Result<PhantomParams, PhantomError> {
             band: 0.0,
             rate: 1.0,
             fissures,
+            proven: false,
         },
         _ => {
             return Err(PhantomError::UnknownPreset {
@@ -383,7 +392,11 @@ pub fn generate_with(params: &PhantomParams) -> Result<Phantom, PhantomError> {
         let to_gap = shape.fissures(p).max(0.0);
         surface.size(p, f).min(fissure.size(p, to_gap))
     };
-    let mesh = stuffing::stuff(&shape, &lattice, &size)?;
+    let mesh = if params.proven {
+        stuffing::stuff_proven(&shape, &lattice, &fissure)?
+    } else {
+        stuffing::stuff(&shape, &lattice, &size)?
+    };
     Ok(Phantom {
         mesh,
         landmarks: shape.landmarks(),
