@@ -137,6 +137,7 @@ impl Config {
         let (mut scene, _) = Scene::load("sylvian")?;
         scene.model = fissure_server::scene::ModelSpec::Phantom {
             preset: self.preset.clone(),
+            proven: false,
         };
         scene.material.youngs_modulus_pa = self.youngs_pa;
         scene.material.poisson_ratio = self.nu;

@@ -122,6 +122,11 @@ pub enum ModelSpec {
     Phantom {
         /// Preset name, e.g. `paper-48k`.
         preset: String,
+        /// Mesh it with the proven mesher (surface at the fissure spacing
+        /// everywhere, interior graded, dihedral angles within the proven
+        /// bounds; about 3 times the elements). Default false.
+        #[serde(default)]
+        proven: bool,
     },
     /// A tetrahedral mesh file (MSH, VTK/VTU, TetGen), relative to the scene file.
     File {
@@ -637,6 +642,38 @@ mod tests {
             assert!(path.is_none());
             assert!(!scene.instruments.is_empty(), "{name}");
         }
+    }
+
+    #[test]
+    fn a_phantom_model_can_ask_for_the_proven_mesher() {
+        let text = include_str!("../../scenes/sylvian.toml");
+        let (default, _) = Scene::load("sylvian").unwrap();
+        assert!(matches!(
+            default.model,
+            ModelSpec::Phantom { proven: false, .. }
+        ));
+        let asked = text.replace(
+            "preset = \"paper-48k\"",
+            "preset = \"coarse\"\nproven = true",
+        );
+        assert_ne!(asked, text);
+        let scene = Scene::parse(&asked, "p.toml").unwrap();
+        assert_eq!(
+            scene.model,
+            ModelSpec::Phantom {
+                preset: "coarse".into(),
+                proven: true
+            }
+        );
+        let model = crate::sim::engine::Model::build(&scene).unwrap();
+        let (lo, hi) = crate::mesh::stuffing::dihedral_range(&model.mesh);
+        assert!(
+            lo >= crate::mesh::stuffing::PROVEN_MIN_DIHEDRAL_DEG
+                && hi <= crate::mesh::stuffing::PROVEN_MAX_DIHEDRAL_DEG,
+            "{lo} .. {hi}"
+        );
+        let plain = crate::mesh::phantom::preset("coarse").unwrap().mesh;
+        assert_ne!(model.mesh.tets.len(), plain.tets.len());
     }
 
     #[test]

@@ -91,8 +91,15 @@ impl Model {
             ModelSpec::Cube { size_m, cells } => crate::mesh::blocks::cube(*size_m, *cells),
             ModelSpec::VValley => crate::mesh::blocks::v_valley(),
             ModelSpec::UValley => crate::mesh::blocks::u_valley(),
-            ModelSpec::Phantom { preset } => {
-                let p = crate::mesh::phantom::preset(preset)
+            ModelSpec::Phantom { preset, proven } => {
+                use crate::mesh::phantom;
+                let p = phantom::preset_params(preset)
+                    .and_then(|params| {
+                        phantom::generate_with(&phantom::PhantomParams {
+                            proven: *proven,
+                            ..params
+                        })
+                    })
                     .map_err(|e| SimError::Model(e.to_string()))?;
                 landmarks = Some(p.landmarks);
                 p.mesh
