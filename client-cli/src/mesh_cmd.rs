@@ -36,8 +36,8 @@ pub enum MeshCommand {
         /// Mesh a phantom preset with the proven mesher instead: the whole
         /// surface at the fissure spacing, the interior graded, dihedral angles
         /// within the bounds Labelle & Shewchuk prove (8.9 to 158.8 degrees).
-        /// About 3 times the preset's elements (paper-48k: 34.7k nodes, 176k
-        /// tetrahedra, 18.3k surface triangles). A fissure narrower than the
+        /// About 3 to 4 times the preset's elements (paper-48k: 39.3k nodes,
+        /// 204k tetrahedra, 18.3k surface triangles). A fissure narrower than the
         /// spacing may be partly filled (tetrahedra in the gaps: coarse 192,
         /// paper-34k 6, paper-48k none).
         #[arg(long)]

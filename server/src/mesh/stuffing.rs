@@ -152,8 +152,9 @@ pub enum StuffingError {
     /// undone (reported instead of producing a tangled mesh).
     #[error("warping inverts the output tetrahedron from lattice tetrahedron {lattice_tet}")]
     Inverted { lattice_tet: usize },
-    /// The red-green grading did not settle (a bug guard: each restart
-    /// refines more, so this needs a size field that keeps asking for more).
+    /// The red-green grading did not settle within its restarts (each
+    /// restart forces more refinement where the closure or the surface band
+    /// asked for it; the limit bounds the time spent).
     #[error("the graded lattice did not settle after {restarts} restarts")]
     Grading { restarts: usize },
     /// An output tetrahedron of the proven mesher is outside the proven
@@ -235,8 +236,8 @@ pub fn stuff_uniform(sdf: &dyn Sdf, lattice: &Lattice) -> Result<TetMesh, Stuffi
 /// `stuffing::red_green`). Every tetrahedron the surface cuts, and every
 /// vertex warping moves, then sees the uniform BCC lattice of the proof; the
 /// graded interior is never cut, so its tetrahedra keep their lattice shapes
-/// (dihedral angles of the BCC and green closure shapes, 45 to 135 degrees
-/// and down to about 35 for the closure, see the tests). Each output
+/// (BCC tetrahedra: 60 and 90 degrees; green closure pieces: within
+/// [[`GREEN_MIN_DIHEDRAL_DEG`], [`GREEN_MAX_DIHEDRAL_DEG`]]). Each output
 /// tetrahedron is checked against the bounds.
 pub fn stuff_proven(
     sdf: &dyn Sdf,

@@ -124,7 +124,7 @@ pub enum ModelSpec {
         preset: String,
         /// Mesh it with the proven mesher (surface at the fissure spacing
         /// everywhere, interior graded, dihedral angles within the proven
-        /// bounds; about 3 times the elements). Default false.
+        /// bounds; 3 to 4 times the elements). Default false.
         #[serde(default)]
         proven: bool,
     },
