@@ -208,12 +208,7 @@ pub fn preset_mesh(name: &str, cube: &PresetOptions) -> anyhow::Result<TetMesh> 
     // The single list of presets (keep PRESETS in step).
     Ok(match name {
         "coarse" | "paper-34k" | "paper-48k" => {
-            use fissure_server::mesh::phantom;
-            let params = phantom::PhantomParams {
-                proven: cube.proven,
-                ..phantom::preset_params(name)?
-            };
-            phantom::generate_with(&params)?.mesh
+            fissure_server::mesh::phantom::preset_meshed(name, cube.proven)?.mesh
         }
         "cube" => {
             if !(cube.size_m > 0.0 && cube.size_m.is_finite()) || cube.cells == 0 {

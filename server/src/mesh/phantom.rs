@@ -323,7 +323,16 @@ pub fn preset_params(name: &str) -> Result<PhantomParams, PhantomError> {
 
 /// The phantom of a named preset (see [`PRESETS`]).
 pub fn preset(name: &str) -> Result<Phantom, PhantomError> {
-    generate_with(&preset_params(name)?)
+    preset_meshed(name, false)
+}
+
+/// The phantom of a named preset, meshed by the proven mesher when `proven`
+/// (see [`PhantomParams::proven`]).
+pub fn preset_meshed(name: &str, proven: bool) -> Result<Phantom, PhantomError> {
+    generate_with(&PhantomParams {
+        proven,
+        ..preset_params(name)?
+    })
 }
 
 /// Generates the phantom with custom parameters.

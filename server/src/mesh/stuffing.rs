@@ -334,8 +334,17 @@ fn key_ends(k: u64) -> (u32, u32) {
 
 const TET_EDGES: [(usize, usize); 6] = [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)];
 
+/// Squared length of lattice edge `(a, b)` in integer lattice units (exact).
+fn lattice_len2(coords: &[[i32; 3]], a: u32, b: u32) -> i64 {
+    let (p, q) = (coords[a as usize], coords[b as usize]);
+    (0..3)
+        .map(|i| (i64::from(p[i]) - i64::from(q[i])).pow(2))
+        .sum()
+}
+
 /// The background lattice: nodes in integer coordinates (units of `h / 2`),
 /// field values, and tetrahedra.
+#[derive(Clone)]
 struct Background {
     origin: Point3<f64>,
     unit: f64,
@@ -483,10 +492,7 @@ impl Background {
     }
 
     fn len2(&self, a: u32, b: u32) -> i64 {
-        let (p, q) = (self.coords[a as usize], self.coords[b as usize]);
-        (0..3)
-            .map(|i| (i64::from(p[i]) - i64::from(q[i])).pow(2))
-            .sum()
+        lattice_len2(&self.coords, a, b)
     }
 
     /// The refinement edge of `t`: largest by (squared length, smaller index,
@@ -634,12 +640,7 @@ impl Background {
             .map(|c| origin + Vector3::new(c[0] as f64, c[1] as f64, c[2] as f64) * unit)
             .collect();
         let nv = coords.len();
-        let len2 = |a: u32, b: u32| -> i64 {
-            let (p, q) = (coords[a as usize], coords[b as usize]);
-            (0..3)
-                .map(|i| (i64::from(p[i]) - i64::from(q[i])).pow(2))
-                .sum()
-        };
+        let len2 = |a: u32, b: u32| lattice_len2(&coords, a, b);
         // Edges, and which are the longest edge of some tetrahedron.
         let mut edges: Vec<(u64, bool)> = tets
             .par_iter()
@@ -790,13 +791,7 @@ impl Background {
                                 }))
                     };
                     if parity && bcc.get(ti).copied().unwrap_or(false) {
-                        let bt = parity::BccTet {
-                            t: *t,
-                            s,
-                            coords: &coords,
-                            cut: &cut,
-                        };
-                        bt.stencil(keep_all_zero, &mut out);
+                        parity::BccTet::new(*t, s, &coords, &cut).stencil(keep_all_zero, &mut out);
                     } else {
                         stencil(t, &s, keep_all_zero, &cut, &mut out);
                     }

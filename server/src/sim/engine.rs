@@ -92,14 +92,7 @@ impl Model {
             ModelSpec::VValley => crate::mesh::blocks::v_valley(),
             ModelSpec::UValley => crate::mesh::blocks::u_valley(),
             ModelSpec::Phantom { preset, proven } => {
-                use crate::mesh::phantom;
-                let p = phantom::preset_params(preset)
-                    .and_then(|params| {
-                        phantom::generate_with(&phantom::PhantomParams {
-                            proven: *proven,
-                            ..params
-                        })
-                    })
+                let p = crate::mesh::phantom::preset_meshed(preset, *proven)
                     .map_err(|e| SimError::Model(e.to_string()))?;
                 landmarks = Some(p.landmarks);
                 p.mesh

@@ -24,42 +24,52 @@
 //! face rules leave open, where the diagonal joining the cut points on black
 //! edges is taken).
 
-use super::stencil;
+use super::{TET_EDGES, lattice_len2, stencil};
 
 /// Lattice data one stencil needs: exact integer coordinates (units of half
 /// the finest spacing) and cut point ids.
 pub(super) struct BccTet<'a> {
     /// The four lattice vertices.
-    pub t: [u32; 4],
+    t: [u32; 4],
     /// Their signs after warping.
-    pub s: [i8; 4],
+    s: [i8; 4],
     /// Integer coordinates of every lattice vertex.
-    pub coords: &'a [[i32; 3]],
+    coords: &'a [[i32; 3]],
     /// The cut point on lattice edge `(a, b)` (`u32::MAX` when none).
-    pub cut: &'a dyn Fn(u32, u32) -> u32,
+    cut: &'a dyn Fn(u32, u32) -> u32,
+    /// Squared length of the tetrahedron's black edges.
+    black: i64,
 }
 
-impl BccTet<'_> {
-    fn len2(&self, a: u32, b: u32) -> i64 {
-        let (p, q) = (self.coords[a as usize], self.coords[b as usize]);
-        (0..3)
-            .map(|i| (i64::from(p[i]) - i64::from(q[i])).pow(2))
-            .sum()
+impl<'a> BccTet<'a> {
+    pub fn new(
+        t: [u32; 4],
+        s: [i8; 4],
+        coords: &'a [[i32; 3]],
+        cut: &'a dyn Fn(u32, u32) -> u32,
+    ) -> Self {
+        let black = TET_EDGES
+            .iter()
+            .map(|&(i, j)| lattice_len2(coords, t[i], t[j]))
+            .max()
+            .unwrap_or(0);
+        Self {
+            t,
+            s,
+            coords,
+            cut,
+            black,
+        }
     }
 
-    fn max_len2(&self) -> i64 {
-        let t = self.t;
-        super::TET_EDGES
-            .iter()
-            .map(|&(i, j)| self.len2(t[i], t[j]))
-            .max()
-            .unwrap_or(0)
+    fn len2(&self, a: u32, b: u32) -> i64 {
+        lattice_len2(self.coords, a, b)
     }
 
     /// The diagonal splitting the quadrilateral on face `(a, b, apex)`, where
     /// `a`, `b` are inside and `apex` outside (see the module docs).
     pub fn face_diagonal(&self, a: u32, b: u32, apex: u32) -> (u32, u32) {
-        let black = self.max_len2();
+        let black = self.black;
         let (a, b) = if a < b { (a, b) } else { (b, a) };
         let cut = self.cut;
         if self.len2(apex, a) == black {
@@ -106,8 +116,7 @@ impl BccTet<'_> {
                 let d2 = self.face_diagonal(a, b, d);
                 // Prefer the surface diagonal joining the cut points on black
                 // edges; the other one when that leaves the prism cyclic.
-                let black = self.max_len2();
-                let first = if self.len2(a, d) == black {
+                let first = if self.len2(a, d) == self.black {
                     (ad, bc)
                 } else {
                     (ac, bd)
@@ -269,7 +278,7 @@ mod tests {
         let n = coords.len() as u32;
         let mut edges = std::collections::HashMap::new();
         for t in &tets {
-            for &(i, j) in &super::super::TET_EDGES {
+            for &(i, j) in &TET_EDGES {
                 let k = (t[i].min(t[j]), t[i].max(t[j]));
                 let len = edges.len() as u32;
                 edges.entry(k).or_insert(n + len);
@@ -315,12 +324,7 @@ mod tests {
             let mut faces: std::collections::HashMap<[u32; 3], u32> = Default::default();
             for t in &tets {
                 let s = t.map(|v| signs[v as usize]);
-                let bt = BccTet {
-                    t: *t,
-                    s,
-                    coords: &coords,
-                    cut: &cut,
-                };
+                let bt = BccTet::new(*t, s, &coords, &cut);
                 let mut out = vec![];
                 bt.stencil(false, &mut out);
                 for o in &out {

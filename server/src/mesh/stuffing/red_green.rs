@@ -289,10 +289,13 @@ impl Background {
         lat: &Lattice,
         size: &dyn SizeField,
     ) -> Result<Self, StuffingError> {
+        // The coarse lattice and the field at midpoints are the same on every
+        // restart: built and evaluated once.
+        let coarse = Background::new(sdf, lat)?;
         let mut forced: HashSet<TetKey> = HashSet::new();
         let mut cache: HashMap<[i32; 3], f64> = HashMap::new();
         for _ in 0..MAX_RESTARTS {
-            match Self::red_green_once(sdf, lat, size, &forced, &mut cache)? {
+            match Self::red_green_once(coarse.clone(), sdf, lat, size, &forced, &mut cache) {
                 Ok(bg) => return Ok(bg),
                 Err(more) => {
                     let before = forced.len();
@@ -308,15 +311,16 @@ impl Background {
         })
     }
 
-    /// One construction; `Err(keys)` names tetrahedra that must be refined.
+    /// One construction from the coarse lattice `bg`; `Err(keys)` names
+    /// tetrahedra that must be refined.
     fn red_green_once(
+        mut bg: Background,
         sdf: &dyn Sdf,
         lat: &Lattice,
         size: &dyn SizeField,
         forced: &HashSet<TetKey>,
         cache: &mut HashMap<[i32; 3], f64>,
-    ) -> Result<Result<Self, Vec<TetKey>>, StuffingError> {
-        let mut bg = Background::new(sdf, lat)?;
+    ) -> Result<Self, Vec<TetKey>> {
         let h = lat.spacing;
         let mut active = std::mem::take(&mut bg.tets);
         let mut b = Build {
@@ -358,23 +362,26 @@ impl Background {
                     forced.contains(&k)
                 })
                 .collect();
-            // Green closure, to a fixed point.
+            // Green closure, to a fixed point: a tetrahedron turned red marks
+            // its edges at once.
             let mut marked: HashSet<u64> = HashSet::new();
-            loop {
-                for (t, _) in active.iter().zip(&red).filter(|(_, r)| **r) {
-                    for &(i, j) in &TET_EDGES {
-                        marked.insert(edge_key(t[i], t[j]));
-                    }
+            let mark = |t: &[u32; 4], marked: &mut HashSet<u64>| {
+                for &(i, j) in &TET_EDGES {
+                    marked.insert(edge_key(t[i], t[j]));
                 }
-                let mut changed = false;
+            };
+            for (t, _) in active.iter().zip(&red).filter(|(_, r)| **r) {
+                mark(t, &mut marked);
+            }
+            let mut changed = true;
+            while changed {
+                changed = false;
                 for (k, t) in active.iter().enumerate() {
                     if !red[k] && closure(t, &marked) == Closure::Red {
                         red[k] = true;
+                        mark(t, &mut marked);
                         changed = true;
                     }
-                }
-                if !changed {
-                    break;
                 }
             }
             // A red tetrahedron may not split an edge of a coarser leaf.
@@ -386,12 +393,12 @@ impl Background {
             if !violations.is_empty() {
                 violations.sort_unstable();
                 violations.dedup();
-                return Ok(Err(violations));
+                return Err(violations);
             }
-            let mut edges: Vec<u64> = marked.into_iter().collect();
+            // Midpoints in key order, so node ids do not depend on hashing.
+            let mut edges: Vec<u64> = marked.iter().copied().collect();
             edges.sort_unstable();
             b.add_midpoints(&edges);
-            let marked: HashSet<u64> = edges.into_iter().collect();
             let mut next = Vec::with_capacity(active.len() * 4);
             for (k, t) in active.iter().enumerate() {
                 if red[k] {
@@ -440,13 +447,13 @@ impl Background {
         if !violations.is_empty() {
             violations.sort_unstable();
             violations.dedup();
-            return Ok(Err(violations));
+            return Err(violations);
         }
         let mut bg = b.bg;
         bg.bcc = leaves.iter().map(|l| l.1).collect();
         bg.tets = leaves.into_iter().map(|l| l.0).collect();
         bg.parity = true;
-        Ok(Ok(bg))
+        Ok(bg)
     }
 }
 
