@@ -22,7 +22,9 @@
 
 use super::assembly::node_vec;
 use super::constraint::{Constraint, StepRows};
-use super::factor::SparseLlt;
+use super::contact::{self, CompliancePatch, ContactAnswer, ContactRow};
+use super::factor::{SharedFactor, SparseLlt};
+use super::lcp::{ContactSolver, RowKind, Tolerances};
 use super::model::Model;
 use super::par::{Par, for_each_chunk};
 use super::{DeformationSolver, LocalModel, Prescribed, Solution, SolveError};
@@ -30,8 +32,83 @@ use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::llt;
 use faer::{Mat, MatMut};
 use nalgebra::{DMatrix, Vector3};
+use std::sync::{Arc, mpsc};
 
 const NONE: u32 = u32::MAX;
+
+/// When a contact solve or a compliance patch needs the columns of a node
+/// that are not cached.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ColumnPolicy {
+    /// Solve for them at once, on the calling thread (deterministic: every
+    /// call sees every column it needs; the default).
+    #[default]
+    Compute,
+    /// Ask a background thread for them and go on without: a contact row
+    /// on such a node is left out ([`ContactAnswer::pending`]) and a patch
+    /// lacks the node, until a later call finds the columns cached. No
+    /// call waits for columns.
+    Defer,
+}
+
+/// A thread that solves for columns of `K0^-1` in the background: it takes
+/// lists of nodes and returns each node's three full columns.
+struct ColumnWorker {
+    tx: Option<mpsc::Sender<Vec<u32>>>,
+    rx: mpsc::Receiver<(u32, Vec<f64>)>,
+    handle: Option<std::thread::JoinHandle<()>>,
+}
+
+/// Nodes a background solve takes at once (48 right-hand sides).
+const WORKER_BATCH: usize = 16;
+
+impl ColumnWorker {
+    fn spawn(factor: SharedFactor, on_start: Option<Arc<dyn Fn() + Send + Sync>>) -> Option<Self> {
+        let (tx, jobs) = mpsc::channel::<Vec<u32>>();
+        let (done, rx) = mpsc::channel();
+        let handle = std::thread::Builder::new()
+            .name("compliance-columns".into())
+            .spawn(move || {
+                if let Some(f) = on_start {
+                    f();
+                }
+                let n_dofs = factor.nrows();
+                while let Ok(nodes) = jobs.recv() {
+                    for chunk in nodes.chunks(WORKER_BATCH) {
+                        let ncols = 3 * chunk.len();
+                        let mut block = vec![0.0; n_dofs * ncols];
+                        for (k, &n) in chunk.iter().enumerate() {
+                            for a in 0..3 {
+                                block[(3 * k + a) * n_dofs + 3 * n as usize + a] = 1.0;
+                            }
+                        }
+                        factor.solve_many(&mut block, ncols);
+                        for (k, &n) in chunk.iter().enumerate() {
+                            let cols = block[3 * k * n_dofs..3 * (k + 1) * n_dofs].to_vec();
+                            if done.send((n, cols)).is_err() {
+                                return;
+                            }
+                        }
+                    }
+                }
+            })
+            .ok()?;
+        Some(Self {
+            tx: Some(tx),
+            rx,
+            handle: Some(handle),
+        })
+    }
+}
+
+impl Drop for ColumnWorker {
+    fn drop(&mut self) {
+        self.tx = None;
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
+        }
+    }
+}
 
 /// Default memory bound of the column cache, bytes: each cached contact node
 /// holds `3 x 3 x recovered nodes` values (`72 x recovered` bytes; 0.86 MB
@@ -86,6 +163,25 @@ pub struct Compliance {
     support_elems: Vec<usize>,
     fixed_index: Vec<u32>,
     prepared: bool,
+    policy: ColumnPolicy,
+    worker: Option<ColumnWorker>,
+    worker_start: Option<Arc<dyn Fn() + Send + Sync>>,
+    /// Per node: asked of the worker, not received yet.
+    asked: Vec<bool>,
+    /// Per node: listed in `missing` (deduplication).
+    listed: Vec<bool>,
+    // Contact solve buffers.
+    c_nodes: Vec<u32>,
+    c_slot: Vec<u32>,
+    c_force: Vec<Vector3<f64>>,
+    inc: Vec<usize>,
+    inc_of: Vec<u32>,
+    inc_by_node: Vec<Vec<usize>>,
+    w: Vec<f64>,
+    q: Vec<f64>,
+    kinds: Vec<RowKind>,
+    lam: Vec<f64>,
+    lcp: ContactSolver,
 }
 
 impl std::fmt::Debug for Compliance {
@@ -202,6 +298,22 @@ impl Compliance {
             support_elems,
             fixed_index,
             prepared: false,
+            policy: ColumnPolicy::Compute,
+            worker: None,
+            worker_start: None,
+            asked: vec![false; n_nodes],
+            listed: vec![false; n_nodes],
+            c_nodes: Vec::new(),
+            c_slot: vec![NONE; n_nodes],
+            c_force: Vec::new(),
+            inc: Vec::new(),
+            inc_of: Vec::new(),
+            inc_by_node: Vec::new(),
+            w: Vec::new(),
+            q: Vec::new(),
+            kinds: Vec::new(),
+            lam: Vec::new(),
+            lcp: ContactSolver::new(),
             rec_nodes,
             rec_of,
             factor,
@@ -302,24 +414,126 @@ impl Compliance {
         b
     }
 
-    /// Marks the step's cached nodes as used, then solves for and caches
-    /// the columns of the step nodes not yet cached, evicting the least
-    /// recently used nodes beyond the cache bound.
+    /// Marks the step's nodes as used and computes the columns of those not
+    /// cached (the equality path always computes).
     fn fill_cache(&mut self) {
+        let nodes = std::mem::take(&mut self.rows.nodes);
         self.stamp += 1;
+        self.use_columns(&nodes, ColumnPolicy::Compute);
+        self.rows.nodes = nodes;
+    }
+
+    /// How contact solves and patches get columns they lack (default
+    /// [`ColumnPolicy::Compute`]). `on_worker_start` runs first on the
+    /// background thread of [`ColumnPolicy::Defer`] (e.g. to lower its
+    /// priority below the loops').
+    pub fn set_column_policy(
+        &mut self,
+        policy: ColumnPolicy,
+        on_worker_start: Option<Arc<dyn Fn() + Send + Sync>>,
+    ) {
+        self.policy = policy;
+        self.worker_start = on_worker_start;
+        if policy == ColumnPolicy::Compute {
+            self.worker = None;
+            self.asked.fill(false);
+        }
+    }
+
+    /// The column policy.
+    pub fn column_policy(&self) -> ColumnPolicy {
+        self.policy
+    }
+
+    /// Takes the columns the background worker finished into the cache.
+    fn receive_columns(&mut self) {
+        let Some(worker) = self.worker.as_ref() else {
+            return;
+        };
+        let got: Vec<(u32, Vec<f64>)> = worker.rx.try_iter().collect();
+        let n_dofs = self.model.pattern.n_dofs;
+        let n3 = self.nrec3();
+        for (n, cols) in got {
+            self.asked[n as usize] = false;
+            if self.cache_slot[n as usize] != NONE {
+                continue;
+            }
+            let s = self.take_slot();
+            self.cache_slot[n as usize] = s as u32;
+            self.slot_node[s] = n;
+            // Not used by the current step: first in line for eviction
+            // after the step's own nodes.
+            self.slot_stamp[s] = self.stamp.saturating_sub(1);
+            for a in 0..3 {
+                let col = &cols[a * n_dofs..(a + 1) * n_dofs];
+                let dst = &mut self.cols[(3 * s + a) * n3..(3 * s + a + 1) * n3];
+                for (d, &r) in dst.chunks_exact_mut(3).zip(&self.rec_nodes) {
+                    let r = 3 * r as usize;
+                    d.copy_from_slice(&col[r..r + 3]);
+                }
+            }
+        }
+    }
+
+    /// Asks the background worker for the columns of `nodes` (not cached,
+    /// not asked yet).
+    fn ask(&mut self, nodes: &[u32]) {
+        let todo: Vec<u32> = nodes
+            .iter()
+            .copied()
+            .filter(|&n| self.cache_slot[n as usize] == NONE && !self.asked[n as usize])
+            .collect();
+        if todo.is_empty() {
+            return;
+        }
+        if self.worker.is_none() {
+            self.worker = ColumnWorker::spawn(self.factor.share(), self.worker_start.clone());
+        }
+        let sent = self
+            .worker
+            .as_ref()
+            .and_then(|w| w.tx.as_ref())
+            .is_some_and(|tx| tx.send(todo.clone()).is_ok());
+        if sent {
+            for n in todo {
+                self.asked[n as usize] = true;
+            }
+        }
+    }
+
+    /// Marks `nodes` as used by the current step (call after bumping
+    /// `stamp` once per step) and makes their columns available: solved now
+    /// ([`ColumnPolicy::Compute`]), or asked of the worker
+    /// ([`ColumnPolicy::Defer`]; those stay uncached on return).
+    fn use_columns(&mut self, nodes: &[u32], policy: ColumnPolicy) {
+        self.receive_columns();
         self.missing.clear();
-        for &n in &self.rows.nodes {
+        for &n in nodes {
             match self.cache_slot[n as usize] {
-                NONE => self.missing.push(n),
+                NONE => {
+                    if !self.listed[n as usize] {
+                        self.listed[n as usize] = true;
+                        self.missing.push(n);
+                    }
+                }
                 s => self.slot_stamp[s as usize] = self.stamp,
             }
         }
-        if self.missing.is_empty() {
+        let missing = std::mem::take(&mut self.missing);
+        for &n in &missing {
+            self.listed[n as usize] = false;
+        }
+        if missing.is_empty() {
+            self.missing = missing;
+            return;
+        }
+        if policy == ColumnPolicy::Defer {
+            self.ask(&missing);
+            self.missing = missing;
             return;
         }
         let n_dofs = self.model.pattern.n_dofs;
         let n3 = self.nrec3();
-        let missing = std::mem::take(&mut self.missing);
         // In batches, to bound the dense right-hand-side block.
         for chunk in missing.chunks(64) {
             let ncols = 3 * chunk.len();
@@ -443,9 +657,9 @@ impl Compliance {
     /// (recovered rows, length `3 x recovered`), by row blocks that stay in
     /// cache (in parallel under `Par::Rayon`; each row sums the columns in
     /// the same order whatever the parallelism).
-    fn combine(&self, r: &[Vector3<f64>], sign: f64, out: &mut [f64]) {
+    fn combine(&self, nodes: &[u32], r: &[Vector3<f64>], sign: f64, out: &mut [f64]) {
         let n3 = self.nrec3();
-        let (nodes, slots, cols) = (&self.rows.nodes, &self.cache_slot, &self.cols);
+        let (slots, cols) = (&self.cache_slot, &self.cols);
         for_each_chunk(self.par, out, 1, 4096, |first, o| {
             for (k, &n) in nodes.iter().enumerate() {
                 let s = slots[n as usize] as usize;
@@ -475,15 +689,29 @@ impl Compliance {
     /// single precision (half the memory traffic, so it wins from half the
     /// combine cost).
     fn add_response(&mut self, r: &[Vector3<f64>], sign: f64, out: &mut [f64], approximate: bool) {
+        let nodes = std::mem::take(&mut self.rows.nodes);
+        self.add_response_at(&nodes, r, sign, out, approximate);
+        self.rows.nodes = nodes;
+    }
+
+    /// [`Self::add_response`] for the forces `r` at `nodes` (cached).
+    fn add_response_at(
+        &mut self,
+        nodes: &[u32],
+        r: &[Vector3<f64>],
+        sign: f64,
+        out: &mut [f64],
+        approximate: bool,
+    ) {
         let single = approximate && self.factor.has_single();
-        let combine_cost = 3 * self.rows.nodes.len() * self.nrec3();
+        let combine_cost = 3 * nodes.len() * self.nrec3();
         let solve_cost = if single { 1 } else { 2 } * self.factor.factor_nnz();
         if self.full.is_empty() || combine_cost <= solve_cost {
-            self.combine(r, sign, out);
+            self.combine(nodes, r, sign, out);
             return;
         }
         self.full.fill(0.0);
-        for (k, &n) in self.rows.nodes.iter().enumerate() {
+        for (k, &n) in nodes.iter().enumerate() {
             let n = 3 * n as usize;
             for a in 0..3 {
                 self.full[n + a] = sign * r[k][a];
@@ -556,7 +784,13 @@ impl Compliance {
         );
         self.local.reactions.clear();
         self.local.reactions.extend_from_slice(&self.node_reaction);
-        // Support reactions need every node's displacement.
+        self.update_support_reactions();
+        Ok(&self.solution)
+    }
+
+    /// Support reactions of the solution (they need every node's
+    /// displacement: empty unless every node is recovered).
+    fn update_support_reactions(&mut self) {
         self.support_reactions.clear();
         if self.rec_nodes.len() == self.model.n_nodes() {
             self.support_reactions
@@ -577,7 +811,6 @@ impl Compliance {
                 }
             }
         }
-        Ok(&self.solution)
     }
 
     /// Prepares a step (for a caller that applies the constrained inverse
@@ -646,6 +879,211 @@ impl Compliance {
     }
 }
 
+impl Compliance {
+    /// The Delassus solve of a contact problem ([`super::contact`],
+    /// [`super::lcp`]): `W = H C H^T` from the cached columns, the
+    /// complementarity problem, then `u = C H^T lambda`.
+    fn contact_solve(
+        &mut self,
+        rows: &[ContactRow],
+        answer: &mut ContactAnswer,
+    ) -> Result<(), SolveError> {
+        let n_nodes = self.model.n_nodes();
+        contact::validate_rows(rows, n_nodes, true)?;
+        for (i, r) in rows.iter().enumerate() {
+            let b = 3 * r.node as usize;
+            if self.model.support[b..b + 3].iter().any(|&f| f) {
+                return Err(SolveError::BadConstraint {
+                    node: r.node,
+                    reason: format!("contact row {i}: the node is a fixed support"),
+                });
+            }
+            if self.rec_of[r.node as usize] == NONE {
+                return Err(SolveError::BadConstraint {
+                    node: r.node,
+                    reason: format!(
+                        "contact row {i}: the node is not among the recovered nodes of this compliance solver"
+                    ),
+                });
+            }
+        }
+        for &n in &self.c_nodes {
+            self.c_slot[n as usize] = NONE;
+        }
+        self.c_nodes.clear();
+        for r in rows {
+            if self.c_slot[r.node as usize] == NONE {
+                self.c_slot[r.node as usize] = self.c_nodes.len() as u32;
+                self.c_nodes.push(r.node);
+            }
+        }
+        self.stamp += 1;
+        let nodes = std::mem::take(&mut self.c_nodes);
+        self.use_columns(&nodes, self.policy);
+        self.c_nodes = nodes;
+        // Rows whose node has its columns take part; the others wait.
+        answer.pending.clear();
+        self.inc.clear();
+        self.inc_of.clear();
+        self.inc_of.resize(rows.len(), NONE);
+        if self.inc_by_node.len() < self.c_nodes.len() {
+            self.inc_by_node.resize_with(self.c_nodes.len(), Vec::new);
+        }
+        for v in &mut self.inc_by_node[..self.c_nodes.len()] {
+            v.clear();
+        }
+        for (i, r) in rows.iter().enumerate() {
+            if self.cache_slot[r.node as usize] == NONE {
+                answer.pending.push(i as u32);
+                continue;
+            }
+            self.inc_of[i] = self.inc.len() as u32;
+            self.inc_by_node[self.c_slot[r.node as usize] as usize].push(self.inc.len());
+            self.inc.push(i);
+        }
+        let n = self.inc.len();
+        self.w.clear();
+        self.w.resize(n * n, 0.0);
+        for si in 0..self.c_nodes.len() {
+            if self.inc_by_node[si].is_empty() {
+                continue;
+            }
+            for sj in 0..=si {
+                if self.inc_by_node[sj].is_empty() {
+                    continue;
+                }
+                let b = self.block(self.c_nodes[si], self.c_nodes[sj]);
+                for &a in &self.inc_by_node[si] {
+                    let da = rows[self.inc[a]].dir;
+                    let bt = b.transpose() * da;
+                    for &c in &self.inc_by_node[sj] {
+                        if si == sj && c > a {
+                            continue;
+                        }
+                        let v = bt.dot(&rows[self.inc[c]].dir);
+                        self.w[a * n + c] = v;
+                        self.w[c * n + a] = v;
+                    }
+                }
+            }
+        }
+        self.q.clear();
+        self.kinds.clear();
+        self.lam.clear();
+        let warm = answer.multipliers.len() == rows.len();
+        for &i in &self.inc {
+            let r = &rows[i];
+            self.q.push(r.gap_free_m);
+            self.kinds.push(match r.kind {
+                RowKind::Tangent { normal, mu } => RowKind::Tangent {
+                    normal: self.inc_of[normal as usize],
+                    mu,
+                },
+                k => k,
+            });
+            self.lam
+                .push(if warm { answer.multipliers[i] } else { 0.0 });
+        }
+        self.lcp.forget();
+        let tol = Tolerances::for_gaps(&self.q, &self.kinds);
+        let report = self
+            .lcp
+            .solve(&self.w, n, &self.q, &self.kinds, &mut self.lam, &tol)?;
+        // Node forces and the response.
+        self.c_force.clear();
+        self.c_force.resize(self.c_nodes.len(), Vector3::zeros());
+        for (a, &i) in self.inc.iter().enumerate() {
+            let r = &rows[i];
+            self.c_force[self.c_slot[r.node as usize] as usize] += r.dir * self.lam[a];
+        }
+        let mut u = std::mem::take(&mut self.u_rec);
+        u.fill(0.0);
+        let (nodes, force) = (
+            std::mem::take(&mut self.c_nodes),
+            std::mem::take(&mut self.c_force),
+        );
+        // Pending nodes have no columns: they carry no force.
+        let cached: Vec<(u32, Vector3<f64>)> = nodes
+            .iter()
+            .zip(&force)
+            .filter(|(n, _)| self.cache_slot[**n as usize] != NONE)
+            .map(|(n, f)| (*n, *f))
+            .collect();
+        let (cn, cf): (Vec<u32>, Vec<Vector3<f64>>) = cached.into_iter().unzip();
+        self.add_response_at(&cn, &cf, 1.0, &mut u, false);
+        self.c_nodes = nodes;
+        self.c_force = force;
+        if !u.iter().all(|v| v.is_finite()) {
+            self.u_rec = u;
+            return Err(SolveError::NonFinite("recovered displacement".into()));
+        }
+        self.u_rec = u;
+        for (i, &nd) in self.rec_nodes.iter().enumerate() {
+            self.solution.displacements[nd as usize] = node_vec(&self.u_rec, i);
+        }
+        answer.multipliers.clear();
+        answer.multipliers.resize(rows.len(), 0.0);
+        self.solution.reactions.clear();
+        self.solution.reactions.resize(rows.len(), Vector3::zeros());
+        for (a, &i) in self.inc.iter().enumerate() {
+            answer.multipliers[i] = self.lam[a];
+            self.solution.reactions[i] = rows[i].dir * self.lam[a];
+        }
+        answer.report = report;
+        answer.rounds = 1;
+        self.solution.iterations = 1;
+        self.update_support_reactions();
+        Ok(())
+    }
+
+    /// The compliance blocks over `nodes` ([`CompliancePatch`]); nodes
+    /// without columns are computed or left out by the column policy.
+    fn patch(&mut self, nodes: &[u32], patch: &mut CompliancePatch) {
+        self.stamp += 1;
+        let mut distinct: Vec<u32> = Vec::with_capacity(nodes.len());
+        for &n in nodes {
+            if (n as usize) < self.model.n_nodes()
+                && self.rec_of[n as usize] != NONE
+                && !self.listed[n as usize]
+            {
+                self.listed[n as usize] = true;
+                distinct.push(n);
+            }
+        }
+        for &n in &distinct {
+            self.listed[n as usize] = false;
+        }
+        self.use_columns(&distinct, self.policy);
+        patch.nodes.clear();
+        patch.nodes.extend(
+            distinct
+                .iter()
+                .copied()
+                .filter(|&n| self.cache_slot[n as usize] != NONE),
+        );
+        let m = patch.nodes.len();
+        let m3 = 3 * m;
+        patch.blocks.clear();
+        patch.blocks.resize(m3 * m3, 0.0);
+        for i in 0..m {
+            for j in 0..=i {
+                let b = self.block(patch.nodes[i], patch.nodes[j]);
+                for a in 0..3 {
+                    for c in 0..3 {
+                        patch.blocks[(3 * i + a) * m3 + 3 * j + c] = b[(a, c)];
+                        patch.blocks[(3 * j + c) * m3 + 3 * i + a] = b[(a, c)];
+                    }
+                }
+            }
+        }
+        patch.free_positions.clear();
+        patch
+            .free_positions
+            .extend(patch.nodes.iter().map(|&n| self.model.rest[n as usize]));
+        patch.linear = true;
+    }
+}
+
 impl DeformationSolver for Compliance {
     fn name(&self) -> &'static str {
         "compliance"
@@ -671,5 +1109,34 @@ impl DeformationSolver for Compliance {
 
     fn last_solution(&self) -> Option<&Solution> {
         Some(&self.solution)
+    }
+
+    fn node_count(&self) -> usize {
+        self.model.n_nodes()
+    }
+
+    fn solve_contact(
+        &mut self,
+        rows: &[ContactRow],
+        answer: &mut ContactAnswer,
+    ) -> Result<(), SolveError> {
+        self.contact_solve(rows, answer)
+    }
+
+    fn compliance_patch(&mut self, nodes: &[u32], patch: &mut CompliancePatch) -> bool {
+        self.patch(nodes, patch);
+        true
+    }
+
+    fn prefetch(&mut self, nodes: &[u32]) {
+        if self.policy == ColumnPolicy::Defer {
+            self.receive_columns();
+            let nodes: Vec<u32> = nodes
+                .iter()
+                .copied()
+                .filter(|&n| (n as usize) < self.model.n_nodes() && self.rec_of[n as usize] != NONE)
+                .collect();
+            self.ask(&nodes);
+        }
     }
 }

@@ -587,6 +587,10 @@ impl DeformationSolver for Corotational {
         &self.support_reactions
     }
 
+    fn node_count(&self) -> usize {
+        self.lin.model().n_nodes()
+    }
+
     fn last_solution(&self) -> Option<&Solution> {
         Some(&self.solution)
     }

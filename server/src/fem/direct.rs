@@ -131,6 +131,10 @@ impl DeformationSolver for Direct {
         &self.support_reactions
     }
 
+    fn node_count(&self) -> usize {
+        self.model.n_nodes()
+    }
+
     fn last_solution(&self) -> Option<&Solution> {
         Some(&self.solution)
     }

@@ -11,11 +11,12 @@ use faer::linalg::cholesky::llt::factor::LltRegularization;
 use faer::sparse::SparseColMatRef;
 use faer::sparse::linalg::cholesky::{LltRef, SymbolicCholesky, factorize_symbolic_cholesky};
 use faer::{Conj, MatMut, Par, Side};
+use std::sync::Arc;
 
 /// A reusable sparse Cholesky factorization.
 pub struct SparseLlt {
-    symbolic: SymbolicCholesky<usize>,
-    l_values: Vec<f64>,
+    symbolic: Arc<SymbolicCholesky<usize>>,
+    l_values: Arc<Vec<f64>>,
     factor_buf: MemBuffer,
     solve_buf: MemBuffer,
     factored: bool,
@@ -47,9 +48,9 @@ impl SparseLlt {
             symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()),
         );
         let solve_buf = MemBuffer::new(symbolic.solve_in_place_scratch::<f64>(1, Par::Seq));
-        let l_values = vec![0.0; symbolic.len_val()];
+        let l_values = Arc::new(vec![0.0; symbolic.len_val()]);
         Ok(Self {
-            symbolic,
+            symbolic: Arc::new(symbolic),
             l_values,
             factor_buf,
             solve_buf,
@@ -126,7 +127,7 @@ impl SparseLlt {
         let a = SparseColMatRef::new(pattern.symbolic(), values);
         self.symbolic
             .factorize_numeric_llt(
-                &mut self.l_values,
+                Arc::make_mut(&mut self.l_values).as_mut_slice(),
                 a,
                 Side::Lower,
                 LltRegularization::default(),
@@ -158,6 +159,45 @@ impl SparseLlt {
     /// major in `rhs` (allocates a workspace for the block).
     pub fn solve_many(&self, rhs: &mut [f64], ncols: usize) {
         debug_assert!(self.factored);
+        self.share().solve_many(rhs, ncols);
+    }
+
+    /// A read-only handle on the factor for another thread (shares the
+    /// values: no copy). A later [`SparseLlt::factorize`] copies them
+    /// first, so the handle keeps the factor it was made from.
+    pub fn share(&self) -> SharedFactor {
+        debug_assert!(self.factored);
+        SharedFactor {
+            symbolic: self.symbolic.clone(),
+            l_values: self.l_values.clone(),
+        }
+    }
+}
+
+/// A factor shared read-only between threads ([`SparseLlt::share`]).
+#[derive(Clone)]
+pub struct SharedFactor {
+    symbolic: Arc<SymbolicCholesky<usize>>,
+    l_values: Arc<Vec<f64>>,
+}
+
+impl std::fmt::Debug for SharedFactor {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SharedFactor")
+            .field("n", &self.symbolic.nrows())
+            .finish()
+    }
+}
+
+impl SharedFactor {
+    /// Rows of the factored matrix.
+    pub fn nrows(&self) -> usize {
+        self.symbolic.nrows()
+    }
+
+    /// Solves `A X = B` in place for `ncols` right-hand sides stored column
+    /// major in `rhs` (allocates a workspace for the block).
+    pub fn solve_many(&self, rhs: &mut [f64], ncols: usize) {
         let n = self.symbolic.nrows();
         let mat = MatMut::from_column_major_slice_mut(rhs, n, ncols);
         let mut buf = MemBuffer::new(self.symbolic.solve_in_place_scratch::<f64>(ncols, Par::Seq));

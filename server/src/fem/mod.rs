@@ -10,10 +10,12 @@
 pub mod assembly;
 pub mod compliance;
 pub mod constraint;
+pub mod contact;
 pub mod corotational;
 pub mod direct;
 pub mod element;
 pub mod factor;
+pub mod lcp;
 pub mod model;
 pub mod neo_hookean;
 pub mod par;
@@ -22,6 +24,8 @@ pub mod roi;
 pub mod skull;
 
 pub use constraint::{Constraint, ConstraintKind};
+pub use contact::{CompliancePatch, ContactAnswer, ContactRow};
+pub use lcp::RowKind;
 pub use model::AxisSupport;
 pub use par::Par;
 
@@ -88,6 +92,9 @@ pub enum SolveError {
     /// The model cannot be built (material out of range, degenerate element).
     #[error("invalid model: {0}")]
     InvalidModel(String),
+    /// The contact problem could not be solved.
+    #[error(transparent)]
+    Contact(#[from] lcp::LcpError),
 }
 
 /// The local model of the last deformation step, used by the force loop to
@@ -152,6 +159,33 @@ pub trait DeformationSolver: Send {
     fn last_solution(&self) -> Option<&Solution> {
         None
     }
+    /// Number of volume nodes of the model.
+    fn node_count(&self) -> usize;
+    /// Solves the contact problem `rows` ([`contact`]): unilateral,
+    /// bilateral and (strategies with a compliance operator) frictional
+    /// rows. On return [`Self::last_solution`] holds the displacements and
+    /// `answer` the multipliers. The default runs rounds of
+    /// [`Self::solve_constraints`] ([`contact::solve_by_active_set`]). On
+    /// error the previous solution stays.
+    fn solve_contact(
+        &mut self,
+        rows: &[ContactRow],
+        answer: &mut ContactAnswer,
+    ) -> Result<(), SolveError> {
+        let n = self.node_count();
+        contact::solve_by_active_set(self, rows, n, answer)
+    }
+    /// Fills `patch` with the compliance blocks over `nodes` (those whose
+    /// compliance is available; see [`CompliancePatch`]) for the force
+    /// loop's local contact problem. `false` (the default) when the
+    /// strategy has no compliance operator.
+    fn compliance_patch(&mut self, _nodes: &[u32], _patch: &mut CompliancePatch) -> bool {
+        false
+    }
+    /// Asks for the compliance of `nodes` ahead of their contact (computed
+    /// in the background where the strategy defers it). The default does
+    /// nothing.
+    fn prefetch(&mut self, _nodes: &[u32]) {}
 }
 
 /// The solver strategies, named as in scene files.

@@ -380,6 +380,10 @@ impl DeformationSolver for NeoHookean {
         &self.support_reactions
     }
 
+    fn node_count(&self) -> usize {
+        self.model.n_nodes()
+    }
+
     fn last_solution(&self) -> Option<&Solution> {
         Some(&self.solution)
     }

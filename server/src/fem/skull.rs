@@ -233,6 +233,10 @@ impl DeformationSolver for SkullSolver {
         self.inner.support_reactions()
     }
 
+    fn node_count(&self) -> usize {
+        self.inner.node_count()
+    }
+
     fn last_solution(&self) -> Option<&Solution> {
         Some(&self.solution)
     }

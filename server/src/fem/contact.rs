@@ -1,0 +1,361 @@
+//! The contact problem of a deformation step in the solver's terms
+//! (DESIGN.md section 3b): rows `g = gap_free + dir . u_node` (m) on volume
+//! nodes, each unilateral (Signorini), bilateral (an enforced value) or a
+//! tangent row of a frictional contact, and their multipliers (N, the force
+//! a row applies to the tissue along `dir`).
+//!
+//! [`DeformationSolver::solve_contact`](super::DeformationSolver::solve_contact)
+//! solves it. Strategies with a compliance operator (`compliance`) solve it
+//! on the Delassus operator `W = H C H^T` ([`super::lcp`]); the others use
+//! [`solve_by_active_set`]: rounds of equality solves
+//! ([`DeformationSolver::solve_constraints`](super::DeformationSolver::solve_constraints))
+//! with the working set's rows as normal constraints, adding every row whose
+//! gap is negative and releasing every unilateral row whose multiplier pulls
+//! (a primal-dual active set; from the tenth round one row changes per
+//! round, the worst, so that it cannot cycle). For a nonlinear strategy
+//! the gaps come from its nonlinear solution: each round is a full solve.
+//! Friction needs the compliance operator.
+
+// Negated comparisons are deliberate: NaN must fail the checks.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
+pub use super::lcp::{Report, RowKind, Tolerances};
+use super::{Constraint, ConstraintKind, DeformationSolver, SolveError};
+use nalgebra::{Matrix3, Point3, Vector3};
+
+/// One row of a contact problem.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ContactRow {
+    /// Volume node.
+    pub node: u32,
+    /// Unit direction: the direction of the force the row applies to the
+    /// tissue, and of the gap (`g = gap_free_m + dir . u`).
+    pub dir: Vector3<f64>,
+    /// The gap at zero displacement, m (negative: the node's rest position
+    /// violates the row).
+    pub gap_free_m: f64,
+    /// What the row constrains.
+    pub kind: RowKind,
+}
+
+/// The answer of a contact solve (buffers reused across steps).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ContactAnswer {
+    /// On entry, a warm start (one per row; any other length is a cold
+    /// start); on return, the multiplier of each row, N.
+    pub multipliers: Vec<f64>,
+    /// Rows left out of the solve because their node's compliance is not
+    /// computed yet (strategies that defer it): their multiplier is 0.
+    pub pending: Vec<u32>,
+    /// The final check of the conditions.
+    pub report: Report,
+    /// Equality solves (1 for a Delassus solve).
+    pub rounds: u32,
+}
+
+/// Compliance blocks over a set of nodes, for the force loop's local
+/// contact problem: `C[i][j]` (3 x 3, m/N) is the displacement of node `i`
+/// under a unit force at node `j`, in the tangent of the last step, and
+/// `free_positions[i]` the position node `i` would take with the contact
+/// forces of the last step removed (the rest position for linear
+/// strategies). Rows on these nodes then have gaps
+/// `g = dir . (free - point) + dir . (C f)`.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct CompliancePatch {
+    /// Nodes with blocks (of the nodes asked for, those whose compliance is
+    /// available), in block order.
+    pub nodes: Vec<u32>,
+    /// `3 m x 3 m`, row-major: entry `(3 i + a, 3 j + b)` is
+    /// `C[i][j][(a, b)]`.
+    pub blocks: Vec<f64>,
+    /// Per node, m.
+    pub free_positions: Vec<Point3<f64>>,
+    /// Whether the strategy is linear (then `free_positions` are the rest
+    /// positions and the blocks never change).
+    pub linear: bool,
+}
+
+impl CompliancePatch {
+    /// Block `(i, j)` (indices into `nodes`).
+    #[inline]
+    pub fn block(&self, i: usize, j: usize) -> Matrix3<f64> {
+        let m3 = 3 * self.nodes.len();
+        Matrix3::from_fn(|a, b| self.blocks[(3 * i + a) * m3 + 3 * j + b])
+    }
+}
+
+/// Checks rows for finiteness and unit directions; friction is refused
+/// unless `friction` is allowed.
+pub fn validate_rows(
+    rows: &[ContactRow],
+    n_nodes: usize,
+    friction: bool,
+) -> Result<(), SolveError> {
+    for (i, r) in rows.iter().enumerate() {
+        if r.node as usize >= n_nodes {
+            return Err(SolveError::BadConstraint {
+                node: r.node,
+                reason: format!("contact row {i}: out of range (the mesh has {n_nodes} nodes)"),
+            });
+        }
+        if !r.gap_free_m.is_finite() || !r.dir.iter().all(|v| v.is_finite()) {
+            return Err(SolveError::NonFinite(format!(
+                "contact row {i} on node {}",
+                r.node
+            )));
+        }
+        if (r.dir.norm() - 1.0).abs() > 1e-6 {
+            return Err(SolveError::BadConstraint {
+                node: r.node,
+                reason: format!(
+                    "contact row {i}: direction of length {}, not 1",
+                    r.dir.norm()
+                ),
+            });
+        }
+        if let RowKind::Tangent { normal, .. } = r.kind {
+            if !friction {
+                return Err(SolveError::InvalidModel(
+                    "Coulomb friction needs the compliance strategy".into(),
+                ));
+            }
+            if rows.get(normal as usize).is_none_or(|n| n.node != r.node) {
+                return Err(SolveError::BadConstraint {
+                    node: r.node,
+                    reason: format!(
+                        "contact row {i}: tangent of row {normal}, which is not a row of the same node"
+                    ),
+                });
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Most rounds of [`solve_by_active_set`].
+pub const MAX_ROUNDS: u32 = 60;
+
+/// The generic contact solve (module documentation): on return the
+/// solver's last solution holds the displacements and `answer` the
+/// multipliers.
+pub fn solve_by_active_set<S: DeformationSolver + ?Sized>(
+    solver: &mut S,
+    rows: &[ContactRow],
+    n_nodes: usize,
+    answer: &mut ContactAnswer,
+) -> Result<(), SolveError> {
+    validate_rows(rows, n_nodes, false)?;
+    let n = rows.len();
+    answer.pending.clear();
+    let cold = answer.multipliers.len() != n;
+    if cold {
+        answer.multipliers.clear();
+        answer.multipliers.resize(n, 0.0);
+    }
+    let q: Vec<f64> = rows.iter().map(|r| r.gap_free_m).collect();
+    let kinds: Vec<RowKind> = rows.iter().map(|r| r.kind).collect();
+    let tol = Tolerances::for_gaps(&q, &kinds);
+    let mut active: Vec<bool> = rows
+        .iter()
+        .zip(&answer.multipliers)
+        .map(|(r, &l)| match r.kind {
+            RowKind::Bilateral => true,
+            RowKind::Unilateral => {
+                if cold {
+                    r.gap_free_m < 0.0
+                } else {
+                    l > 0.0
+                }
+            }
+            _ => false,
+        })
+        .collect();
+    let mut grouping = NodeRows::default();
+    let mut cons = Vec::new();
+    let mut gaps = vec![0.0; n];
+    for round in 1..=MAX_ROUNDS {
+        grouping.build(rows, &active);
+        grouping.constraints(rows, &mut cons)?;
+        let sol = solver.solve_constraints(&cons)?;
+        grouping.multipliers(rows, &sol.reactions, &mut answer.multipliers);
+        for (i, r) in rows.iter().enumerate() {
+            let u = sol.displacements[r.node as usize];
+            gaps[i] = r.gap_free_m + r.dir.dot(&u);
+            if !active[i] {
+                answer.multipliers[i] = 0.0;
+            }
+        }
+        let scale = answer
+            .multipliers
+            .iter()
+            .fold(0.0f64, |m, v| m.max(v.abs()));
+        // Violations: a unilateral row pulling, a row held at zero with a
+        // negative gap.
+        let mut worst: Option<(usize, f64)> = None;
+        let mut changes = Vec::new();
+        for i in 0..n {
+            if rows[i].kind != RowKind::Unilateral {
+                continue;
+            }
+            let badness = if active[i] {
+                let l = answer.multipliers[i];
+                (l < -1e-12 * scale).then(|| -l / scale.max(f64::MIN_POSITIVE))
+            } else {
+                (gaps[i] < -tol.gap_m).then(|| -gaps[i] / tol.gap_m.max(f64::MIN_POSITIVE))
+            };
+            if let Some(b) = badness {
+                changes.push(i);
+                if worst.is_none_or(|(_, w)| b > w) {
+                    worst = Some((i, b));
+                }
+            }
+        }
+        if changes.is_empty() {
+            for (i, r) in rows.iter().enumerate() {
+                if r.kind == RowKind::Unilateral && answer.multipliers[i] < 0.0 {
+                    answer.multipliers[i] = 0.0;
+                }
+            }
+            answer.rounds = round;
+            answer.report = measure(rows, &answer.multipliers, &gaps);
+            return Ok(());
+        }
+        if round < 10 {
+            for i in changes {
+                active[i] = !active[i];
+            }
+        } else if let Some((i, _)) = worst {
+            active[i] = !active[i];
+        }
+    }
+    Err(SolveError::NotConverged {
+        iterations: MAX_ROUNDS,
+        residual: f64::NAN,
+    })
+}
+
+/// The report of an answer from its gaps.
+fn measure(rows: &[ContactRow], lambda: &[f64], gaps: &[f64]) -> Report {
+    let mut r = Report::default();
+    for (i, row) in rows.iter().enumerate() {
+        if lambda[i] != 0.0 {
+            r.active += 1;
+        }
+        match row.kind {
+            RowKind::Unilateral => {
+                r.max_gap_violation_m = r.max_gap_violation_m.max((-gaps[i]).max(0.0));
+                r.max_complementarity = r.max_complementarity.max((lambda[i] * gaps[i]).abs());
+            }
+            RowKind::Bilateral => {
+                r.max_gap_violation_m = r.max_gap_violation_m.max(gaps[i].abs());
+            }
+            _ => {}
+        }
+    }
+    r
+}
+
+/// The working set's rows grouped by node, with an orthonormal basis of
+/// each node's directions (Gram-Schmidt): the equality solve takes at most
+/// three mutually orthogonal rows a node.
+#[derive(Debug, Default)]
+struct NodeRows {
+    /// Distinct nodes of active rows, with the range of their rows in `order`.
+    nodes: Vec<(u32, usize, usize)>,
+    /// Active row indices grouped by node.
+    order: Vec<usize>,
+    /// Per entry of `order`: the basis vector and whether it is independent.
+    basis: Vec<(Vector3<f64>, bool)>,
+    /// First constraint index of each node.
+    first: Vec<usize>,
+}
+
+impl NodeRows {
+    fn build(&mut self, rows: &[ContactRow], active: &[bool]) {
+        self.nodes.clear();
+        self.order.clear();
+        let mut idx: Vec<usize> = (0..rows.len()).filter(|&i| active[i]).collect();
+        idx.sort_by_key(|&i| (rows[i].node, i));
+        let mut s = 0;
+        while s < idx.len() {
+            let node = rows[idx[s]].node;
+            let mut e = s;
+            while e < idx.len() && rows[idx[e]].node == node {
+                e += 1;
+            }
+            self.nodes
+                .push((node, self.order.len(), self.order.len() + (e - s)));
+            self.order.extend_from_slice(&idx[s..e]);
+            s = e;
+        }
+    }
+
+    fn constraints(
+        &mut self,
+        rows: &[ContactRow],
+        out: &mut Vec<Constraint>,
+    ) -> Result<(), SolveError> {
+        out.clear();
+        self.basis.clear();
+        self.first.clear();
+        for &(node, a, b) in &self.nodes {
+            self.first.push(out.len());
+            let mut es: Vec<(Vector3<f64>, f64)> = Vec::with_capacity(3);
+            for &i in &self.order[a..b] {
+                let r = &rows[i];
+                let mut e = r.dir;
+                let mut c = -r.gap_free_m;
+                for (ek, ck) in &es {
+                    let p = ek.dot(&r.dir);
+                    e -= ek * p;
+                    c -= ck * p;
+                }
+                let len = e.norm();
+                if len > 1e-6 && es.len() < 3 {
+                    let (e, c) = (e / len, c / len);
+                    es.push((e, c));
+                    self.basis.push((e, true));
+                    out.push(Constraint {
+                        node,
+                        kind: ConstraintKind::Normal {
+                            normal: e,
+                            displacement: c,
+                        },
+                    });
+                } else {
+                    // A direction the node's other rows already fix.
+                    self.basis.push((Vector3::zeros(), false));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Row multipliers from the node reactions of the constraints: with
+    /// `D` the node's independent row directions, `D lambda = R`, solved by
+    /// least squares (`D` has full column rank); dependent rows get 0.
+    fn multipliers(&self, rows: &[ContactRow], reactions: &[Vector3<f64>], out: &mut [f64]) {
+        for (k, &(_, a, b)) in self.nodes.iter().enumerate() {
+            let f = self.first[k];
+            let indep: Vec<usize> = (a..b).filter(|&j| self.basis[j].1).collect();
+            let mut r = Vector3::zeros();
+            for c in 0..indep.len() {
+                r += reactions[f + c];
+            }
+            let m = indep.len();
+            let d: Vec<Vector3<f64>> = indep.iter().map(|&j| rows[self.order[j]].dir).collect();
+            let gram = nalgebra::DMatrix::from_fn(m, m, |p, s| d[p].dot(&d[s]));
+            let rhs = nalgebra::DVector::from_fn(m, |p, _| d[p].dot(&r));
+            let lambda = gram
+                .cholesky()
+                .map(|ch| ch.solve(&rhs))
+                .unwrap_or_else(|| nalgebra::DVector::zeros(m));
+            for j in a..b {
+                out[self.order[j]] = 0.0;
+            }
+            for (p, &j) in indep.iter().enumerate() {
+                out[self.order[j]] = lambda[p];
+            }
+        }
+    }
+}

@@ -1,0 +1,177 @@
+//! The contact problem of a step, solved by every strategy: the Delassus
+//! solve of `compliance` and the active set of `direct` (an independent
+//! path: sparse elimination of the working set's rows, no compliance
+//! columns) give the same multipliers; the answers meet the Signorini
+//! conditions; a frictionless press of a block with `nu = 0` gives exactly
+//! `E A d / L`; Coulomb friction holds `|F_t| <= mu F_n`, with equality
+//! once sliding.
+
+use fissure_server::fem::lcp::RowKind;
+use fissure_server::fem::{
+    ContactAnswer, ContactRow, DeformationSolver, Material, SolverOptions, Strategy, build_solver,
+};
+use fissure_server::mesh::TetMesh;
+use fissure_server::mesh::blocks::cube;
+use nalgebra::Vector3;
+
+const L: f64 = 0.02;
+
+/// A cube of side `L` (`n` cells), its bottom fixed; the top nodes.
+fn block(n: usize) -> (TetMesh, Vec<u32>, Vec<u32>) {
+    let mesh = cube(L, n);
+    let fixed = (0..mesh.nodes.len() as u32)
+        .filter(|&i| mesh.nodes[i as usize].z < 1e-12)
+        .collect();
+    let top = (0..mesh.nodes.len() as u32)
+        .filter(|&i| (mesh.nodes[i as usize].z - L).abs() < 1e-12)
+        .collect();
+    (mesh, fixed, top)
+}
+
+/// Rows of a rigid plane pressing the top: face normal `-z` tilted by
+/// `slope` (rad) about the y axis, its plane through `(L/2, y, L - depth)`.
+fn plane_rows(mesh: &TetMesh, top: &[u32], depth: f64, slope: f64) -> Vec<ContactRow> {
+    let n = Vector3::new(slope.sin(), 0.0, -slope.cos());
+    let p = nalgebra::Point3::new(0.5 * L, 0.0, L - depth);
+    top.iter()
+        .map(|&node| ContactRow {
+            node,
+            dir: n,
+            gap_free_m: n.dot(&(mesh.nodes[node as usize] - p)),
+            kind: RowKind::Unilateral,
+        })
+        .collect()
+}
+
+fn solver(s: Strategy, mesh: &TetMesh, fixed: &[u32], nu: f64) -> Box<dyn DeformationSolver> {
+    let m = Material {
+        youngs_modulus_pa: 3000.0,
+        poisson_ratio: nu,
+    };
+    build_solver(s, mesh, m, fixed, &SolverOptions::default()).unwrap()
+}
+
+/// Uniform frictionless press with nu = 0: the block is in uniaxial
+/// strain, exact for linear tetrahedra, and the force is E A d / L.
+#[test]
+fn frictionless_uniform_press_gives_e_a_d_over_l() {
+    let (mesh, fixed, top) = block(4);
+    let d = 1e-3;
+    let want = 3000.0 * L * L * d / L;
+    for s in [Strategy::Compliance, Strategy::Direct] {
+        let mut solver = solver(s, &mesh, &fixed, 0.0);
+        let rows = plane_rows(&mesh, &top, d, 0.0);
+        let mut ans = ContactAnswer::default();
+        solver.solve_contact(&rows, &mut ans).unwrap();
+        let f: f64 = ans.multipliers.iter().sum();
+        assert!(
+            (f - want).abs() < 1e-9 * want,
+            "{}: {f} N, want {want} N",
+            s.name()
+        );
+        // Every top node is in contact, the gaps closed.
+        let u = &solver.last_solution().unwrap().displacements;
+        for (r, l) in rows.iter().zip(&ans.multipliers) {
+            assert!(*l > 0.0);
+            let g = r.gap_free_m + r.dir.dot(&u[r.node as usize]);
+            assert!(g.abs() < 1e-12, "{g}");
+        }
+    }
+}
+
+/// A tilted plane touches part of the top: both strategies find the same
+/// contact set and forces, every gap is non-negative, every force pushes,
+/// and they are complementary.
+#[test]
+fn tilted_press_compliance_equals_direct_and_is_complementary() {
+    let (mesh, fixed, top) = block(6);
+    for (depth, slope) in [(0.8e-3, 0.08), (0.3e-3, 0.05), (1.5e-3, -0.12)] {
+        let rows = plane_rows(&mesh, &top, depth, slope);
+        let mut answers = Vec::new();
+        for s in [Strategy::Compliance, Strategy::Direct] {
+            let mut solver = solver(s, &mesh, &fixed, 0.45);
+            let mut ans = ContactAnswer::default();
+            solver.solve_contact(&rows, &mut ans).unwrap();
+            let u = &solver.last_solution().unwrap().displacements;
+            let scale = ans.multipliers.iter().fold(0.0f64, |m, v| m.max(*v));
+            let mut active = 0;
+            for (r, l) in rows.iter().zip(&ans.multipliers) {
+                let g = r.gap_free_m + r.dir.dot(&u[r.node as usize]);
+                assert!(*l >= 0.0, "the tissue never pulls the plate");
+                assert!(g >= -1e-12, "gap {g}");
+                assert!((l * g).abs() <= 1e-12 * scale, "complementarity");
+                if *l > 0.0 {
+                    active += 1;
+                }
+            }
+            assert!(active > 0 && active < rows.len(), "partial contact");
+            answers.push(ans.multipliers);
+        }
+        let scale = answers[0].iter().fold(0.0f64, |m, v| m.max(*v));
+        for (a, b) in answers[0].iter().zip(&answers[1]) {
+            assert!((a - b).abs() < 1e-8 * scale, "{a} vs {b}");
+        }
+    }
+}
+
+/// Coulomb friction: the plate pressed then dragged along +x. A small drag
+/// sticks (the tangential force stays inside the cone and the tangential
+/// gap closes); a large one slides: |F_t| = mu F_n, opposing the drag.
+#[test]
+fn coulomb_friction_sticks_then_slides() {
+    let (mesh, fixed, top) = block(4);
+    let mu = 0.3;
+    let depth = 1e-3;
+    let mut solver = solver(Strategy::Compliance, &mesh, &fixed, 0.45);
+    for (drag, slides) in [(2e-5, false), (5e-3, true)] {
+        // Per top node: normal row then two tangent rows; the anchor (the
+        // point of the plate the node stuck to) moved by `drag` along +x.
+        let mut rows = Vec::new();
+        for &node in &top {
+            let x = mesh.nodes[node as usize];
+            let first = rows.len() as u32;
+            rows.push(ContactRow {
+                node,
+                dir: -Vector3::z(),
+                gap_free_m: -depth,
+                kind: RowKind::Unilateral,
+            });
+            // Tangential gap: (x - anchor) . t, anchor = x + drag e_x.
+            let _ = x;
+            rows.push(ContactRow {
+                node,
+                dir: Vector3::x(),
+                gap_free_m: -drag,
+                kind: RowKind::Tangent { normal: first, mu },
+            });
+            rows.push(ContactRow {
+                node,
+                dir: Vector3::y(),
+                gap_free_m: 0.0,
+                kind: RowKind::Tangent { normal: first, mu },
+            });
+        }
+        let mut ans = ContactAnswer::default();
+        solver.solve_contact(&rows, &mut ans).unwrap();
+        let (mut fnorm, mut ft) = (0.0, Vector3::zeros());
+        for (r, l) in rows.iter().zip(&ans.multipliers) {
+            match r.kind {
+                RowKind::Unilateral => fnorm += l,
+                _ => ft += r.dir * *l,
+            }
+        }
+        assert!(fnorm > 0.0);
+        if slides {
+            assert!(
+                (ft.norm() - mu * fnorm).abs() < 0.02 * mu * fnorm,
+                "sliding: |F_t| = {} vs mu F_n = {}",
+                ft.norm(),
+                mu * fnorm
+            );
+            assert!(ft.x > 0.0, "the plate drags the tissue along +x");
+        } else {
+            assert!(ft.norm() < mu * fnorm, "sticking: inside the cone");
+        }
+        assert!(ans.report.max_cone_excess_n <= 1e-9 * fnorm);
+    }
+}
