@@ -3,9 +3,9 @@
 //! steady state.
 
 use fissure_server::collide::{
-    BruteForce, Bvh, ContactError, ContactOutput, ContactQuery, DetectOptions, History,
-    HistoryMode, Instrument, NodeKind, NodeLayout, Plate, RimNodes, Stage, Tool, Workspace, detect,
-    detect_many,
+    BruteForce, Bvh, ContactError, ContactOutput, ContactQuery, ContactRule, DetectOptions, FaceId,
+    History, HistoryMode, Instrument, NodeKind, NodeLayout, Plate, RimNodes, Stage, Tool,
+    Workspace, detect, detect_many,
 };
 use fissure_server::mesh::blocks;
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
@@ -73,7 +73,7 @@ fn conflicting_vertices_take_the_deepest_projection() {
         &q,
         &mut tools,
         Stage::Deformation,
-        &DetectOptions::default(),
+        &DetectOptions::paper(),
         &mut ws,
         &mut out,
     )
@@ -188,7 +188,7 @@ fn rim_nodes_pair_within_reach() {
             &pose,
             &mut hist,
             Stage::Force,
-            &DetectOptions::default(),
+            &DetectOptions::paper(),
             &mut ws,
             &mut out,
         )
@@ -333,11 +333,12 @@ fn steady_state_does_not_reallocate() {
 }
 
 /// A large tilted triangle crosses face B's plane: one vertex 1 mm behind the
-/// face, two 3 mm in front. The paper's rule projects all three onto the face
-/// plane (the two in front are pulled 3 mm towards the plate); the unilateral
-/// rule moves only the vertex behind, onto the plane, and leaves the others.
+/// face, under it; two 3 mm in front and 50 mm beyond its outline. The
+/// paper's rule projects all three onto the face plane (the two in front
+/// are pulled 3 mm towards the plate); the Signorini rule names only the
+/// vertex the face covers, with the face's normal and a negative gap.
 #[test]
-fn unilateral_contact_leaves_vertices_in_front_free() {
+fn signorini_rule_names_only_covered_vertices_the_paper_rule_projects_all() {
     let inst = Instrument::new(
         Plate::flat(1.0 * MM, 8.0 * MM, 15.0 * MM),
         NodeLayout::WholeFace { per_face: 60 },
@@ -371,13 +372,9 @@ fn unilateral_contact_leaves_vertices_in_front_free() {
         to_volume: &to_volume,
     };
     let mut bvh = Bvh::new(&tris, &pos).unwrap();
-    for unilateral in [false, true] {
+    for opts in [DetectOptions::paper(), DetectOptions::default()] {
         let (mut ws, mut out) = (Workspace::new(), ContactOutput::default());
         let mut hist = History::new(&inst, HistoryMode::ForceRate);
-        let opts = DetectOptions {
-            unilateral,
-            ..DetectOptions::default()
-        };
         detect(
             &mut bvh,
             &q,
@@ -391,20 +388,25 @@ fn unilateral_contact_leaves_vertices_in_front_free() {
         )
         .unwrap();
         assert!(!out.pairs.is_empty(), "face B meets the triangle");
-        let by_vertex: HashMap<u32, Vector3<f64>> = out
-            .enforced
-            .iter()
-            .map(|e| (e.surface_vertex, e.displacement))
-            .collect();
-        // The vertex behind goes onto the face plane either way.
-        assert!((by_vertex[&0].z + 1.0 * MM).abs() < 1e-12, "{by_vertex:?}");
-        if unilateral {
-            assert_eq!(by_vertex.len(), 1, "only the vertex behind: {by_vertex:?}");
-        } else {
+        if opts.rule == ContactRule::Paper {
+            let by_vertex: HashMap<u32, Vector3<f64>> = out
+                .enforced
+                .iter()
+                .map(|e| (e.surface_vertex, e.displacement))
+                .collect();
             assert_eq!(by_vertex.len(), 3, "{by_vertex:?}");
+            assert!((by_vertex[&0].z + 1.0 * MM).abs() < 1e-12, "{by_vertex:?}");
             for v in [1, 2] {
                 assert!((by_vertex[&v].z - 3.0 * MM).abs() < 1e-12, "{by_vertex:?}");
             }
+        } else {
+            assert!(out.enforced.is_empty());
+            assert_eq!(out.candidates.len(), 1, "{:?}", out.candidates);
+            let cand = out.candidates[0];
+            assert_eq!(cand.surface_vertex, 0);
+            assert_eq!(cand.face, FaceId::B);
+            assert!((cand.normal + Vector3::z()).norm() < 1e-12, "{cand:?}");
+            assert!((cand.gap_now_m + 1.0 * MM).abs() < 1e-12, "{cand:?}");
         }
     }
 }

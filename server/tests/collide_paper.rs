@@ -100,7 +100,7 @@ fn v_valley_both_faces_push_both_walls() {
             &pose,
             &mut hist,
             Stage::Force,
-            &DetectOptions::default(),
+            &DetectOptions::paper(),
             &mut ws,
             &mut out,
         )
@@ -193,7 +193,7 @@ fn u_valley_swing_gives_each_face_its_own_wall() {
             &pose,
             &mut hist,
             Stage::Force,
-            &DetectOptions::default(),
+            &DetectOptions::paper(),
             &mut ws,
             &mut out,
         )
@@ -271,7 +271,7 @@ fn deep_penetration_far_face_pairs_only_without_culling() {
         let (mut ws, mut out) = (Workspace::new(), ContactOutput::default());
         let opts = DetectOptions {
             culling,
-            ..DetectOptions::default()
+            ..DetectOptions::paper()
         };
         for x in [-0.2 * MM, 3.0 * MM] {
             detect(
@@ -323,7 +323,7 @@ fn fast_travel_defeats_paper_history_not_force_rate_history() {
         let mut bvh = surf.backend();
         let mut hist = History::new(&inst, mode);
         let (mut ws, mut out) = (Workspace::new(), ContactOutput::default());
-        let opts = DetectOptions::default();
+        let opts = DetectOptions::paper();
         // Face A starts 0.3 mm before the wall.
         let x0 = -0.5 * h - 0.3 * MM;
         let mut worst = 0;
@@ -388,7 +388,7 @@ fn paper_mode_force_calls_do_not_renew() {
     let mut bvh = surf.backend();
     let mut hist = History::new(&inst, HistoryMode::PaperFaithful);
     let (mut ws, mut out) = (Workspace::new(), ContactOutput::default());
-    let opts = DetectOptions::default();
+    let opts = DetectOptions::paper();
     let q = surf.query();
     detect(
         &mut bvh,
@@ -497,7 +497,7 @@ fn fissure_slot_two_spatulas_open_the_slot() {
             &surf.query(),
             &mut tools,
             Stage::Deformation,
-            &DetectOptions::default(),
+            &DetectOptions::paper(),
             &mut ws,
             &mut out,
         )

@@ -87,7 +87,7 @@ impl Fissure {
         let (mut ws, mut out) = (Workspace::new(), ContactOutput::default());
         let opts = DetectOptions {
             culling,
-            ..DetectOptions::default()
+            ..DetectOptions::paper()
         };
         let mut infeasible = HashSet::new();
         for &o in offsets {

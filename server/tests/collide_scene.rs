@@ -6,8 +6,10 @@
 //! CPU.
 
 use faer::Par;
+use fissure_server::fem::compliance::ColumnPolicy;
 use fissure_server::scene::{CollisionBackend, Scene};
-use fissure_server::sim::engine::{ContactQuery, Deformer, Model, ray_backend};
+use fissure_server::sim::engine::{ContactQuery, Deformer, Model, RowRule, ray_backend};
+use fissure_server::sim::rows::{Anchors, FreePositions};
 use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion};
 use std::sync::Arc;
 
@@ -53,8 +55,10 @@ fn gpu_scene_gives_the_cpu_scenes_contacts() {
 
     let mut cpu = ContactQuery::new(&cpu_scene, Par::Seq);
     let mut gpu = ContactQuery::new(&gpu_scene, Par::Seq);
-    let mut deformer = Deformer::new(&cpu_scene, &model).unwrap();
-    let mut snap = model.rest_snapshot(&cpu_scene);
+    let mut deformer = Deformer::new(&cpu_scene, &model, ColumnPolicy::Compute, None).unwrap();
+    let mut snap = model.rest_snapshot(&cpu_scene, 0, 0.0);
+    let rule = RowRule::of(&cpu_scene);
+    let mut rows = Vec::new();
     let mut h_cpu = vec![model.new_history(0)];
     let mut h_gpu = vec![model.new_history(0)];
     let start = home(&cpu_scene, 0);
@@ -75,16 +79,26 @@ fn gpu_scene_gives_the_cpu_scenes_contacts() {
             "step {k}: GPU scene contacts differ from the CPU scene's"
         );
         assert_eq!(h_cpu[0].flags(), h_gpu[0].flags(), "step {k}: histories");
-        if !a.pairs.is_empty() {
+        if !a.candidates.is_empty() {
             touched += 1;
         }
         // Deform, publish the new surface: both queries refit on it next step.
-        let step = deformer.step(&a).unwrap();
+        rows.clear();
+        rule.rows(
+            &model,
+            &a,
+            &FreePositions::Rest(&model.mesh.nodes),
+            &Anchors::default(),
+            &[pose],
+            &mut rows,
+        );
+        deformer.solve(&rows, &[]).unwrap();
+        let u = deformer.displacements();
         let surface: Vec<Point3<f64>> = model
             .rest_surface
             .iter()
             .zip(&model.surface.to_volume)
-            .map(|(p, &v)| p + step.displacements[v as usize])
+            .map(|(p, &v)| p + u[v as usize])
             .collect();
         snap.surface = Arc::new(surface);
     }

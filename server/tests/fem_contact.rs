@@ -34,11 +34,13 @@ fn plane_rows(mesh: &TetMesh, top: &[u32], depth: f64, slope: f64) -> Vec<Contac
     let n = Vector3::new(slope.sin(), 0.0, -slope.cos());
     let p = nalgebra::Point3::new(0.5 * L, 0.0, L - depth);
     top.iter()
-        .map(|&node| ContactRow {
-            node,
-            dir: n,
-            gap_free_m: n.dot(&(mesh.nodes[node as usize] - p)),
-            kind: RowKind::Unilateral,
+        .map(|&node| {
+            ContactRow::at_node(
+                node,
+                n,
+                n.dot(&(mesh.nodes[node as usize] - p)),
+                RowKind::Unilateral,
+            )
         })
         .collect()
 }
@@ -130,26 +132,26 @@ fn coulomb_friction_sticks_then_slides() {
         for &node in &top {
             let x = mesh.nodes[node as usize];
             let first = rows.len() as u32;
-            rows.push(ContactRow {
+            rows.push(ContactRow::at_node(
                 node,
-                dir: -Vector3::z(),
-                gap_free_m: -depth,
-                kind: RowKind::Unilateral,
-            });
+                -Vector3::z(),
+                -depth,
+                RowKind::Unilateral,
+            ));
             // Tangential gap: (x - anchor) . t, anchor = x + drag e_x.
             let _ = x;
-            rows.push(ContactRow {
+            rows.push(ContactRow::at_node(
                 node,
-                dir: Vector3::x(),
-                gap_free_m: -drag,
-                kind: RowKind::Tangent { normal: first, mu },
-            });
-            rows.push(ContactRow {
+                Vector3::x(),
+                -drag,
+                RowKind::Tangent { normal: first, mu },
+            ));
+            rows.push(ContactRow::at_node(
                 node,
-                dir: Vector3::y(),
-                gap_free_m: 0.0,
-                kind: RowKind::Tangent { normal: first, mu },
-            });
+                Vector3::y(),
+                0.0,
+                RowKind::Tangent { normal: first, mu },
+            ));
         }
         let mut ans = ContactAnswer::default();
         solver.solve_contact(&rows, &mut ans).unwrap();
@@ -173,5 +175,67 @@ fn coulomb_friction_sticks_then_slides() {
             assert!(ft.norm() < mu * fnorm, "sticking: inside the cone");
         }
         assert!(ans.report.max_cone_excess_n <= 1e-9 * fnorm);
+    }
+}
+
+/// Rows on points of the top's triangles (a plate edge in triangles larger
+/// than the contact) with rows on vertices: `direct` (which superposes the
+/// responses to the point loads on its elimination) gives the multipliers
+/// of the Delassus solve of `compliance`, and the point gaps it closes are
+/// closed.
+#[test]
+fn point_rows_compliance_equals_direct() {
+    let (mesh, fixed, top) = block(4);
+    let boundary = mesh.boundary();
+    // Top triangles: all three vertices on the top face.
+    let tops: Vec<[u32; 3]> = boundary
+        .triangles
+        .iter()
+        .map(|t| t.map(|v| boundary.to_volume[v as usize]))
+        .filter(|t| t.iter().all(|v| top.contains(v)))
+        .collect();
+    assert!(tops.len() >= 8);
+    let n = -Vector3::z();
+    let plane = L - 0.4e-3;
+    let mut rows = Vec::new();
+    for (k, t) in tops.iter().enumerate().step_by(3) {
+        let a = 0.2 + 0.1 * (k % 4) as f64;
+        let w = [a, 0.5 * (1.0 - a), 0.5 * (1.0 - a)];
+        let x: Vector3<f64> = (0..3)
+            .map(|i| mesh.nodes[t[i] as usize].coords * w[i])
+            .sum();
+        rows.push(ContactRow::at_point(
+            *t,
+            w,
+            n,
+            plane - x.z,
+            RowKind::Unilateral,
+        ));
+    }
+    // A few vertex rows of a deeper plane elsewhere.
+    for &v in top.iter().step_by(7) {
+        rows.push(ContactRow::at_node(
+            v,
+            n,
+            (L - 0.7e-3) - mesh.nodes[v as usize].z,
+            RowKind::Unilateral,
+        ));
+    }
+    let mut out = Vec::new();
+    for s in [Strategy::Compliance, Strategy::Direct] {
+        let mut solver = solver(s, &mesh, &fixed, 0.45);
+        let mut ans = ContactAnswer::default();
+        solver.solve_contact(&rows, &mut ans).unwrap();
+        let u = &solver.last_solution().unwrap().displacements;
+        for (r, l) in rows.iter().zip(&ans.multipliers) {
+            let g = r.gap_free_m + r.normal_motion(u);
+            assert!(*l >= 0.0 && g >= -1e-12, "{}: l {l} g {g}", s.name());
+        }
+        out.push(ans.multipliers);
+    }
+    let scale = out[0].iter().fold(0.0f64, |m, v| m.max(*v));
+    assert!(scale > 0.0);
+    for (a, b) in out[0].iter().zip(&out[1]) {
+        assert!((a - b).abs() < 1e-8 * scale, "{a} vs {b}");
     }
 }

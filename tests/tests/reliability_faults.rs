@@ -71,7 +71,11 @@ async fn killed_client_releases_its_instrument_and_the_tissue_relaxes() -> anyho
     loop {
         let f = next_frame(&mut watch).await?;
         if f.max_displacement_m < 1e-9 {
-            assert!(f.instruments.iter().all(|i| i.contact_vertices == 0));
+            assert!(
+                f.instruments.iter().all(|i| i.contact_vertices == 0),
+                "{:?}",
+                f.instruments
+            );
             break;
         }
         assert!(

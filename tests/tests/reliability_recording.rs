@@ -117,6 +117,7 @@ fn frame(k: u64) -> Frame {
         pairs: 12,
         culled: 1,
         contact_vertices: 6,
+        pending_vertices: 0,
         position_m: Vector3::new(x, 0.005, 0.043),
         orientation: [0.5, -0.5, 0.5, 0.5],
     };

@@ -1,20 +1,23 @@
-//! Runs one configuration of the study in-process, deterministically.
+//! Runs one configuration of the study in-process, deterministically, on
+//! the product's own stepped runner ([`SteppedRunner`]): the same collision
+//! stage, contact rows, contact solve and force loops as the server's
+//! stepped mode, so the study measures the product. The scenario's poses
+//! are given to the runner time by time (both instruments at once); a
+//! deformation step `k` happens at `t_0 + k dt` with, per instrument, the
+//! latest pose with `t <= t_k`; a force sample at pose time `t` uses the
+//! state of the last step strictly before `t`.
 //!
-//! The driver composes the stages the server's `Simulation` composes (the
-//! scene's [`Model`], the collision stage, the FEM solver, the force loop's
-//! local model) in one thread of control, in the order stepped mode defines:
-//! deformation step `k` happens at `t_k = k dt` with, per instrument, the
-//! latest pose with `t <= t_k` and the force-loop history after it; a force
-//! sample at pose time `t` uses the state of step `ceil(t / dt) - 1`. It calls
-//! the solver directly (not through `sim::engine::Deformer`) because the study
-//! needs what the deformer hides: every node's displacement (for the element
-//! inversion measure), the solver's iteration count, an injected ray backend
-//! (GPU) and a cropped region of interest.
+//! What the study needs beyond the server's answers comes from the runner's
+//! step records: every node's displacement (for the element inversion
+//! measure and the surface error), the solver's iteration count and the
+//! step times. A GPU ray backend is injected into the runner's collision
+//! stages; a region of interest is the scene's (`roi`), whose displacements
+//! are mapped back onto the whole model's surface for the comparison.
 //!
-//! Timings: a deformation step is the collision of all instruments, the FEM
-//! solve and the local force model (the inverse of the compliance block); a
-//! force sample is one instrument's collision query plus the local-model
-//! reaction, as in `Claim::force_sample`.
+//! Timings: a deformation step is the collision of all instruments, the
+//! contact rows, the solve and the compliance patch of the force loops; a
+//! force sample is one instrument's collision query and its coupled
+//! contact solve, as in the server.
 
 // Negated comparisons are deliberate: NaN must fail the checks.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
@@ -24,15 +27,14 @@ use super::scenario::Scenario;
 use fissure_server::collide::RayBackend;
 use fissure_server::collide::brute::BruteForce;
 use fissure_server::collide::bvh::Bvh;
-use fissure_server::collide::contact::{self, ContactOutput, DetectOptions, Tool, Workspace};
-use fissure_server::collide::history::Stage;
-use fissure_server::fem::roi::{RoiCentre, crop};
-use fissure_server::fem::{self, DeformationSolver, Prescribed};
+use fissure_server::fem::compliance::ColumnPolicy;
 use fissure_server::mesh::TetMesh;
-use fissure_server::sim::engine::{EnforcedByNode, History, Model};
-use fissure_server::sim::local_model::{ForceModel, ForceWorkspace};
+use fissure_server::scene::RoiSpec;
+use fissure_server::sim::engine::{Model, StepEngine};
+use fissure_server::sim::force_loop::ForceLoop;
+use fissure_server::sim::stepped::{Answer, StepDone, SteppedRunner};
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
-use std::collections::{HashMap, VecDeque};
+use std::collections::HashMap;
 use std::time::Instant;
 
 /// Deformation steps with `k dt <= end` (k >= 1), counted with the same
@@ -85,14 +87,16 @@ pub struct RunResult {
     pub failed_steps: usize,
     /// First failure message.
     pub failure: Option<String>,
-    /// Contact nodes outside the region of interest (dropped), summed over steps.
+    /// Contact nodes outside the region of interest (the solved mesh does
+    /// not have them: always 0 since the region of interest crops the
+    /// collision surface too).
     pub dropped_outside_roi: usize,
     /// Building the model and the solver, ms.
     pub setup_ms: f64,
     /// Name of the ray backend actually used (`gpu-bvh (adapter)` or a CPU one).
     pub backend_used: String,
-    /// Whether the strategy gives the force loop a local model (otherwise
-    /// the force loop reports no force between steps).
+    /// Whether the strategy gives the force loop a compliance to solve on
+    /// (otherwise the force loop holds the last step's force).
     pub has_local_model: bool,
 }
 
@@ -109,168 +113,36 @@ pub enum RunError {
     #[error("model of {label}: {message}")]
     Model { label: String, message: String },
     /// The solver could not be built.
-    #[error("solver of {label}: {source}")]
-    Solver {
-        label: String,
-        source: fem::SolveError,
-    },
+    #[error("solver of {label}: {message}")]
+    Solver { label: String, message: String },
     /// The thread pool could not be built.
     #[error("thread pool of {label}: {message}")]
     Pool { label: String, message: String },
 }
 
-/// The collision stage of one loop with an injected backend (mirrors
-/// `sim::engine::ContactQuery`).
-struct Collision {
-    backend: Box<dyn RayBackend>,
-    fitted: Option<usize>,
-    ws: Workspace,
-    out: ContactOutput,
-    opts: DetectOptions,
-    by_node: EnforcedByNode,
-}
-
-fn make_backend(kind: Backend, model: &Model) -> (Box<dyn RayBackend>, String) {
+fn make_backend(kind: Backend, model: &Model) -> (Option<Box<dyn RayBackend>>, String) {
     let tris = &model.surface.triangles;
     let pos = &model.rest_surface;
-    let bvh = || -> Box<dyn RayBackend> {
-        Box::new(Bvh::new(tris, pos).expect("the phantom surface is valid"))
-    };
     match kind {
-        Backend::CpuBvh => (bvh(), "cpu-bvh".into()),
+        Backend::CpuBvh => (None, "cpu-bvh".into()),
         Backend::CpuBrute => (
-            Box::new(BruteForce::new(tris, pos).expect("the phantom surface is valid")),
+            Some(Box::new(
+                BruteForce::new(tris, pos).expect("the phantom surface is valid"),
+            )),
             "cpu-brute".into(),
         ),
         Backend::GpuBvh => match fissure_server::collide::gpu::GpuBvh::try_new(tris, pos) {
             Ok(g) => {
                 let name = format!("gpu-bvh ({})", g.adapter_name());
-                (Box::new(g), name)
+                (Some(Box::new(g)), name)
             }
-            Err(e) => (bvh(), format!("cpu-bvh (no GPU: {e})")),
+            Err(e) => (
+                Some(Box::new(
+                    Bvh::new(tris, pos).expect("the phantom surface is valid"),
+                )),
+                format!("cpu-bvh (no GPU: {e})"),
+            ),
         },
-    }
-}
-
-impl Collision {
-    fn new(kind: Backend, model: &Model) -> (Self, String) {
-        let (backend, name) = make_backend(kind, model);
-        (
-            Self {
-                backend,
-                fitted: None,
-                ws: Workspace::new(),
-                out: ContactOutput::default(),
-                opts: DetectOptions::default(),
-                by_node: EnforcedByNode::default(),
-            },
-            name,
-        )
-    }
-
-    fn fit(&mut self, version: usize, surface: &[Point3<f64>]) {
-        if self.fitted != Some(version) {
-            self.backend.update_positions(surface);
-            self.fitted = Some(version);
-        }
-    }
-
-    fn run(
-        &mut self,
-        model: &Model,
-        version: usize,
-        surface: &[Point3<f64>],
-        tools: &mut [Tool<'_>],
-        stage: Stage,
-    ) {
-        self.fit(version, surface);
-        let q = contact::ContactQuery {
-            positions: surface,
-            rest: &model.rest_surface,
-            triangles: &model.surface.triangles,
-            to_volume: &model.surface.to_volume,
-        };
-        if contact::detect_many(
-            self.backend.as_mut(),
-            &q,
-            tools,
-            stage,
-            &self.opts,
-            &mut self.ws,
-            &mut self.out,
-        )
-        .is_err()
-        {
-            self.out = ContactOutput::default();
-        }
-        self.by_node.rebuild(&self.out);
-    }
-
-    fn displacement_of(&self, node: u32) -> Option<Vector3<f64>> {
-        self.by_node.get(node)
-    }
-}
-
-/// The solver over the whole mesh or a crop, with the node maps.
-struct Solver {
-    inner: Box<dyn DeformationSolver>,
-    /// Crop node -> full node (`None`: identity).
-    to_full: Option<Vec<u32>>,
-    /// Full node -> crop node (`u32::MAX` outside).
-    to_crop: Option<Vec<u32>>,
-    tets: usize,
-    nodes: usize,
-}
-
-fn build_solver(config: &Config, model: &Model) -> Result<Solver, RunError> {
-    let material = fem::Material {
-        youngs_modulus_pa: config.youngs_pa,
-        poisson_ratio: config.nu,
-    };
-    let mut options = fem::SolverOptions::default();
-    options.iterative.tolerance = config.tolerance;
-    options.iterative.max_outer = 30;
-    let err = |source| RunError::Solver {
-        label: config.label.clone(),
-        source,
-    };
-    match config.roi_m {
-        None => {
-            let inner = fem::build_solver(
-                config.strategy,
-                &model.mesh,
-                material,
-                &model.fixed,
-                &options,
-            )
-            .map_err(err)?;
-            Ok(Solver {
-                inner,
-                to_full: None,
-                to_crop: None,
-                tets: model.mesh.tets.len(),
-                nodes: model.mesh.nodes.len(),
-            })
-        }
-        Some(d) => {
-            let roi = crop(
-                &model.mesh,
-                RoiCentre::Point(Point3::from(FISSURE_CENTRE_M)),
-                d,
-                &model.fixed,
-            )
-            .map_err(err)?;
-            let inner =
-                fem::build_solver(config.strategy, &roi.mesh, material, &roi.fixed, &options)
-                    .map_err(err)?;
-            Ok(Solver {
-                inner,
-                tets: roi.mesh.tets.len(),
-                nodes: roi.mesh.nodes.len(),
-                to_full: Some(roi.to_full),
-                to_crop: Some(roi.to_crop),
-            })
-        }
     }
 }
 
@@ -292,43 +164,37 @@ pub fn min_det_f(mesh: &TetMesh, u: &[Vector3<f64>]) -> f64 {
     worst
 }
 
-/// The local force model of a step, as `sim::engine` builds it, with node
-/// indices of the full model.
-fn force_model(
-    local: &fem::LocalModel,
-    contacts: &ContactOutput,
-    to_full: Option<&[u32]>,
-    mesh: &TetMesh,
-) -> ForceModel {
-    let mut fm = fissure_server::sim::engine::force_model_from(local, contacts, |n| {
-        to_full.map_or(n, |map| map[n as usize])
-    });
-    fm.rest = fm.nodes.iter().map(|&n| mesh.nodes[n as usize]).collect();
-    // A distinct id per built model (the force loop caches per model).
-    fm.frame = NEXT_MODEL_ID.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-    fm
-}
-
-static NEXT_MODEL_ID: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
-
-/// Cache of built models by (preset, nodes a face): the phantom is generated
-/// once per preset and instrument layout.
+/// Cache of built models by (preset, nodes a face, region of interest): the
+/// phantom is generated once per preset and instrument layout.
 #[derive(Default)]
 pub struct ModelCache {
-    models: HashMap<(String, u32), std::sync::Arc<Model>>,
+    models: HashMap<(String, u32, Option<u64>), std::sync::Arc<Model>>,
 }
 
 impl ModelCache {
-    /// The model of `config` (built on first use).
-    pub fn get(&mut self, config: &Config) -> Result<std::sync::Arc<Model>, RunError> {
-        let key = (config.preset.clone(), config.nodes_per_face);
+    /// The model of `config` (built on first use); `roi` crops it.
+    fn get_with(
+        &mut self,
+        config: &Config,
+        roi: Option<f64>,
+    ) -> Result<std::sync::Arc<Model>, RunError> {
+        let key = (
+            config.preset.clone(),
+            config.nodes_per_face,
+            roi.map(f64::to_bits),
+        );
         if let Some(m) = self.models.get(&key) {
             return Ok(m.clone());
         }
-        let scene = config.scene().map_err(|source| RunError::Scene {
+        let mut scene = config.scene().map_err(|source| RunError::Scene {
             label: config.label.clone(),
             source,
         })?;
+        scene.roi = roi.map(|d| RoiSpec {
+            centre_m: FISSURE_CENTRE_M,
+            plane_normal: None,
+            distance_m: d,
+        });
         let model = Model::build(&scene).map_err(|e| RunError::Model {
             label: config.label.clone(),
             message: e.to_string(),
@@ -336,6 +202,11 @@ impl ModelCache {
         let model = std::sync::Arc::new(model);
         self.models.insert(key, model.clone());
         Ok(model)
+    }
+
+    /// The whole model of `config` (no region of interest).
+    pub fn get(&mut self, config: &Config) -> Result<std::sync::Arc<Model>, RunError> {
+        self.get_with(config, None)
     }
 }
 
@@ -350,7 +221,8 @@ pub fn run(
     on_step: &(dyn Fn() + Sync),
 ) -> Result<RunResult, RunError> {
     let t0 = Instant::now();
-    let model = models.get(config)?;
+    let full = models.get(config)?;
+    let model = models.get_with(config, config.roi_m)?;
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(config.threads.max(1))
         .build()
@@ -358,58 +230,48 @@ pub fn run(
             label: config.label.clone(),
             message: e.to_string(),
         })?;
-    pool.install(|| run_in_pool(config, scenario, &model, keep_surface, on_step, t0))
-}
-
-struct LoggedPose {
-    t: f64,
-    pose: Isometry3<f64>,
-    history: History,
+    pool.install(|| run_in_pool(config, scenario, &full, model, keep_surface, on_step, t0))
 }
 
 fn run_in_pool(
     config: &Config,
     scenario: &Scenario,
-    model: &Model,
+    full: &Model,
+    model: std::sync::Arc<Model>,
     keep_surface: bool,
     on_step: &(dyn Fn() + Sync),
     t0: Instant,
 ) -> Result<RunResult, RunError> {
+    let mut scene = config.scene().map_err(|source| RunError::Scene {
+        label: config.label.clone(),
+        source,
+    })?;
+    scene.roi = config.roi_m.map(|d| RoiSpec {
+        centre_m: FISSURE_CENTRE_M,
+        plane_normal: None,
+        distance_m: d,
+    });
+    scene.loops.deformation_interval_s = scenario.dt_s;
     let n_inst = model.instruments.len().min(scenario.tracks.len());
-    let mut solver = build_solver(config, model)?;
-    let has_local_model = {
-        // A zero-contact solve tells whether the strategy keeps a local model.
-        let _ = solver.inner.solve(&[]);
-        solver.inner.local_model().is_some()
-    };
-    let (mut step_col, backend_used) = Collision::new(config.backend, model);
-    let mut force_cols: Vec<Collision> = (0..n_inst)
-        .map(|_| Collision::new(config.backend, model).0)
+    let (backend, backend_used) = make_backend(config.backend, &model);
+    let engine = StepEngine::new(&scene, model.clone(), ColumnPolicy::Compute, None, backend)
+        .map_err(|e| RunError::Solver {
+            label: config.label.clone(),
+            message: e.to_string(),
+        })?;
+    let loops = (0..model.instruments.len())
+        .map(|i| ForceLoop::new(&scene, &model, i, make_backend(config.backend, &model).0))
         .collect();
+    let mut runner = SteppedRunner::new(&scene, engine, loops);
+    let has_local_model = runner.snapshot().force_model.has_patch;
     let setup_ms = t0.elapsed().as_secs_f64() * 1e3;
-
-    let nn = model.mesh.nodes.len();
-    let mut surface = model.rest_surface.clone();
-    let mut version = 0usize;
-    let mut u_full = vec![Vector3::zeros(); nn];
-    let mut fm = ForceModel::default();
-    let mut fws = ForceWorkspace::default();
-    let mut force_hist: Vec<History> = (0..n_inst).map(|i| model.new_history(i)).collect();
-    let mut own_hist: Vec<History> = force_hist.clone();
-    let mut logs: Vec<VecDeque<LoggedPose>> = (0..n_inst).map(|_| VecDeque::new()).collect();
-    let home: Vec<Isometry3<f64>> = scenario
-        .tracks
-        .iter()
-        .map(|t| t.poses.first().copied().unwrap_or_default())
-        .collect();
-    let dt = scenario.dt_s;
     let total_steps = scenario.steps();
     let mut res = RunResult {
         config: config.clone(),
-        tets: solver.tets,
-        nodes: solver.nodes,
-        rest_surface: model.rest_surface.clone(),
-        triangles: model.surface.triangles.clone(),
+        tets: model.mesh.tets.len(),
+        nodes: model.mesh.nodes.len(),
+        rest_surface: full.rest_surface.clone(),
+        triangles: full.surface.triangles.clone(),
         step_t: Vec::with_capacity(total_steps),
         step_force: Vec::with_capacity(total_steps),
         surface_u: Vec::new(),
@@ -428,138 +290,53 @@ fn run_in_pool(
         backend_used,
         has_local_model,
     };
-    let mut prescribed: Vec<Prescribed> = Vec::new();
-    let mut kept: Vec<usize> = Vec::new();
-    let mut k = 0usize;
-
-    let mut step = |k: usize,
-                    logs: &mut Vec<VecDeque<LoggedPose>>,
-                    surface: &mut Vec<Point3<f64>>,
-                    version: &mut usize,
-                    u_full: &mut Vec<Vector3<f64>>,
-                    fm: &mut ForceModel,
-                    own_hist: &mut Vec<History>,
-                    res: &mut RunResult| {
-        let t_k = k as f64 * dt;
-        let ts = Instant::now();
-        // Per instrument: the latest logged pose with t <= t_k.
-        let mut poses = Vec::with_capacity(n_inst);
-        let mut hists: Vec<History> = Vec::with_capacity(n_inst);
-        let mut own = vec![false; n_inst];
-        for i in 0..n_inst {
-            let log = &mut logs[i];
-            while log.len() >= 2 && log[1].t <= t_k {
-                log.pop_front();
-            }
-            match log.front() {
-                Some(p) if p.t <= t_k => {
-                    poses.push(p.pose);
-                    hists.push(p.history.clone());
-                }
-                _ => {
-                    poses.push(home[i]);
-                    hists.push(own_hist[i].clone());
-                    own[i] = true;
-                }
-            }
-        }
-        {
-            let mut tools: Vec<Tool<'_>> = model
-                .instruments
-                .iter()
-                .zip(&poses)
-                .zip(hists.iter_mut())
-                .map(|((instrument, pose), history)| Tool {
-                    instrument,
-                    pose: *pose,
-                    history,
-                })
-                .collect();
-            step_col.run(model, *version, surface, &mut tools, Stage::Deformation);
-        }
-        for i in 0..n_inst {
-            if own[i] {
-                own_hist[i] = hists[i].clone();
-            }
-        }
-        let collision_ms = ts.elapsed().as_secs_f64() * 1e3;
-        let contacts = &step_col.out;
-        prescribed.clear();
-        kept.clear();
-        for (j, e) in contacts.enforced.iter().enumerate() {
-            let node = match &solver.to_crop {
-                None => e.volume_node,
-                Some(map) => map[e.volume_node as usize],
-            };
-            if node == u32::MAX {
-                res.dropped_outside_roi += 1;
-                continue;
-            }
-            kept.push(j);
-            prescribed.push(Prescribed {
-                node,
-                displacement: e.displacement,
-            });
-        }
-        let solved = solver.inner.solve(&prescribed);
-        let mut forces = vec![Vector3::zeros(); n_inst];
-        match solved {
-            Ok(sol) => {
-                res.iterations.push(sol.iterations);
-                match &solver.to_full {
-                    None => u_full.copy_from_slice(&sol.displacements),
-                    Some(map) => {
-                        for (c, &f) in map.iter().enumerate() {
-                            u_full[f as usize] = sol.displacements[c];
-                        }
-                    }
-                }
-                for (&j, r) in kept.iter().zip(&sol.reactions) {
-                    let inst = contacts.enforced[j].instrument as usize;
-                    if inst < n_inst {
-                        forces[inst] -= r;
-                    }
-                }
-                *fm = match solver.inner.local_model() {
-                    Some(local) => {
-                        force_model(local, contacts, solver.to_full.as_deref(), &model.mesh)
-                    }
-                    None => ForceModel::default(),
-                };
-            }
-            Err(e) => {
+    let n_full = full.mesh.nodes.len();
+    let mut u_full = vec![Vector3::zeros(); n_full];
+    let mut last_forces = vec![Vector3::zeros(); n_inst];
+    let mut record = |done: &StepDone, res: &mut RunResult| {
+        let snap = &done.snapshot;
+        let frame = &snap.frame_summary;
+        let mut forces: Vec<Vector3<f64>> = frame
+            .instruments
+            .iter()
+            .take(n_inst)
+            .map(|r| r.force_n)
+            .collect();
+        match (&done.report, &snap.solver_error) {
+            (Some(rep), _) => res.iterations.push(rep.iterations),
+            (None, Some(e)) => {
                 res.failed_steps += 1;
                 if res.failure.is_none() {
-                    res.failure = Some(format!("step {k} (t = {t_k:.3} s): {e}"));
+                    res.failure = Some(format!("step at t = {:.3} s: {e}", snap.sim_time_s));
                 }
-                forces = res
-                    .step_force
-                    .last()
-                    .cloned()
-                    .unwrap_or_else(|| vec![Vector3::zeros(); n_inst]);
+                forces.clone_from(&last_forces);
+            }
+            (None, None) => {}
+        }
+        last_forces.clone_from(&forces);
+        let u = &snap.displacements;
+        match &model.to_full {
+            None => u_full.copy_from_slice(u),
+            Some((map, _)) => {
+                for (c, &f) in map.iter().enumerate() {
+                    u_full[f as usize] = u[c];
+                }
             }
         }
-        for (s, &v) in model.surface.to_volume.iter().enumerate() {
-            surface[s] = model.rest_surface[s] + u_full[v as usize];
-        }
-        *version += 1;
-        let step_ms = ts.elapsed().as_secs_f64() * 1e3;
-        // Bookkeeping outside the timed part.
-        let finite = u_full.iter().all(|u| u.iter().all(|c| c.is_finite()))
+        let finite = u.iter().all(|v| v.iter().all(|c| c.is_finite()))
             && forces.iter().all(|f| f.iter().all(|c| c.is_finite()));
         res.finite &= finite;
-        let j = min_det_f(&model.mesh, u_full);
+        let j = min_det_f(&model.mesh, u);
         if !(j >= res.min_det_f) {
             res.min_det_f = j;
         }
-        res.step_t.push(t_k);
+        res.step_t.push(snap.sim_time_s);
         res.step_force.push(forces);
-        res.step_ms.push(step_ms);
-        res.collision_ms.push(collision_ms);
+        res.step_ms.push(done.step_us * 1e-3);
+        res.collision_ms.push(frame.timings.collision_us * 1e-3);
         if keep_surface {
             res.surface_u.push(
-                model
-                    .surface
+                full.surface
                     .to_volume
                     .iter()
                     .map(|&v| u_full[v as usize])
@@ -568,67 +345,24 @@ fn run_in_pool(
         }
         on_step();
     };
-
+    let mut answers: Vec<Answer> = Vec::new();
+    let mut poses: Vec<(usize, Isometry3<f64>)> = Vec::with_capacity(n_inst);
     for (j, &t) in scenario.times.iter().enumerate() {
-        // Steps strictly before t.
-        let need = fissure_server::sim::step_before(t, dt) as usize;
-        while k < need.min(total_steps) {
-            k += 1;
-            step(
-                k,
-                &mut logs,
-                &mut surface,
-                &mut version,
-                &mut u_full,
-                &mut fm,
-                &mut own_hist,
-                &mut res,
-            );
-        }
+        poses.clear();
+        poses.extend((0..n_inst).map(|i| (i, scenario.tracks[i].poses[j])));
+        answers.clear();
+        runner.tick(t, &poses, &mut |d| record(d, &mut res), &mut answers);
         let mut sample = vec![Vector3::zeros(); n_inst];
-        for i in 0..n_inst {
-            let pose = scenario.tracks[i].poses[j];
-            let ts = Instant::now();
-            let col = &mut force_cols[i];
-            {
-                let mut tools = [Tool {
-                    instrument: &model.instruments[i],
-                    pose,
-                    history: &mut force_hist[i],
-                }];
-                col.run(model, version, &surface, &mut tools, Stage::Force);
-            }
-            let f = fm.instrument_force(
-                i as u16,
-                |node| col.displacement_of(node),
-                &pose.translation.vector,
-                &mut fws,
-            );
-            res.sample_us.push(ts.elapsed().as_secs_f64() * 1e6);
-            sample[i] = f.force;
-            logs[i].push_back(LoggedPose {
-                t,
-                pose,
-                history: force_hist[i].clone(),
-            });
+        for a in &answers {
+            sample[a.instrument] = a.force.force_n;
+            res.sample_us.push(a.compute_us);
         }
         res.finite &= sample.iter().all(|f| f.iter().all(|c| c.is_finite()));
         res.sample_t.push(t);
         res.sample_force.push(sample);
     }
-    while k < total_steps {
-        k += 1;
-        step(
-            k,
-            &mut logs,
-            &mut surface,
-            &mut version,
-            &mut u_full,
-            &mut fm,
-            &mut own_hist,
-            &mut res,
-        );
-    }
+    let end = scenario.times.first().copied().unwrap_or(0.0) + total_steps as f64 * scenario.dt_s;
+    runner.finish(end, &mut |d| record(d, &mut res));
     Ok(res)
 }
 

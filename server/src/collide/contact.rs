@@ -1,51 +1,45 @@
-//! Collision pairs, history culling and enforced displacements: one call of
-//! [`detect`] (one instrument, the force loop) or [`detect_many`] (all
-//! instruments, the deformation loop) runs DESIGN.md section 2 end to end.
+//! The collision pipeline of one query: [`detect`] (one instrument, the
+//! force loop) or [`detect_many`] (all instruments, the deformation loop)
+//! runs its named stages in order over plain data:
 //!
-//! 1. **Rays.** Each source node `S` with unit face normal `N_R` (scene frame,
-//!    after the pose) gives the line `S + t N_R`. One [`RayBackend::cast`] over all
-//!    nodes of all instruments returns the nearest hit behind (`t <= 0`) and in
-//!    front (`t > 0`), each looked for only as far as the later rules can use
-//!    it ([`DetectOptions::bounded_rays`]).
-//! 2. **Pairs (A1, A2).** The nearest triangle behind forms a pair with the node
-//!    when `N_R . N_tri < 0` (`N_tri` the triangle's outward normal at the current
-//!    positions) and `|t|` is within the node's reach (infinite for face nodes).
-//! 3. **Culling (B1-B3)**, per instrument, when [`DetectOptions::culling`] is on:
-//!    every node whose history flag is on marks its nearest triangle *in front*
-//!    as infeasible; every pair of that instrument holding an infeasible triangle
-//!    is cancelled (reported in [`ContactOutput::cancelled`]). Culling is per
-//!    instrument because a triangle in front of one spatula may be a genuine
-//!    contact of the other (two spatulas squeezing a lobe from both sides).
-//! 4. **History.** When the [`History`] renews at this [`Stage`], a node's flag is
-//!    set exactly when it holds a surviving pair.
-//! 5. **Enforced displacements.** For each surviving pair and each vertex `V`
-//!    of its triangle, with current position `V` and rest position `V_rest`:
-//!    `depth = (S - V) . N_R`, `V_proj = V + depth N_R` (the projection onto the
-//!    face plane along `N_R`), `U = V_proj - V_rest`.
-//!    With [`DetectOptions::unilateral`] (off by default), a triangle with a
-//!    vertex at `depth >= -skin` (behind the face, or on it) enforces only
-//!    such vertices: a vertex in front of the face is free, never pulled onto
-//!    it. A triangle whose three vertices all lie in front (the face pokes
-//!    into a triangle larger than the contact) is projected whole, as in the
-//!    paper, so that the contact still gives a force.
-//!    **Conflict rule:** when several pairs give one vertex different
-//!    displacements, the one with the largest `depth` wins (the face the vertex
-//!    has penetrated deepest, so that the vertex ends up outside every face that
-//!    claims it as far as one projection can); equal depths keep the first in
-//!    (instrument, node) order. Each [`Enforced`] records the instrument and
-//!    node that gave it, so reactions can be summed per instrument.
+//! 1. [`cast`](super::cast): one ray per source node (`S + t N_R`, scene
+//!    frame after the pose), cast once for all instruments; the nearest hit
+//!    behind (`t <= 0`) and in front (`t > 0`), each only as far as a later
+//!    stage can use it ([`DetectOptions::bounded_rays`]).
+//! 2. [`pair`](super::pair) (A1, A2): the nearest triangle behind a node,
+//!    within its reach, whose outward normal opposes the face normal; with
+//!    the Signorini rule also the nearest triangle *in front* within
+//!    [`DetectOptions::band_m`] (tissue about to be touched, or that the
+//!    face is leaving).
+//! 3. [`cull`](super::cull) (B1-B3), per instrument: flagged nodes mark
+//!    their nearest triangle in front as infeasible, and the pairs holding
+//!    one are cancelled.
+//! 4. renew ([`History::renew`]): a node's flag is set exactly when it
+//!    holds a surviving pair (when the history renews at this [`Stage`]).
+//! 5. By the contact rule ([`ContactRule`]):
+//!    * [`gap`](super::gap) (Signorini, the default): the surface vertices
+//!      each face may push ([`Candidate`]: covered by the face, within the
+//!      band), with the face's normal and point; the pierced triangles not
+//!      all of whose vertices a face covers ([`EdgeCandidate`]); and the
+//!      vertices near the faces whose compliance should be ready
+//!      ([`Nearby`]);
+//!    * [`enforce`](super::enforce) (the paper's rule): every vertex of a
+//!      paired triangle projected onto the face plane ([`Enforced`]).
 //!
 //! The caller keeps the backend's positions current: call
 //! [`RayBackend::update_positions`] with the same positions as
-//! [`ContactQuery::positions`] whenever the surface changed (a BVH refits then).
-//! The force loop at 1 kHz does not refit between two published surfaces.
+//! [`ContactQuery::positions`] whenever the surface changed (a BVH refits
+//! then). The force loop at 1 kHz does not refit between two published
+//! surfaces.
 //!
-//! Steady state allocates nothing: every buffer lives in the [`Workspace`] or in
-//! the [`ContactOutput`] and is cleared, not freed.
+//! Steady state allocates nothing: every buffer lives in the [`Workspace`]
+//! or in the [`ContactOutput`] and is cleared, not freed.
 
+use super::faces::FaceId;
 use super::history::{History, Stage};
 use super::instrument::Instrument;
 use super::{NodeHits, RayBackend, RayRange};
+use crate::mesh::adjacency::Csr;
 use nalgebra::{Isometry3, Point3, Vector3};
 
 /// Errors of a contact query; each names what is inconsistent.
@@ -84,6 +78,18 @@ pub struct ContactQuery<'a> {
     pub to_volume: &'a [u32],
 }
 
+/// What the last stage makes of the surviving pairs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ContactRule {
+    /// Candidates of a unilateral (Signorini) contact problem: the vertices
+    /// each face covers, with the face's normal and point (the default).
+    #[default]
+    Signorini,
+    /// The paper's projection: every vertex of a paired triangle gets the
+    /// displacement onto the face plane.
+    Paper,
+}
+
 /// Options of a query.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DetectOptions {
@@ -98,27 +104,41 @@ pub struct DetectOptions {
     pub skin_m: f64,
     /// Casts each line only as far as an answer can matter (the default):
     /// behind up to the node's reach (the pair rule ignores farther hits), and
-    /// in front only from nodes whose history flag is on (the culling reads no
-    /// other front), up to the node's reach. The culling only asks whether a
-    /// flagged node's nearest front hit is one of the instrument's candidate
-    /// pair triangles, so a flagged line with nothing in front within reach
-    /// is cast again, beyond it, only when it meets the box of those
+    /// in front up to the band ([`Self::band_m`], Signorini rule) and, from
+    /// nodes whose history flag is on, up to the node's reach (the culling
+    /// reads their front). The culling only asks whether a flagged node's
+    /// nearest front hit is one of the instrument's candidate pair
+    /// triangles, so a flagged line with nothing in front within reach is
+    /// cast again, beyond it, only when it meets the box of those
     /// triangles. The output is the same as with whole lines (`false`, the
     /// paper's pass), which is kept for comparison.
     pub bounded_rays: bool,
-    /// Unilateral contact (off by default, as in the scenes): when a vertex
-    /// of a surviving pair's triangle lies behind the face (depth at least
-    /// `-skin_m`), only such vertices get enforced displacements; a triangle
-    /// with all three vertices in front is projected whole. `false` always projects all
-    /// three vertices, as the paper does: with triangles larger than the
-    /// contact, a vertex lying in front of the face is pulled onto it (the
-    /// tissue is dragged towards the spatula).
-    pub unilateral: bool,
+    /// The contact rule.
+    pub rule: ContactRule,
+    /// Signorini rule: how far in front of a face (or beside its outline) a
+    /// vertex is a candidate, m. Motion of the plate within one deformation
+    /// interval should stay below it (the force loop answers from the
+    /// candidates of the last step's surface).
+    pub band_m: f64,
+    /// Signorini rule: how far in front of a face or beside its outline a
+    /// vertex is reported [`Nearby`] (its compliance is wanted soon), m.
+    pub ahead_m: f64,
+    /// Signorini rule: how far outside a face's outline a vertex may lie and
+    /// still be covered by the face, m.
+    pub cover_tolerance_m: f64,
 }
 
 /// Default contact skin, m (0.1 um: far above rounding, far below any
 /// modelled length).
 pub const DEFAULT_SKIN_M: f64 = 1e-7;
+/// Default [`DetectOptions::band_m`], m.
+pub const DEFAULT_BAND_M: f64 = 1e-3;
+/// Default [`DetectOptions::ahead_m`], m.
+pub const DEFAULT_AHEAD_M: f64 = 4e-3;
+/// Default [`DetectOptions::cover_tolerance_m`], m (1 um: far above
+/// rounding, far below any modelled length; a vertex exactly on an edge of
+/// the face is covered).
+pub const DEFAULT_COVER_TOLERANCE_M: f64 = 1e-6;
 
 impl Default for DetectOptions {
     fn default() -> Self {
@@ -126,7 +146,49 @@ impl Default for DetectOptions {
             culling: true,
             skin_m: DEFAULT_SKIN_M,
             bounded_rays: true,
-            unilateral: false,
+            rule: ContactRule::Signorini,
+            band_m: DEFAULT_BAND_M,
+            ahead_m: DEFAULT_AHEAD_M,
+            cover_tolerance_m: DEFAULT_COVER_TOLERANCE_M,
+        }
+    }
+}
+
+impl DetectOptions {
+    /// The paper's pipeline: projection rule (with the given culling and
+    /// bounded rays).
+    pub fn paper() -> Self {
+        Self {
+            rule: ContactRule::Paper,
+            ..Self::default()
+        }
+    }
+
+    /// The skin, made safe (finite, non-negative).
+    pub(crate) fn skin(&self) -> f64 {
+        if self.skin_m.is_finite() {
+            self.skin_m.max(0.0)
+        } else {
+            0.0
+        }
+    }
+
+    /// How far in front pairs form, m (0 for the paper's rule).
+    pub(crate) fn front_band(&self) -> f64 {
+        match self.rule {
+            ContactRule::Signorini if self.band_m.is_finite() => self.band_m.max(0.0),
+            _ => 0.0,
+        }
+    }
+
+    /// How far in front every node looks, m: the band and the nearby
+    /// vertices' distance (0 for the paper's rule).
+    pub(crate) fn front_look(&self) -> f64 {
+        match self.rule {
+            ContactRule::Signorini if self.ahead_m.is_finite() => {
+                self.ahead_m.max(self.front_band())
+            }
+            _ => self.front_band(),
         }
     }
 }
@@ -142,7 +204,8 @@ pub struct Tool<'a> {
     pub history: &'a mut History,
 }
 
-/// A collision pair: source node and its nearest triangle behind.
+/// A collision pair: source node and its nearest triangle behind (or, with
+/// the Signorini rule, in front within the band).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Pair {
     /// Index of the instrument in the query.
@@ -151,11 +214,18 @@ pub struct Pair {
     pub node: u32,
     /// Surface triangle index.
     pub triangle: u32,
-    /// Signed line parameter of the hit, m (`<= 0`: behind the face).
+    /// Signed line parameter of the hit, m (`<= 0`: behind the face; `> 0`:
+    /// in front, within the band).
     pub t: f64,
+    /// Barycentric coordinates of the hit on the triangle's second and third
+    /// vertices (the first has `1 - u - v`).
+    pub u: f64,
+    /// See `u`.
+    pub v: f64,
 }
 
-/// An enforced displacement of one surface vertex (a Dirichlet condition).
+/// An enforced displacement of one surface vertex (a Dirichlet condition),
+/// the paper's rule.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Enforced {
     /// Surface vertex index.
@@ -172,6 +242,69 @@ pub struct Enforced {
     pub depth: f64,
 }
 
+/// A surface vertex a face may push (the Signorini rule): the face covers
+/// it and it lies within the band in front of the face, or behind it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Candidate {
+    /// Surface vertex index.
+    pub surface_vertex: u32,
+    /// Volume node index.
+    pub volume_node: u32,
+    /// Instrument of the face.
+    pub instrument: u16,
+    /// The face.
+    pub face: FaceId,
+    /// Unit outward normal of the face at the vertex's projection, scene
+    /// frame: the direction the face pushes the tissue.
+    pub normal: Vector3<f64>,
+    /// The face point the vertex projects to, scene frame, m.
+    pub point: Point3<f64>,
+    /// `normal . (x - point)` at the query's positions, m (negative: behind
+    /// the face).
+    pub gap_now_m: f64,
+}
+
+/// A point of a triangle pierced by a face where the faces do not cover
+/// every vertex of the triangle (the contact's boundary, or a plate's edge
+/// in a triangle larger than the contact; the Signorini rule): the face
+/// pushes the tissue point under one corner of the polygon the face's
+/// outline cuts out of the triangle ([`super::gap`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EdgeCandidate {
+    /// Instrument of the face.
+    pub instrument: u16,
+    /// The face.
+    pub face: FaceId,
+    /// Which corner of the polygon: `16 + 4 e + c` where triangle edge `e`
+    /// crosses outline side `c`, `4 + k` for corner `k` of the outline,
+    /// `32 + i` for a source node `i` (a curved plate's faces and the rim
+    /// faces, whose point is where the node's line meets the triangle).
+    pub feature: u32,
+    /// Surface triangle index.
+    pub triangle: u32,
+    /// Volume nodes of the triangle's vertices.
+    pub nodes: [u32; 3],
+    /// Barycentric weights of the tissue point on them (summing to 1).
+    pub weights: [f64; 3],
+    /// Unit outward normal of the face (the node's), scene frame.
+    pub normal: Vector3<f64>,
+    /// The source node's point on the face, scene frame, m.
+    pub point: Point3<f64>,
+    /// `normal . (tissue point - point)` at the query's positions, m.
+    pub gap_now_m: f64,
+}
+
+/// A surface vertex near a face but not a candidate of it: within
+/// [`DetectOptions::ahead_m`] in front of the face or beside its outline.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Nearby {
+    /// Volume node index.
+    pub volume_node: u32,
+    /// Its distance to the face's box (the larger of the gap in front and
+    /// the distance outside the outline), m.
+    pub distance_m: f64,
+}
+
 /// What a query returns (buffers reused across calls).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct ContactOutput {
@@ -179,20 +312,51 @@ pub struct ContactOutput {
     pub pairs: Vec<Pair>,
     /// Pairs cancelled by culling.
     pub cancelled: Vec<Pair>,
-    /// One enforced displacement per contacted surface vertex.
+    /// The paper's rule: one enforced displacement per contacted surface vertex.
     pub enforced: Vec<Enforced>,
+    /// The Signorini rule: the candidates, in (instrument, face) order, at
+    /// most one per vertex along a direction (of two claims with normals
+    /// within 5 degrees, parallel or opposed, the deeper stays).
+    pub candidates: Vec<Candidate>,
+    /// The Signorini rule: pierced triangles not every vertex of which a
+    /// face of the instrument covers, one per (instrument, face, triangle):
+    /// the deepest node's.
+    pub edges: Vec<EdgeCandidate>,
+    /// The Signorini rule: vertices near the faces (may repeat).
+    pub nearby: Vec<Nearby>,
 }
 
 impl ContactOutput {
-    fn clear(&mut self) {
+    pub(crate) fn clear(&mut self) {
         self.pairs.clear();
         self.cancelled.clear();
         self.enforced.clear();
+        self.candidates.clear();
+        self.edges.clear();
+        self.nearby.clear();
     }
 
     /// Surviving pairs of instrument `k`.
     pub fn pairs_of(&self, k: u16) -> impl Iterator<Item = &Pair> {
         self.pairs.iter().filter(move |p| p.instrument == k)
+    }
+
+    /// Surface vertices the query's rule would push: the enforced ones
+    /// (paper) or the candidates (Signorini), counted once.
+    pub fn contact_vertices(&self) -> usize {
+        if self.enforced.is_empty() {
+            let mut v: Vec<u32> = self
+                .candidates
+                .iter()
+                .map(|c| c.volume_node)
+                .chain(self.edges.iter().flat_map(|e| e.nodes))
+                .collect();
+            v.sort_unstable();
+            v.dedup();
+            v.len()
+        } else {
+            self.enforced.len()
+        }
     }
 }
 
@@ -208,19 +372,37 @@ pub struct Workspace {
     /// reach or could be a pair's triangle (see [`DetectOptions::bounded_rays`]);
     /// farther ones are not looked for and read `None`.
     pub hits: Vec<NodeHits>,
-    offsets: Vec<usize>,
-    ranges: Vec<RayRange>,
+    pub(crate) offsets: Vec<usize>,
+    pub(crate) ranges: Vec<RayRange>,
     /// Second pass of flagged rays: ray index, then its origin, direction
     /// and answer.
-    recast: Vec<usize>,
-    recast_origins: Vec<Point3<f64>>,
-    recast_dirs: Vec<Vector3<f64>>,
-    recast_ranges: Vec<RayRange>,
-    recast_hits: Vec<NodeHits>,
-    candidates: Vec<Pair>,
-    mark: Vec<u32>,
-    stamp: u32,
-    slot: Vec<u32>,
+    pub(crate) recast: Vec<usize>,
+    pub(crate) recast_origins: Vec<Point3<f64>>,
+    pub(crate) recast_dirs: Vec<Vector3<f64>>,
+    pub(crate) recast_ranges: Vec<RayRange>,
+    pub(crate) recast_hits: Vec<NodeHits>,
+    pub(crate) candidates: Vec<Pair>,
+    pub(crate) mark: Vec<u32>,
+    pub(crate) stamp: u32,
+    pub(crate) slot: Vec<u32>,
+    /// Surface topology for the gap stage (built on first use for a
+    /// triangle list, identified by its address and length).
+    pub(crate) topology: Option<Topology>,
+    pub(crate) visit: Vec<u32>,
+    pub(crate) visit_stamp: u32,
+    pub(crate) queue: Vec<u32>,
+    pub(crate) order: Vec<usize>,
+    pub(crate) keep: Vec<bool>,
+    pub(crate) covered: Vec<u32>,
+    pub(crate) covered_stamp: u32,
+}
+
+/// Vertex neighbours and vertex triangles of a surface.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Topology {
+    pub key: (usize, usize),
+    pub neighbours: Csr,
+    pub triangles: Csr,
 }
 
 impl Workspace {
@@ -229,12 +411,7 @@ impl Workspace {
         Self::default()
     }
 
-    /// First ray of instrument `k` in `origins` / `dirs` / `hits` (last query).
-    pub fn first_ray(&self, k: usize) -> usize {
-        self.offsets[k]
-    }
-
-    fn next_stamp(&mut self, triangles: usize) {
+    pub(crate) fn next_stamp(&mut self, triangles: usize) {
         if self.mark.len() != triangles {
             self.mark.clear();
             self.mark.resize(triangles, 0);
@@ -248,7 +425,7 @@ impl Workspace {
     }
 }
 
-const NONE: u32 = u32::MAX;
+pub(crate) const NONE: u32 = u32::MAX;
 
 /// One instrument (the force loop). See [`detect_many`].
 pub fn detect(
@@ -270,9 +447,9 @@ pub fn detect(
     detect_many(backend, query, &mut tools, stage, opts, ws, out)
 }
 
-/// All instruments in one cast (the deformation loop): rays, pairs, culling,
-/// history renewal and enforced displacements (module documentation).
-/// On error, `out` is left empty and no history is changed.
+/// All instruments in one cast (the deformation loop): the stages of the
+/// module documentation, in order. On error, `out` is left empty and no
+/// history is changed.
 pub fn detect_many(
     backend: &mut dyn RayBackend,
     query: &ContactQuery<'_>,
@@ -283,6 +460,23 @@ pub fn detect_many(
     out: &mut ContactOutput,
 ) -> Result<(), ContactError> {
     out.clear();
+    check(query, tools)?;
+    super::cast::cast(backend, tools, opts, ws);
+    super::pair::pair(query, tools, opts, ws)?;
+    super::cast::recast_for_culling(backend, query, tools, opts, ws);
+    super::cull::cull(query, tools, opts, ws, out);
+    for (k, tool) in tools.iter_mut().enumerate() {
+        tool.history.renew(stage, out.pairs_of(k as u16));
+    }
+    match opts.rule {
+        ContactRule::Paper => super::enforce::project(query, opts, ws, out),
+        ContactRule::Signorini => super::gap::candidates(query, tools, opts, ws, out),
+    }
+    Ok(())
+}
+
+/// Consistent lengths, finite poses, a countable number of instruments.
+fn check(query: &ContactQuery<'_>, tools: &[Tool<'_>]) -> Result<(), ContactError> {
     let nv = query.positions.len();
     for (what, got) in [
         ("rest", query.rest.len()),
@@ -306,286 +500,13 @@ pub fn detect_many(
             return Err(ContactError::NonFinitePose { instrument: k });
         }
     }
-
-    // 1. Rays.
-    ws.origins.clear();
-    ws.dirs.clear();
-    ws.offsets.clear();
-    for tool in tools.iter() {
-        ws.offsets.push(ws.origins.len());
-        tool.instrument
-            .place(&tool.pose, &mut ws.origins, &mut ws.dirs);
-    }
-    ws.offsets.push(ws.origins.len());
-    let skin = if opts.skin_m.is_finite() {
-        opts.skin_m.max(0.0)
-    } else {
-        0.0
-    };
-    if skin > 0.0 {
-        for (o, d) in ws.origins.iter_mut().zip(&ws.dirs) {
-            *o += d * skin;
-        }
-    }
-    ws.ranges.clear();
-    for tool in tools.iter() {
-        let flags = tool.history.flags();
-        ws.ranges
-            .extend(tool.instrument.nodes.iter().enumerate().map(|(i, node)| {
-                if opts.bounded_rays {
-                    // Pairs need the nearest hit behind only within reach
-                    // (from the true face point, hence the skin); the culling
-                    // needs the nearest hit in front of flagged nodes only.
-                    let flagged = opts.culling && flags.get(i).copied().unwrap_or(false);
-                    RayRange {
-                        behind: widen(node.reach + skin),
-                        front: if flagged {
-                            front_reach(node.reach)
-                        } else {
-                            -1.0
-                        },
-                    }
-                } else {
-                    RayRange::LINE
-                }
-            }));
-    }
-    backend.cast_ranged(&ws.origins, &ws.dirs, &ws.ranges, &mut ws.hits);
-    if skin > 0.0 {
-        // Back to the true face points. The shifted origins classified the hits
-        // (behind: t_true <= skin); report t from the true face point.
-        for (o, d) in ws.origins.iter_mut().zip(&ws.dirs) {
-            *o -= d * skin;
-        }
-        for h in ws.hits.iter_mut() {
-            for hit in [&mut h.behind, &mut h.front].into_iter().flatten() {
-                hit.t += skin;
-            }
-        }
-    }
-
-    // 2. Pairs (A1, A2).
-    ws.candidates.clear();
-    let bad = |triangle: u32| ContactError::BadTriangle {
-        triangle,
-        vertices: nv,
-    };
-    for (k, tool) in tools.iter().enumerate() {
-        let first = ws.offsets[k];
-        for (i, node) in tool.instrument.nodes.iter().enumerate() {
-            let g = first + i;
-            let Some(hit) = ws.hits.get(g).and_then(|h| h.behind) else {
-                continue;
-            };
-            if -hit.t > node.reach {
-                continue;
-            }
-            let tri = query
-                .triangles
-                .get(hit.triangle as usize)
-                .ok_or_else(|| bad(hit.triangle))?;
-            if tri.iter().any(|&v| v as usize >= nv) {
-                return Err(bad(hit.triangle));
-            }
-            let [a, b, c] = tri.map(|v| query.positions[v as usize]);
-            let n_tri = (b - a).cross(&(c - a));
-            if ws.dirs[g].dot(&n_tri) < 0.0 {
-                ws.candidates.push(Pair {
-                    instrument: k as u16,
-                    node: i as u32,
-                    triangle: hit.triangle,
-                    t: hit.t,
-                });
-            }
-        }
-    }
-
-    // 3a. Flagged lines with nothing in front within reach: their nearest
-    // front hit matters only if it is a candidate triangle of their
-    // instrument, so they are cast again, beyond reach, only when they meet
-    // the box of those triangles (which holds any such hit).
-    if opts.culling && opts.bounded_rays {
-        ws.recast.clear();
-        ws.recast_origins.clear();
-        ws.recast_dirs.clear();
-        ws.recast_ranges.clear();
-        let mut c = 0;
-        for (k, tool) in tools.iter().enumerate() {
-            let first = ws.offsets[k];
-            let mut lo = Point3::from([f64::INFINITY; 3]);
-            let mut hi = Point3::from([f64::NEG_INFINITY; 3]);
-            while c < ws.candidates.len() && ws.candidates[c].instrument as usize == k {
-                for v in query.triangles[ws.candidates[c].triangle as usize] {
-                    let p = query.positions[v as usize];
-                    lo = lo.inf(&p);
-                    hi = hi.sup(&p);
-                }
-                c += 1;
-            }
-            if lo.x > hi.x {
-                continue;
-            }
-            let (lo, hi) = super::widen_box(lo, hi);
-            for (i, &flag) in tool.history.flags().iter().enumerate() {
-                let g = first + i;
-                if !flag || ws.hits[g].front.is_some() {
-                    continue;
-                }
-                let beyond = ws.ranges[g].front;
-                if !beyond.is_finite() {
-                    continue;
-                }
-                let o = ws.origins[g] + ws.dirs[g] * skin;
-                if line_meets_box(&o, &ws.dirs[g], beyond, &lo, &hi) {
-                    ws.recast.push(g);
-                    ws.recast_origins.push(o);
-                    ws.recast_dirs.push(ws.dirs[g]);
-                    ws.recast_ranges.push(RayRange {
-                        behind: -1.0,
-                        front: f64::INFINITY,
-                    });
-                }
-            }
-        }
-        if !ws.recast.is_empty() {
-            backend.cast_ranged(
-                &ws.recast_origins,
-                &ws.recast_dirs,
-                &ws.recast_ranges,
-                &mut ws.recast_hits,
-            );
-            for (j, &g) in ws.recast.iter().enumerate() {
-                ws.hits[g].front = ws.recast_hits[j].front.map(|mut h| {
-                    h.t += skin;
-                    h
-                });
-            }
-        }
-    }
-
-    // 3. Culling (B1-B3), per instrument.
-    let mut c = 0;
-    for (k, tool) in tools.iter_mut().enumerate() {
-        let first = ws.offsets[k];
-        tool.history.ensure_len(tool.instrument.len());
-        if opts.culling {
-            ws.next_stamp(query.triangles.len());
-            for (i, &flag) in tool.history.flags().iter().enumerate() {
-                if !flag {
-                    continue;
-                }
-                if let Some(front) = ws.hits.get(first + i).and_then(|h| h.front) {
-                    if let Some(m) = ws.mark.get_mut(front.triangle as usize) {
-                        *m = ws.stamp;
-                    }
-                }
-            }
-        }
-        let start = out.pairs.len();
-        while c < ws.candidates.len() && ws.candidates[c].instrument as usize == k {
-            let p = ws.candidates[c];
-            c += 1;
-            if opts.culling && ws.mark[p.triangle as usize] == ws.stamp {
-                out.cancelled.push(p);
-            } else {
-                out.pairs.push(p);
-            }
-        }
-        // 4. History renewal from the surviving pairs.
-        if tool.history.renews(stage) {
-            let flags = tool.history.flags_mut();
-            flags.fill(false);
-            for p in &out.pairs[start..] {
-                flags[p.node as usize] = true;
-            }
-        }
-    }
-
-    // 5. Enforced displacements, deepest projection wins.
-    if ws.slot.len() != nv {
-        ws.slot.clear();
-        ws.slot.resize(nv, NONE);
-    }
-    for p in &out.pairs {
-        let g = ws.offsets[p.instrument as usize] + p.node as usize;
-        let (s, n) = (ws.origins[g], ws.dirs[g]);
-        let tri = query.triangles[p.triangle as usize];
-        // Unilateral: when a vertex lies behind the face, those in front stay
-        // free; a triangle the face pokes into with all three vertices in
-        // front is projected whole (else that contact would give no force).
-        let depths = tri.map(|v| (s - query.positions[v as usize]).dot(&n));
-        let pushes = opts.unilateral && depths.iter().any(|&d| d >= -skin);
-        for (v, depth) in tri.into_iter().zip(depths) {
-            let pos = query.positions[v as usize];
-            if pushes && depth < -skin {
-                continue;
-            }
-            let e = Enforced {
-                surface_vertex: v,
-                volume_node: query.to_volume[v as usize],
-                displacement: pos + n * depth - query.rest[v as usize],
-                instrument: p.instrument,
-                node: p.node,
-                depth,
-            };
-            let slot = &mut ws.slot[v as usize];
-            if *slot == NONE {
-                *slot = out.enforced.len() as u32;
-                out.enforced.push(e);
-            } else if depth > out.enforced[*slot as usize].depth {
-                out.enforced[*slot as usize] = e;
-            }
-        }
-    }
-    for e in &out.enforced {
-        ws.slot[e.surface_vertex as usize] = NONE;
-    }
     Ok(())
-}
-
-/// How far in front a flagged node's line is cast in the first pass, m: its
-/// reach (hits there are found with the behind ones, from the same region
-/// of the tree).
-#[inline]
-fn front_reach(reach: f64) -> f64 {
-    if reach.is_finite() {
-        widen(reach)
-    } else {
-        f64::INFINITY
-    }
-}
-
-/// Whether the part `t > beyond` of the line `o + t d` meets the box
-/// `[lo, hi]` (slab test; a zero direction component needs `o` within that
-/// slab).
-fn line_meets_box(
-    o: &Point3<f64>,
-    d: &Vector3<f64>,
-    beyond: f64,
-    lo: &Point3<f64>,
-    hi: &Point3<f64>,
-) -> bool {
-    let (mut t0, mut t1) = (beyond, f64::INFINITY);
-    for a in 0..3 {
-        if d[a] == 0.0 {
-            if o[a] < lo[a] || o[a] > hi[a] {
-                return false;
-            }
-        } else {
-            let inv = 1.0 / d[a];
-            let (ta, tb) = ((lo[a] - o[a]) * inv, (hi[a] - o[a]) * inv);
-            t0 = t0.max(ta.min(tb));
-            t1 = t1.min(ta.max(tb));
-        }
-    }
-    // Widened: a hit exactly on the box boundary must not be missed.
-    t0 <= t1 + 1e-9 * (t1.abs() + 1.0)
 }
 
 /// `x` plus a relative margin far above the rounding of the tests it bounds
 /// (a bound that is slightly loose only costs time; a tight one could drop an
 /// answer the whole-line cast gives).
 #[inline]
-fn widen(x: f64) -> f64 {
+pub(crate) fn widen(x: f64) -> f64 {
     x * (1.0 + 1e-9) + 1e-12
 }

@@ -50,6 +50,12 @@ pub struct History {
     /// The renewal mode.
     pub mode: HistoryMode,
     flags: Vec<bool>,
+    /// Vertices held by a face after the last contact solve: (volume node,
+    /// face index), sorted. The Signorini rule keeps such a vertex covered
+    /// by its face while it lies within the band of the face's outline (a
+    /// vertex pushed at the very edge slides a little beyond it, and would
+    /// otherwise leave and re-enter contact from one step to the next).
+    held: Vec<(u32, u8)>,
 }
 
 impl History {
@@ -58,6 +64,7 @@ impl History {
         Self {
             mode,
             flags: vec![false; instrument.len()],
+            held: Vec::new(),
         }
     }
 
@@ -82,6 +89,7 @@ impl History {
     /// Turns every flag off (e.g. when the spatula is withdrawn or the scene resets).
     pub fn clear(&mut self) {
         self.flags.fill(false);
+        self.held.clear();
     }
 
     /// Copies `other` into `self` without allocating once sizes match.
@@ -89,6 +97,39 @@ impl History {
         self.mode = other.mode;
         self.flags.clear();
         self.flags.extend_from_slice(&other.flags);
+        self.held.clear();
+        self.held.extend_from_slice(&other.held);
+    }
+
+    /// Sets the vertices held by a face ((volume node, face index)).
+    pub fn set_held(&mut self, held: impl Iterator<Item = (u32, u8)>) {
+        self.held.clear();
+        self.held.extend(held);
+        self.held.sort_unstable();
+        self.held.dedup();
+    }
+
+    /// Whether volume node `node` is held by face `face` (its index).
+    pub fn is_held(&self, node: u32, face: u8) -> bool {
+        self.held.binary_search(&(node, face)).is_ok()
+    }
+
+    /// Renews the flags from the surviving pairs of this instrument when the
+    /// mode renews at `stage`: a node's flag is on exactly when it holds a
+    /// pair.
+    pub fn renew<'a>(
+        &mut self,
+        stage: Stage,
+        pairs: impl Iterator<Item = &'a super::contact::Pair>,
+    ) {
+        if self.renews(stage) {
+            self.flags.fill(false);
+            for p in pairs {
+                if let Some(f) = self.flags.get_mut(p.node as usize) {
+                    *f = true;
+                }
+            }
+        }
     }
 
     /// Resizes to `n` nodes (new flags off).
@@ -96,9 +137,5 @@ impl History {
         if self.flags.len() != n {
             self.flags.resize(n, false);
         }
-    }
-
-    pub(crate) fn flags_mut(&mut self) -> &mut [bool] {
-        &mut self.flags
     }
 }

@@ -3,7 +3,10 @@
 //! Stages, each a plain function or struct over plain data:
 //! pose -> source-node rays (instrument frame to scene frame) -> per-node nearest
 //! hit behind and in front ([`RayBackend`]) -> collision pairs (A1, A2) ->
-//! history culling (B1-B3) -> enforced displacements.
+//! history culling (B1-B3) -> history renewal -> the candidates of the
+//! contact problem (the faces' normals and points over the vertices they
+//! cover; DESIGN.md section 3b) or, by the paper's rule, enforced
+//! displacements.
 //!
 //! * [`instrument`]: spatula plates (flat, trapezoid, curved), source nodes,
 //!   the instrument frame and the pose.
@@ -12,24 +15,34 @@
 //! * [`bvh`]: the refitted BVH backend.
 //! * [`placement`]: spatula poses in a fissure of the phantom (landmarks).
 //! * [`history`]: history flags and the renewal modes (force rate or paper).
-//! * [`contact`]: pairs, culling and enforced displacements ([`contact::detect`]).
+//! * [`faces`]: the plate's contact faces and the projection onto them.
+//! * [`contact`]: the pipeline of one query ([`contact::detect`]) and its
+//!   types; its stages are `cast`, `pair`, `cull`, the history's renewal,
+//!   and `gap` (Signorini) or `enforce` (paper).
 //! * [`gpu`]: wgpu backends.
 
 pub mod brute;
 pub mod bvh;
+pub(crate) mod cast;
 pub mod contact;
+pub(crate) mod cull;
+pub(crate) mod enforce;
+pub mod faces;
+pub(crate) mod gap;
 pub mod gpu;
 pub mod history;
 pub mod instrument;
+pub(crate) mod pair;
 pub mod placement;
 pub mod ray;
 
 pub use brute::BruteForce;
 pub use bvh::{Bvh, RefitStats};
 pub use contact::{
-    ContactError, ContactOutput, ContactQuery, DetectOptions, Enforced, Pair, Tool, Workspace,
-    detect, detect_many,
+    Candidate, ContactError, ContactOutput, ContactQuery, ContactRule, DetectOptions, Enforced,
+    Nearby, Pair, Tool, Workspace, detect, detect_many,
 };
+pub use faces::{FaceId, FacePoint};
 pub use history::{History, HistoryMode, Stage};
 pub use instrument::{
     Instrument, InstrumentError, NodeKind, NodeLayout, Plate, RimNodes, SourceNode,

@@ -176,7 +176,6 @@ pub struct Compliance {
     c_force: Vec<Vector3<f64>>,
     inc: Vec<usize>,
     inc_of: Vec<u32>,
-    inc_by_node: Vec<Vec<usize>>,
     w: Vec<f64>,
     q: Vec<f64>,
     kinds: Vec<RowKind>,
@@ -308,7 +307,6 @@ impl Compliance {
             c_force: Vec::new(),
             inc: Vec::new(),
             inc_of: Vec::new(),
-            inc_by_node: Vec::new(),
             w: Vec::new(),
             q: Vec::new(),
             kinds: Vec::new(),
@@ -891,20 +889,22 @@ impl Compliance {
         let n_nodes = self.model.n_nodes();
         contact::validate_rows(rows, n_nodes, true)?;
         for (i, r) in rows.iter().enumerate() {
-            let b = 3 * r.node as usize;
-            if self.model.support[b..b + 3].iter().any(|&f| f) {
-                return Err(SolveError::BadConstraint {
-                    node: r.node,
-                    reason: format!("contact row {i}: the node is a fixed support"),
-                });
-            }
-            if self.rec_of[r.node as usize] == NONE {
-                return Err(SolveError::BadConstraint {
-                    node: r.node,
-                    reason: format!(
-                        "contact row {i}: the node is not among the recovered nodes of this compliance solver"
-                    ),
-                });
+            for (n, _) in r.nodes() {
+                let b = 3 * n as usize;
+                if self.model.support[b..b + 3].iter().any(|&f| f) {
+                    return Err(SolveError::BadConstraint {
+                        node: n,
+                        reason: format!("contact row {i}: the node is a fixed support"),
+                    });
+                }
+                if self.rec_of[n as usize] == NONE {
+                    return Err(SolveError::BadConstraint {
+                        node: n,
+                        reason: format!(
+                            "contact row {i}: the node is not among the recovered nodes of this compliance solver"
+                        ),
+                    });
+                }
             }
         }
         for &n in &self.c_nodes {
@@ -912,59 +912,46 @@ impl Compliance {
         }
         self.c_nodes.clear();
         for r in rows {
-            if self.c_slot[r.node as usize] == NONE {
-                self.c_slot[r.node as usize] = self.c_nodes.len() as u32;
-                self.c_nodes.push(r.node);
+            for (n, _) in r.nodes() {
+                if self.c_slot[n as usize] == NONE {
+                    self.c_slot[n as usize] = self.c_nodes.len() as u32;
+                    self.c_nodes.push(n);
+                }
             }
         }
         self.stamp += 1;
         let nodes = std::mem::take(&mut self.c_nodes);
         self.use_columns(&nodes, self.policy);
         self.c_nodes = nodes;
-        // Rows whose node has its columns take part; the others wait.
+        // Rows whose nodes all have their columns take part; the others wait.
         answer.pending.clear();
         self.inc.clear();
         self.inc_of.clear();
         self.inc_of.resize(rows.len(), NONE);
-        if self.inc_by_node.len() < self.c_nodes.len() {
-            self.inc_by_node.resize_with(self.c_nodes.len(), Vec::new);
-        }
-        for v in &mut self.inc_by_node[..self.c_nodes.len()] {
-            v.clear();
-        }
         for (i, r) in rows.iter().enumerate() {
-            if self.cache_slot[r.node as usize] == NONE {
+            if r.nodes().any(|(n, _)| self.cache_slot[n as usize] == NONE) {
                 answer.pending.push(i as u32);
                 continue;
             }
             self.inc_of[i] = self.inc.len() as u32;
-            self.inc_by_node[self.c_slot[r.node as usize] as usize].push(self.inc.len());
             self.inc.push(i);
         }
         let n = self.inc.len();
         self.w.clear();
         self.w.resize(n * n, 0.0);
-        for si in 0..self.c_nodes.len() {
-            if self.inc_by_node[si].is_empty() {
-                continue;
-            }
-            for sj in 0..=si {
-                if self.inc_by_node[sj].is_empty() {
-                    continue;
-                }
-                let b = self.block(self.c_nodes[si], self.c_nodes[sj]);
-                for &a in &self.inc_by_node[si] {
-                    let da = rows[self.inc[a]].dir;
-                    let bt = b.transpose() * da;
-                    for &c in &self.inc_by_node[sj] {
-                        if si == sj && c > a {
-                            continue;
-                        }
-                        let v = bt.dot(&rows[self.inc[c]].dir);
-                        self.w[a * n + c] = v;
-                        self.w[c * n + a] = v;
+        for a in 0..n {
+            let ra = &rows[self.inc[a]];
+            for c in 0..=a {
+                let rc = &rows[self.inc[c]];
+                let mut v = 0.0;
+                for (na, wa) in ra.nodes() {
+                    for (nc, wc) in rc.nodes() {
+                        let b = self.block(na, nc);
+                        v += wa * wc * ra.dir.dot(&(b * rc.dir));
                     }
                 }
+                self.w[a * n + c] = v;
+                self.w[c * n + a] = v;
             }
         }
         self.q.clear();
@@ -988,13 +975,15 @@ impl Compliance {
         let tol = Tolerances::for_gaps(&self.q, &self.kinds);
         let report = self
             .lcp
-            .solve(&self.w, n, &self.q, &self.kinds, &mut self.lam, &tol)?;
+            .solve(&self.w, n, n, &self.q, &self.kinds, &mut self.lam, &tol)?;
         // Node forces and the response.
         self.c_force.clear();
         self.c_force.resize(self.c_nodes.len(), Vector3::zeros());
         for (a, &i) in self.inc.iter().enumerate() {
             let r = &rows[i];
-            self.c_force[self.c_slot[r.node as usize] as usize] += r.dir * self.lam[a];
+            for (nd, w) in r.nodes() {
+                self.c_force[self.c_slot[nd as usize] as usize] += r.dir * (w * self.lam[a]);
+            }
         }
         let mut u = std::mem::take(&mut self.u_rec);
         u.fill(0.0);
@@ -1126,6 +1115,14 @@ impl DeformationSolver for Compliance {
     fn compliance_patch(&mut self, nodes: &[u32], patch: &mut CompliancePatch) -> bool {
         self.patch(nodes, patch);
         true
+    }
+
+    fn set_column_policy(
+        &mut self,
+        policy: ColumnPolicy,
+        hook: Option<Arc<dyn Fn() + Send + Sync>>,
+    ) {
+        Compliance::set_column_policy(self, policy, hook);
     }
 
     fn prefetch(&mut self, nodes: &[u32]) {

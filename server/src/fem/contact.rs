@@ -14,7 +14,11 @@
 //! (a primal-dual active set; from the tenth round one row changes per
 //! round, the worst, so that it cannot cycle). For a nonlinear strategy
 //! the gaps come from its nonlinear solution: each round is a full solve.
-//! Friction needs the compliance operator.
+//! Friction needs the compliance operator. A row on a triangle's point is
+//! exact with `compliance` and `direct` (which superposes the responses to
+//! point loads); the nonlinear strategies take it on its heaviest node (an
+//! approximation: the gap then follows that node's displacement instead of
+//! the point's).
 
 // Negated comparisons are deliberate: NaN must fail the checks.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
@@ -23,19 +27,87 @@ pub use super::lcp::{Report, RowKind, Tolerances};
 use super::{Constraint, ConstraintKind, DeformationSolver, SolveError};
 use nalgebra::{Matrix3, Point3, Vector3};
 
-/// One row of a contact problem.
+/// No node (an unused entry of [`ContactRow::others`]).
+pub const NO_NODE: (u32, f64) = (u32::MAX, 0.0);
+
+/// One row of a contact problem: on one node (`g = gap_free + dir . u_node`),
+/// or on a point of a surface triangle (`g = gap_free + dir . sum_a w_a
+/// u_a` over the triangle's nodes with barycentric weights `w_a`; the
+/// row's force is shared out the same way).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ContactRow {
-    /// Volume node.
+    /// Volume node (of a point row, its heaviest node).
     pub node: u32,
+    /// Its weight (1 for a node row).
+    pub weight: f64,
+    /// The other nodes of a point row and their weights ([`NO_NODE`]: none).
+    pub others: [(u32, f64); 2],
     /// Unit direction: the direction of the force the row applies to the
-    /// tissue, and of the gap (`g = gap_free_m + dir . u`).
+    /// tissue, and of the gap.
     pub dir: Vector3<f64>,
-    /// The gap at zero displacement, m (negative: the node's rest position
+    /// The gap at zero displacement, m (negative: the rest position
     /// violates the row).
     pub gap_free_m: f64,
     /// What the row constrains.
     pub kind: RowKind,
+}
+
+impl ContactRow {
+    /// A row on one node.
+    pub fn at_node(node: u32, dir: Vector3<f64>, gap_free_m: f64, kind: RowKind) -> Self {
+        Self {
+            node,
+            weight: 1.0,
+            others: [NO_NODE; 2],
+            dir,
+            gap_free_m,
+            kind,
+        }
+    }
+
+    /// A row on a point of a triangle: `nodes[a]` with weight `weights[a]`
+    /// (summing to 1).
+    pub fn at_point(
+        nodes: [u32; 3],
+        weights: [f64; 3],
+        dir: Vector3<f64>,
+        gap_free_m: f64,
+        kind: RowKind,
+    ) -> Self {
+        let mut order = [0usize, 1, 2];
+        order.sort_by(|&a, &b| weights[b].total_cmp(&weights[a]));
+        let e = |k: usize| (nodes[order[k]], weights[order[k]]);
+        Self {
+            node: nodes[order[0]],
+            weight: weights[order[0]],
+            others: [e(1), e(2)],
+            dir,
+            gap_free_m,
+            kind,
+        }
+    }
+
+    /// The row's nodes with their weights.
+    pub fn nodes(&self) -> impl Iterator<Item = (u32, f64)> + '_ {
+        std::iter::once((self.node, self.weight)).chain(
+            self.others
+                .iter()
+                .copied()
+                .filter(|&(n, w)| n != u32::MAX && w != 0.0),
+        )
+    }
+
+    /// Whether the row is on a point of a triangle (several nodes).
+    pub fn is_point(&self) -> bool {
+        self.others.iter().any(|&(n, w)| n != u32::MAX && w != 0.0)
+    }
+
+    /// `dir . sum_a w_a u_a` for the node displacements `u`.
+    pub fn normal_motion(&self, u: &[Vector3<f64>]) -> f64 {
+        self.nodes()
+            .map(|(n, w)| w * self.dir.dot(&u[n as usize]))
+            .sum()
+    }
 }
 
 /// The answer of a contact solve (buffers reused across steps).
@@ -92,11 +164,16 @@ pub fn validate_rows(
     friction: bool,
 ) -> Result<(), SolveError> {
     for (i, r) in rows.iter().enumerate() {
-        if r.node as usize >= n_nodes {
-            return Err(SolveError::BadConstraint {
-                node: r.node,
-                reason: format!("contact row {i}: out of range (the mesh has {n_nodes} nodes)"),
-            });
+        for (n, w) in r.nodes() {
+            if n as usize >= n_nodes {
+                return Err(SolveError::BadConstraint {
+                    node: n,
+                    reason: format!("contact row {i}: out of range (the mesh has {n_nodes} nodes)"),
+                });
+            }
+            if !w.is_finite() {
+                return Err(SolveError::NonFinite(format!("weight of contact row {i}")));
+            }
         }
         if !r.gap_free_m.is_finite() || !r.dir.iter().all(|v| v.is_finite()) {
             return Err(SolveError::NonFinite(format!(
@@ -137,7 +214,12 @@ pub const MAX_ROUNDS: u32 = 60;
 
 /// The generic contact solve (module documentation): on return the
 /// solver's last solution holds the displacements and `answer` the
-/// multipliers.
+/// multipliers. Rows on a triangle's point are exact with a strategy that
+/// takes nodal loads ([`DeformationSolver::takes_loads`]): in each round
+/// their multipliers solve `B K^-1 B^T mu = -(g_free + B u_0)` from the
+/// responses to unit point loads with the round's node rows held, and the
+/// round's solution carries the loads `B^T mu`; other strategies take each
+/// such row on its heaviest node.
 pub fn solve_by_active_set<S: DeformationSolver + ?Sized>(
     solver: &mut S,
     rows: &[ContactRow],
@@ -145,6 +227,17 @@ pub fn solve_by_active_set<S: DeformationSolver + ?Sized>(
     answer: &mut ContactAnswer,
 ) -> Result<(), SolveError> {
     validate_rows(rows, n_nodes, false)?;
+    let exact_points = solver.takes_loads();
+    let approx: Vec<ContactRow>;
+    let rows = if !exact_points && rows.iter().any(|r| r.is_point()) {
+        approx = rows
+            .iter()
+            .map(|r| ContactRow::at_node(r.node, r.dir, r.gap_free_m, r.kind))
+            .collect();
+        &approx[..]
+    } else {
+        rows
+    };
     let n = rows.len();
     answer.pending.clear();
     let cold = answer.multipliers.len() != n;
@@ -173,14 +266,71 @@ pub fn solve_by_active_set<S: DeformationSolver + ?Sized>(
     let mut grouping = NodeRows::default();
     let mut cons = Vec::new();
     let mut gaps = vec![0.0; n];
+    let mut node_active = vec![false; n];
+    let mut responses: Vec<Vec<Vector3<f64>>> = Vec::new();
+    let mut resp_reactions: Vec<Vec<Vector3<f64>>> = Vec::new();
+    let mut loads: Vec<(u32, Vector3<f64>)> = Vec::new();
     for round in 1..=MAX_ROUNDS {
-        grouping.build(rows, &active);
+        for i in 0..n {
+            node_active[i] = active[i] && !rows[i].is_point();
+        }
+        grouping.build(rows, &node_active);
         grouping.constraints(rows, &mut cons)?;
-        let sol = solver.solve_constraints(&cons)?;
+        let points: Vec<usize> = (0..n)
+            .filter(|&i| active[i] && rows[i].is_point())
+            .collect();
+        let mut mu = Vec::new();
+        if points.is_empty() {
+            solver.solve_constraints(&cons)?;
+        } else {
+            // u_0 with the node rows, then the responses to unit point
+            // loads with the same rows held at zero.
+            let u0 = solver.solve_constraints(&cons)?.displacements.clone();
+            responses.resize_with(points.len(), Vec::new);
+            resp_reactions.resize_with(points.len(), Vec::new);
+            for (k, &p) in points.iter().enumerate() {
+                loads.clear();
+                loads.extend(rows[p].nodes().map(|(nd, w)| (nd, rows[p].dir * w)));
+                let (v, rv) = (&mut responses[k], &mut resp_reactions[k]);
+                if !solver.load_response(&loads, v, rv) {
+                    return Err(SolveError::InvalidModel(
+                        "the strategy gave no load response".into(),
+                    ));
+                }
+            }
+            let m = points.len();
+            let a = nalgebra::DMatrix::from_fn(m, m, |i, j| {
+                rows[points[i]].normal_motion(&responses[j])
+            });
+            let b = nalgebra::DVector::from_fn(m, |i, _| {
+                -(rows[points[i]].gap_free_m + rows[points[i]].normal_motion(&u0))
+            });
+            let x = a
+                .clone()
+                .cholesky()
+                .map(|c| c.solve(&b))
+                .or_else(|| a.lu().solve(&b))
+                .ok_or_else(|| SolveError::Factorization("point rows are dependent".into()))?;
+            mu.extend(x.iter().copied());
+            loads.clear();
+            for (k, &p) in points.iter().enumerate() {
+                loads.extend(
+                    rows[p]
+                        .nodes()
+                        .map(|(nd, w)| (nd, rows[p].dir * (w * mu[k]))),
+                );
+            }
+            solver.solve_loaded(&cons, &loads)?;
+        }
+        let sol = solver
+            .last_solution()
+            .ok_or_else(|| SolveError::InvalidModel("the strategy keeps no solution".into()))?;
         grouping.multipliers(rows, &sol.reactions, &mut answer.multipliers);
+        for (k, &p) in points.iter().enumerate() {
+            answer.multipliers[p] = mu[k];
+        }
         for (i, r) in rows.iter().enumerate() {
-            let u = sol.displacements[r.node as usize];
-            gaps[i] = r.gap_free_m + r.dir.dot(&u);
+            gaps[i] = r.gap_free_m + r.normal_motion(&sol.displacements);
             if !active[i] {
                 answer.multipliers[i] = 0.0;
             }

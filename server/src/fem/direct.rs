@@ -56,6 +56,51 @@ impl Direct {
     }
 
     fn step<C: Into<Constraint> + Copy>(&mut self, cons: &[C]) -> Result<&Solution, SolveError> {
+        self.step_loaded(cons, &[])
+    }
+
+    /// Adds nodal loads (N, global basis) to the assembled right-hand side
+    /// at the free DOFs, in the node bases of the current frame.
+    fn add_loads(&mut self, loads: &[(u32, Vector3<f64>)]) {
+        if loads.is_empty() {
+            return;
+        }
+        let n = self.rhs.len();
+        let mut f = std::mem::take(&mut self.ku);
+        f.clear();
+        f.resize(n, 0.0);
+        for &(node, load) in loads {
+            for a in 0..3 {
+                f[3 * node as usize + a] += load[a];
+            }
+        }
+        self.frame.to_node_basis(&mut f);
+        for (d, v) in f.iter().enumerate() {
+            if !self.frame.fixed[d] {
+                self.rhs[d] += v;
+            }
+        }
+        self.ku = f;
+    }
+
+    /// Reactions of the rows from `K u` minus the applied loads.
+    fn reactions_with_loads(&mut self, loads: &[(u32, Vector3<f64>)]) {
+        let m = &self.model;
+        element_matvec(&m.tets, &m.kel, &self.rhs, &mut self.ku);
+        for &(node, load) in loads {
+            for a in 0..3 {
+                self.ku[3 * node as usize + a] -= load[a];
+            }
+        }
+        self.rows
+            .reactions_from_forces(&self.ku, &mut self.solution.reactions);
+    }
+
+    fn step_loaded<C: Into<Constraint> + Copy>(
+        &mut self,
+        cons: &[C],
+        loads: &[(u32, Vector3<f64>)],
+    ) -> Result<&Solution, SolveError> {
         self.rows.set(cons, &self.model.support)?;
         self.frame.set(&self.rows);
         let m = &self.model;
@@ -87,18 +132,18 @@ impl Direct {
             &mut self.values,
             &mut self.rhs,
         );
-        self.factor.factorize(&m.pattern, &self.values)?;
+        self.add_loads(loads);
+        self.factor.factorize(&self.model.pattern, &self.values)?;
         self.factor.solve(&mut self.rhs);
         self.frame.to_global_basis(&mut self.rhs);
         if !self.rhs.iter().all(|v| v.is_finite()) {
             return Err(SolveError::NonFinite("displacement solution".into()));
         }
-        element_matvec(&m.tets, &m.kel, &self.rhs, &mut self.ku);
         for (i, d) in self.solution.displacements.iter_mut().enumerate() {
             *d = Vector3::new(self.rhs[3 * i], self.rhs[3 * i + 1], self.rhs[3 * i + 2]);
         }
-        self.rows
-            .reactions_from_forces(&self.ku, &mut self.solution.reactions);
+        self.reactions_with_loads(loads);
+        let m = &self.model;
         self.support_reactions.clear();
         for &n in &m.fixed {
             let n = 3 * n as usize;
@@ -125,6 +170,43 @@ impl DeformationSolver for Direct {
 
     fn local_model(&self) -> Option<&LocalModel> {
         None
+    }
+
+    fn takes_loads(&self) -> bool {
+        true
+    }
+
+    fn solve_loaded(
+        &mut self,
+        constraints: &[Constraint],
+        loads: &[(u32, Vector3<f64>)],
+    ) -> Result<&Solution, SolveError> {
+        self.step_loaded(constraints, loads)
+    }
+
+    fn load_response(
+        &mut self,
+        loads: &[(u32, Vector3<f64>)],
+        u: &mut Vec<Vector3<f64>>,
+        reactions: &mut Vec<Vector3<f64>>,
+    ) -> bool {
+        // The homogeneous problem of the last factorization.
+        self.rhs.fill(0.0);
+        self.add_loads(loads);
+        self.factor.solve(&mut self.rhs);
+        self.frame.to_global_basis(&mut self.rhs);
+        u.clear();
+        u.extend(
+            self.rhs
+                .chunks_exact(3)
+                .map(|c| Vector3::new(c[0], c[1], c[2])),
+        );
+        let kept = std::mem::take(&mut self.solution.reactions);
+        self.reactions_with_loads(loads);
+        reactions.clear();
+        reactions.extend_from_slice(&self.solution.reactions);
+        self.solution.reactions = kept;
+        true
     }
 
     fn support_reactions(&self) -> &[Vector3<f64>] {

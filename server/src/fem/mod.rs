@@ -186,6 +186,44 @@ pub trait DeformationSolver: Send {
     /// in the background where the strategy defers it). The default does
     /// nothing.
     fn prefetch(&mut self, _nodes: &[u32]) {}
+    /// Whether [`Self::solve_loaded`] and [`Self::load_response`] work.
+    fn takes_loads(&self) -> bool {
+        false
+    }
+    /// Linear strategies that factor their constrained system: solves under
+    /// `constraints` with nodal loads `loads` (N) too. The default refuses.
+    fn solve_loaded(
+        &mut self,
+        _constraints: &[Constraint],
+        _loads: &[(u32, Vector3<f64>)],
+    ) -> Result<&Solution, SolveError> {
+        Err(SolveError::InvalidModel(format!(
+            "strategy {} takes no nodal loads",
+            self.name()
+        )))
+    }
+    /// Linear strategies that keep the factor of their last solve: the
+    /// displacement of every node (m) and the constraints' reactions (N)
+    /// under `loads` (N) with the last solve's constraints held at zero.
+    /// `false` (the default) when the strategy cannot.
+    fn load_response(
+        &mut self,
+        _loads: &[(u32, Vector3<f64>)],
+        _u: &mut Vec<Vector3<f64>>,
+        _reactions: &mut Vec<Vector3<f64>>,
+    ) -> bool {
+        false
+    }
+    /// How contact solves and patches get compliance they lack
+    /// ([`compliance::ColumnPolicy`]); `hook` runs first on a background
+    /// thread, if one is started. Ignored by strategies without a
+    /// compliance operator.
+    fn set_column_policy(
+        &mut self,
+        _policy: compliance::ColumnPolicy,
+        _hook: Option<std::sync::Arc<dyn Fn() + Send + Sync>>,
+    ) {
+    }
 }
 
 /// The solver strategies, named as in scene files.

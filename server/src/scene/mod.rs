@@ -1,7 +1,8 @@
 //! Scene files (TOML): what a scene models, and nothing more.
 //!
 //! A scene names the brain model, the material, the fixed region, the solver
-//! strategy, the collision method, the loops and the instruments. Optional
+//! strategy, the collision method, the contact law, the loops and the
+//! instruments. Optional
 //! parts (the skull, a region of interest) are only built when present: the
 //! server computes only what a scene requires.
 //!
@@ -74,6 +75,9 @@ pub struct Scene {
     /// The collision pipeline.
     #[serde(default)]
     pub collision: CollisionSpec,
+    /// The contact mechanics.
+    #[serde(default)]
+    pub contact: ContactSpec,
     /// Loop rates and safety thresholds.
     #[serde(default)]
     pub loops: LoopSpec,
@@ -264,14 +268,6 @@ pub struct CollisionSpec {
     pub history: HistoryMode,
     /// Whether history culling (B1-B3) is applied.
     pub culling: bool,
-    /// Unilateral contact ([`crate::collide::DetectOptions::unilateral`]):
-    /// when a vertex of a paired triangle lies behind the face, the vertices
-    /// in front are left free. Off by default (the paper's rule, every vertex
-    /// of a paired triangle projected): on meshes whose triangles are larger
-    /// than the contact, the unilateral rule loses contacts from one step to
-    /// the next (the U-valley rotation keeps no contact with it), while the
-    /// paper's rule pulls vertices in front of the face onto it.
-    pub unilateral: bool,
     /// Largest depth behind a face at which a collision pair may form, m.
     /// A triangle farther behind a face than this is reached through the
     /// tissue (e.g. the far side of a block when the plate tip enters the
@@ -291,8 +287,70 @@ impl Default for CollisionSpec {
             backend: CollisionBackend::Cpu,
             history: HistoryMode::ForceRate,
             culling: true,
-            unilateral: false,
             max_depth_m: DEFAULT_MAX_DEPTH_M,
+        }
+    }
+}
+
+/// The mechanics of the contact between the plates and the tissue.
+#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum ContactLaw {
+    /// Unilateral (Signorini) contact without friction: the tissue slides
+    /// freely along the plates and never pulls them (the default).
+    #[default]
+    Frictionless,
+    /// Unilateral contact with Coulomb friction of coefficient
+    /// `friction_coefficient` (stick and slip; needs the `compliance`
+    /// strategy).
+    Coulomb,
+    /// The paper's projection (every vertex of a paired triangle moved onto
+    /// the face plane, all three components fixed), for comparison.
+    Paper,
+}
+
+impl ContactLaw {
+    /// The scene-file name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Frictionless => "frictionless",
+            Self::Coulomb => "coulomb",
+            Self::Paper => "paper",
+        }
+    }
+}
+
+/// Contact settings (the `[contact]` table).
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct ContactSpec {
+    /// The contact law.
+    pub law: ContactLaw,
+    /// Coulomb coefficient (`law = "coulomb"` only), >= 0.
+    pub friction_coefficient: Option<f64>,
+    /// Vertices up to this far in front of a face or beside its outline
+    /// are candidates of the contact problem, m; each step publishes the
+    /// compliance of the vertices within twice this distance for the force
+    /// loops, so the plate's travel within one deformation interval should
+    /// stay below it.
+    pub band_m: f64,
+    /// Vertices up to this far in front of a face or beside its outline
+    /// have their compliance computed ahead of contact, m (>= twice
+    /// `band_m`).
+    pub ahead_m: f64,
+    /// How far outside a face's outline a vertex may lie and still be
+    /// pushed by the face, m.
+    pub cover_tolerance_m: f64,
+}
+
+impl Default for ContactSpec {
+    fn default() -> Self {
+        Self {
+            law: ContactLaw::Frictionless,
+            friction_coefficient: None,
+            band_m: crate::collide::contact::DEFAULT_BAND_M,
+            ahead_m: crate::collide::contact::DEFAULT_AHEAD_M,
+            cover_tolerance_m: crate::collide::contact::DEFAULT_COVER_TOLERANCE_M,
         }
     }
 }
@@ -524,6 +582,59 @@ impl Scene {
             }
         }
         positive("collision.max_depth_m", self.collision.max_depth_m)?;
+        positive("contact.band_m", self.contact.band_m)?;
+        positive("contact.ahead_m", self.contact.ahead_m)?;
+        if self.contact.ahead_m < 2.0 * self.contact.band_m {
+            return Err(bad(
+                "contact.ahead_m".into(),
+                format!(
+                    "must be at least twice contact.band_m ({} m), got {}",
+                    self.contact.band_m, self.contact.ahead_m
+                ),
+            ));
+        }
+        let tol = self.contact.cover_tolerance_m;
+        if !(tol.is_finite() && tol >= 0.0) {
+            return Err(bad(
+                "contact.cover_tolerance_m".into(),
+                format!("must be a finite number >= 0, got {tol}"),
+            ));
+        }
+        match (self.contact.law, self.contact.friction_coefficient) {
+            (ContactLaw::Coulomb, None) => {
+                return Err(bad(
+                    "contact.friction_coefficient".into(),
+                    "law = \"coulomb\" needs a friction coefficient".into(),
+                ));
+            }
+            (ContactLaw::Coulomb, Some(mu)) => {
+                if !(mu.is_finite() && mu >= 0.0) {
+                    return Err(bad(
+                        "contact.friction_coefficient".into(),
+                        format!("must be a finite number >= 0, got {mu}"),
+                    ));
+                }
+                if self.solver.strategy != Strategy::Compliance {
+                    return Err(bad(
+                        "contact.law".into(),
+                        format!(
+                            "coulomb friction needs solver.strategy = \"compliance\" (the scene has {:?})",
+                            self.solver.strategy.name()
+                        ),
+                    ));
+                }
+            }
+            (law, Some(_)) => {
+                return Err(bad(
+                    "contact.friction_coefficient".into(),
+                    format!(
+                        "is read only with law = \"coulomb\" (the scene has law = {:?})",
+                        law.name()
+                    ),
+                ));
+            }
+            (_, None) => {}
+        }
         positive("solver.tolerance", self.solver.tolerance)?;
         if self.solver.max_iterations == 0 {
             return Err(bad(

@@ -102,6 +102,11 @@ pub fn scene_description(scene: &Scene, model: &Model) -> pb::SceneDescription {
             crate::scene::HistoryMode::Paper => "paper",
         }
         .into(),
+        contact_law: scene.contact.law.name().into(),
+        friction_coefficient: match scene.contact.law {
+            crate::scene::ContactLaw::Coulomb => scene.contact.friction_coefficient.unwrap_or(0.0),
+            _ => 0.0,
+        },
     }
 }
 
@@ -174,6 +179,7 @@ fn reaction(r: &InstrumentReaction) -> pb::InstrumentReaction {
         pairs: r.pairs,
         culled: r.culled,
         contact_vertices: r.contact_vertices,
+        pending_vertices: r.pending_vertices,
         position_m: Some(vec3(&r.position_m)),
         orientation: Some(quat(r.orientation)),
     }

@@ -1,28 +1,32 @@
 //! The engine a scene asks for, composed from the library stages: the model
-//! (mesh, surface, instruments), the collision stage of each loop, and the
-//! deformation stage (FEM solve, reactions, local force model).
+//! (mesh, surface, instruments), the collision stage of each loop, the
+//! contact rows, and the deformation stage (the contact problem's solve,
+//! the compliance patch the force loops solve on).
 //!
-//! "Model only what a scene requires": the skull constraint exists only when
-//! the scene names it; each instrument's rays are cast only for that
-//! instrument; the force loop of an instrument queries that instrument alone.
+//! "Model only what a scene requires": the skull's rows exist only when the
+//! scene names it; each instrument's rays are cast only for that
+//! instrument; the force loop of an instrument queries that instrument
+//! alone.
 
 use super::SimError;
 use super::local_model::ForceModel;
+use super::rows::{self, Anchors, FreePositions, Row, SKULL_OWNER};
 use super::snapshot::{Frame, InstrumentReaction, Snapshot, StepTimings};
 use crate::collide::brute::BruteForce;
 use crate::collide::bvh::Bvh;
-use crate::collide::contact::{self, ContactOutput, DetectOptions, Tool, Workspace};
+use crate::collide::contact::{self, ContactOutput, ContactRule, DetectOptions, Tool, Workspace};
 use crate::collide::history::{HistoryMode as CollideHistoryMode, Stage};
 use crate::collide::instrument::{Instrument, NodeLayout, Plate, RimNodes};
 use crate::collide::{NodeHits, RayBackend, RayRange};
-use crate::fem::{self, DeformationSolver, Prescribed};
+use crate::fem::compliance::ColumnPolicy;
+use crate::fem::{self, CompliancePatch, ContactAnswer, ContactRow, DeformationSolver, RowKind};
 use crate::mesh::{BoundarySurface, TetMesh};
 use crate::scene::{
-    CollisionBackend, CollisionMethod, HistoryMode, LayoutKind, ModelSpec, Region, Scene, ShapeKind,
+    CollisionBackend, CollisionMethod, ContactLaw, HistoryMode, LayoutKind, ModelSpec, Region,
+    Scene, ShapeKind,
 };
 use faer::Par;
-use nalgebra::{DMatrix, Isometry3, Point3, Vector3};
-use std::collections::HashMap;
+use nalgebra::{Isometry3, Point3, Vector3};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -42,6 +46,16 @@ pub struct Model {
     pub fixed: Vec<u32>,
     /// The instruments, in scene order.
     pub instruments: Vec<Instrument>,
+    /// Per volume node: fixed.
+    pub fixed_mask: Vec<bool>,
+    /// Per volume node: the stiffness of a contact answered before the
+    /// node's compliance is computed, N/m (Young's modulus times the mean
+    /// length of the node's surface edges: the order of a point load's
+    /// stiffness on a half-space over one element; 0 inside).
+    pub penalty_n_per_m: Vec<f64>,
+    /// With a region of interest: each node's index in the uncropped model,
+    /// and that model's node count.
+    pub to_full: Option<(Vec<u32>, usize)>,
     history_mode: CollideHistoryMode,
 }
 
@@ -124,8 +138,8 @@ impl Model {
                 regions.iter().any(|r| r.contains([p.x, p.y, p.z]))
             })
             .collect();
-        let (mesh, fixed) = match &scene.roi {
-            None => (mesh, fixed),
+        let (mesh, fixed, to_full) = match &scene.roi {
+            None => (mesh, fixed, None),
             Some(roi) => {
                 let centre = nalgebra::Point3::from(roi.centre_m);
                 let at = match roi.plane_normal {
@@ -143,7 +157,11 @@ impl Model {
                     cut_nodes = crop.cut_nodes.len(),
                     "region of interest cropped"
                 );
-                (crop.mesh, crop.fixed)
+                (
+                    crop.mesh,
+                    crop.fixed,
+                    Some((crop.to_full, mesh.nodes.len())),
+                )
             }
         };
         if fixed.is_empty() {
@@ -163,12 +181,38 @@ impl Model {
             HistoryMode::ForceRate => CollideHistoryMode::ForceRate,
             HistoryMode::Paper => CollideHistoryMode::PaperFaithful,
         };
+        let mut fixed_mask = vec![false; mesh.nodes.len()];
+        for &n in &fixed {
+            fixed_mask[n as usize] = true;
+        }
+        let mut edge_sum = vec![0.0; mesh.nodes.len()];
+        let mut edge_count = vec![0u32; mesh.nodes.len()];
+        for t in &surface.triangles {
+            for a in 0..3 {
+                let (i, j) = (t[a] as usize, t[(a + 1) % 3] as usize);
+                let (vi, vj) = (surface.to_volume[i] as usize, surface.to_volume[j] as usize);
+                let len = (mesh.nodes[vi] - mesh.nodes[vj]).norm();
+                for v in [vi, vj] {
+                    edge_sum[v] += len;
+                    edge_count[v] += 1;
+                }
+            }
+        }
+        let e = scene.material.youngs_modulus_pa;
+        let penalty_n_per_m = edge_sum
+            .iter()
+            .zip(&edge_count)
+            .map(|(&s, &c)| if c > 0 { e * s / c as f64 } else { 0.0 })
+            .collect();
         Ok(Self {
             mesh,
             surface,
             rest_surface,
             fixed,
             instruments,
+            fixed_mask,
+            penalty_n_per_m,
+            to_full,
             history_mode,
         })
     }
@@ -193,8 +237,8 @@ impl Model {
         self.instruments[i].len() - 2 * self.instruments[i].per_face
     }
 
-    /// Frame 0: the rest state, no contact.
-    pub fn rest_snapshot(&self, scene: &Scene) -> Snapshot {
+    /// The rest state as frame `frame`, no contact.
+    pub fn rest_snapshot(&self, scene: &Scene, frame: u64, sim_time_s: f64) -> Snapshot {
         let positions: Vec<[f32; 3]> = self
             .rest_surface
             .iter()
@@ -210,24 +254,35 @@ impl Model {
                 pairs: 0,
                 culled: 0,
                 contact_vertices: 0,
+                pending_vertices: 0,
                 position_m: Vector3::from(s.home_position_m),
                 orientation: s.home_orientation,
             })
             .collect();
         Snapshot {
-            frame: 0,
-            sim_time_s: 0.0,
+            frame,
+            sim_time_s,
             published: Instant::now(),
             surface: Arc::new(self.rest_surface.clone()),
+            displacements: Arc::new(vec![Vector3::zeros(); self.mesh.nodes.len()]),
             surface_bvh: None,
-            force_model: Arc::new(ForceModel::default()),
+            force_model: Arc::new(ForceModel::new(
+                frame,
+                Arc::default(),
+                Arc::default(),
+                Vec::new(),
+                Vec::new(),
+                Anchors::default(),
+                false,
+                vec![(Vector3::zeros(), Vector3::zeros()); scene.instruments.len()],
+            )),
             paper_history: (0..self.instruments.len())
                 .map(|i| self.new_history(i))
                 .collect(),
             solver_error: None,
             frame_summary: Arc::new(Frame {
-                frame: 0,
-                sim_time_s: 0.0,
+                frame,
+                sim_time_s,
                 positions: Arc::new(positions),
                 instruments,
                 timings: StepTimings::default(),
@@ -370,7 +425,6 @@ pub struct ContactQuery {
     ws: Workspace,
     out: ContactOutput,
     opts: DetectOptions,
-    by_node: EnforcedByNode,
     par: Par,
 }
 
@@ -382,56 +436,18 @@ impl std::fmt::Debug for ContactQuery {
     }
 }
 
-/// A contact output's enforced displacements by volume node, for the local
-/// force model's lookups (sorted; the buffer is reused).
-#[derive(Debug, Clone, Default)]
-pub struct EnforcedByNode(Vec<(u32, Vector3<f64>)>);
-
-impl EnforcedByNode {
-    /// Re-indexes `out`'s enforced displacements.
-    pub fn rebuild(&mut self, out: &ContactOutput) {
-        self.0.clear();
-        self.0
-            .extend(out.enforced.iter().map(|e| (e.volume_node, e.displacement)));
-        self.0.sort_unstable_by_key(|e| e.0);
-    }
-
-    /// Enforced displacement of a volume node, if in contact.
-    pub fn get(&self, node: u32) -> Option<Vector3<f64>> {
-        self.0
-            .binary_search_by_key(&node, |e| e.0)
-            .ok()
-            .map(|i| self.0[i].1)
-    }
-
-    /// Nodes with an enforced displacement.
-    pub fn len(&self) -> usize {
-        self.0.len()
-    }
-
-    /// No node has an enforced displacement.
-    pub fn is_empty(&self) -> bool {
-        self.0.is_empty()
-    }
-}
-
-/// The result of one query, borrowed from the query's buffers.
-#[derive(Debug)]
-pub struct ContactView<'a> {
-    /// Pairs, cancelled pairs and enforced displacements.
-    pub output: &'a ContactOutput,
-    by_node: &'a EnforcedByNode,
-}
-
-impl ContactView<'_> {
-    /// Enforced displacement of a volume node, if in contact.
-    pub fn displacement_of(&self, node: u32) -> Option<Vector3<f64>> {
-        self.by_node.get(node)
-    }
-
-    /// Surface vertices in contact.
-    pub fn contact_count(&self) -> u32 {
-        self.by_node.len() as u32
+/// The collision options a scene asks for.
+pub fn detect_options(scene: &Scene) -> DetectOptions {
+    DetectOptions {
+        culling: scene.collision.culling,
+        rule: match scene.contact.law {
+            ContactLaw::Paper => ContactRule::Paper,
+            ContactLaw::Frictionless | ContactLaw::Coulomb => ContactRule::Signorini,
+        },
+        band_m: scene.contact.band_m,
+        ahead_m: scene.contact.ahead_m,
+        cover_tolerance_m: scene.contact.cover_tolerance_m,
+        ..DetectOptions::default()
     }
 }
 
@@ -446,38 +462,42 @@ impl ContactQuery {
             fitted: None,
             ws: Workspace::new(),
             out: ContactOutput::default(),
-            opts: DetectOptions {
-                culling: scene.collision.culling,
-                unilateral: scene.collision.unilateral,
-                ..DetectOptions::default()
-            },
-            by_node: EnforcedByNode::default(),
+            opts: detect_options(scene),
         }
     }
 
-    /// The backend to cast on for `snap`: its published tree, or this
-    /// query's own backend fitted to its surface.
-    /// Its own backend is built on first need (never, while snapshots carry
-    /// a tree).
+    /// A collision stage that casts on `backend` (kept fitted to the
+    /// snapshots' surfaces), whatever the snapshots carry: e.g. a GPU
+    /// backend the caller built.
+    pub fn with_backend(scene: &Scene, backend: Box<dyn RayBackend>) -> Self {
+        let mut q = Self::new(scene, Par::Seq);
+        q.backend = Some(backend);
+        q
+    }
+
+    /// The backend to cast on for `snap`: this query's own backend when it
+    /// has one (fitted to the snapshot's surface), else the snapshot's
+    /// published tree, else a backend of the scene's kind built now.
+    #[allow(clippy::too_many_arguments)]
     fn backend_for<'a>(
         backend: &'a mut Option<Box<dyn RayBackend>>,
         fitted: &mut Option<Arc<Vec<Point3<f64>>>>,
         scene: &Scene,
         model: &Model,
-        snap: &'a Snapshot,
+        surface: &Arc<Vec<Point3<f64>>>,
+        tree: Option<&'a Arc<Bvh>>,
         par: Par,
         shared: &'a mut Option<SharedBvh<'a>>,
     ) -> &'a mut dyn RayBackend {
-        if let Some(tree) = &snap.surface_bvh {
-            return shared.insert(SharedBvh { tree, par });
+        if backend.is_none() {
+            if let Some(tree) = tree {
+                return shared.insert(SharedBvh { tree, par });
+            }
         }
-        let backend = backend.get_or_insert_with(|| ray_backend(scene, model, &snap.surface));
-        if !fitted
-            .as_ref()
-            .is_some_and(|f| Arc::ptr_eq(f, &snap.surface))
-        {
-            backend.update_positions(&snap.surface);
-            *fitted = Some(snap.surface.clone());
+        let backend = backend.get_or_insert_with(|| ray_backend(scene, model, surface));
+        if !fitted.as_ref().is_some_and(|f| Arc::ptr_eq(f, surface)) {
+            backend.update_positions(surface);
+            *fitted = Some(surface.clone());
         }
         backend.as_mut()
     }
@@ -490,14 +510,15 @@ impl ContactQuery {
         instrument: usize,
         pose: &Isometry3<f64>,
         history: &mut History,
-    ) -> ContactView<'_> {
+    ) -> &ContactOutput {
         let mut shared = None;
         let backend = Self::backend_for(
             &mut self.backend,
             &mut self.fitted,
             &self.scene,
             model,
-            snap,
+            &snap.surface,
+            snap.surface_bvh.as_ref(),
             Par::Seq,
             &mut shared,
         );
@@ -516,11 +537,24 @@ impl ContactQuery {
             tracing::warn!(error = %e, "collision query failed");
             self.out = ContactOutput::default();
         }
-        self.by_node.rebuild(&self.out);
-        ContactView {
-            output: &self.out,
-            by_node: &self.by_node,
+        // The one-instrument query numbers its tool 0: give the output the
+        // scene's index.
+        let k = instrument as u16;
+        for p in self
+            .out
+            .pairs
+            .iter_mut()
+            .chain(self.out.cancelled.iter_mut())
+        {
+            p.instrument = k;
         }
+        for e in &mut self.out.enforced {
+            e.instrument = k;
+        }
+        for c in &mut self.out.candidates {
+            c.instrument = k;
+        }
+        &self.out
     }
 
     /// All instruments in one cast (the deformation loop).
@@ -531,17 +565,37 @@ impl ContactQuery {
         poses: &[Isometry3<f64>],
         histories: &mut [History],
     ) -> &ContactOutput {
+        self.query_all_on(
+            model,
+            &snap.surface,
+            snap.surface_bvh.as_ref(),
+            poses,
+            histories,
+        )
+    }
+
+    /// All instruments in one cast against `surface` (with its fitted
+    /// tree, if any).
+    pub fn query_all_on(
+        &mut self,
+        model: &Model,
+        surface: &Arc<Vec<Point3<f64>>>,
+        tree: Option<&Arc<Bvh>>,
+        poses: &[Isometry3<f64>],
+        histories: &mut [History],
+    ) -> &ContactOutput {
         let mut shared = None;
         let backend = Self::backend_for(
             &mut self.backend,
             &mut self.fitted,
             &self.scene,
             model,
-            snap,
+            surface,
+            tree,
             self.par,
             &mut shared,
         );
-        let q = model.contact_query(&snap.surface);
+        let q = model.contact_query(surface);
         let mut tools: Vec<Tool<'_>> = model
             .instruments
             .iter()
@@ -567,16 +621,179 @@ impl ContactQuery {
         }
         &self.out
     }
+
+    /// The output of the last query.
+    pub fn output(&self) -> &ContactOutput {
+        &self.out
+    }
 }
 
-/// The deformation stage: the FEM solver and the per-step bookkeeping.
+/// How a scene's contact law makes rows.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RowRule {
+    /// The law.
+    pub law: ContactLaw,
+    /// The Coulomb coefficient (Coulomb only).
+    pub friction: Option<f64>,
+}
+
+impl RowRule {
+    /// The rule of `scene`.
+    pub fn of(scene: &Scene) -> Self {
+        Self {
+            law: scene.contact.law,
+            friction: match scene.contact.law {
+                ContactLaw::Coulomb => scene.contact.friction_coefficient,
+                _ => None,
+            },
+        }
+    }
+
+    /// The rows of a query's output for `owner`'s pose `pose_of(owner)`,
+    /// with the free positions `free` and the frictional anchors.
+    pub fn rows(
+        &self,
+        model: &Model,
+        out: &ContactOutput,
+        free: &FreePositions<'_>,
+        anchors: &Anchors,
+        poses: &[Isometry3<f64>],
+        dst: &mut Vec<Row>,
+    ) {
+        match self.law {
+            ContactLaw::Paper => {
+                rows::from_enforced(&out.enforced, &model.mesh.nodes, &model.fixed_mask, dst)
+            }
+            _ => {
+                rows::from_candidates(
+                    &out.candidates,
+                    free,
+                    self.friction,
+                    anchors,
+                    poses,
+                    &model.fixed_mask,
+                    dst,
+                );
+                rows::from_edges(&out.edges, free, &model.fixed_mask, dst);
+            }
+        }
+    }
+}
+
+/// The skull spheres as contact rows (DESIGN.md section 3b's machinery):
+/// each surface node within `band_m` of leaving the containing sphere (or
+/// of entering the excluding one) at its current position `x` gets a
+/// unilateral row along the radial direction `r = (x - c) / |x - c|`,
+/// linearised there: the containing sphere pushes inward (`dir = -r`, gap
+/// `R - r . (X + u - c)`), the excluding one outward (`dir = r`, gap
+/// `r . (X + u - c) - R`).
+#[derive(Debug, Clone)]
+pub struct SkullRows {
+    skull: fem::skull::Skull,
+    band_m: f64,
+}
+
+impl SkullRows {
+    /// The skull of `scene`, if it has one.
+    pub fn of(scene: &Scene) -> Option<Self> {
+        let skull = scene.skull.as_ref()?;
+        let sphere = |s: &crate::scene::SphereSpec| fem::skull::Sphere {
+            centre: Point3::from(s.centre_m),
+            radius: s.radius_m,
+        };
+        Some(Self {
+            skull: fem::skull::Skull {
+                containing: skull.containing.as_ref().map(sphere),
+                excluding: skull.excluding.as_ref().map(sphere),
+            },
+            band_m: scene.contact.band_m,
+        })
+    }
+
+    /// Rows of the surface nodes within the band of a sphere at
+    /// displacements `u` (and of every node in `also`), appended to `dst`.
+    pub fn rows(&self, model: &Model, u: &[Vector3<f64>], also: &[u32], dst: &mut Vec<Row>) {
+        let mut done = std::collections::HashSet::new();
+        for &v in model.surface.to_volume.iter().chain(also) {
+            if model.fixed_mask[v as usize] || !done.insert(v) {
+                continue;
+            }
+            let rest = model.mesh.nodes[v as usize];
+            let x = rest + u[v as usize];
+            for (code, sphere, containing) in [
+                (0u8, self.skull.containing, true),
+                (1u8, self.skull.excluding, false),
+            ] {
+                let Some(s) = sphere else { continue };
+                let d = x - s.centre;
+                let dist = d.norm();
+                let r = if dist > 0.0 { d / dist } else { Vector3::z() };
+                let near = if containing {
+                    dist > s.radius - self.band_m
+                } else {
+                    dist < s.radius + self.band_m
+                };
+                if !near && !also.contains(&v) {
+                    continue;
+                }
+                let (dir, gap) = if containing {
+                    (-r, s.radius - r.dot(&(rest - s.centre)))
+                } else {
+                    (r, r.dot(&(rest - s.centre)) - s.radius)
+                };
+                dst.push(Row {
+                    key: rows::key(v, SKULL_OWNER, 7, code as u32),
+                    owner: SKULL_OWNER,
+                    row: ContactRow::at_node(v, dir, gap, RowKind::Unilateral),
+                    point: s.centre + r * s.radius,
+                    triangle: rows::NO_TRIANGLE,
+                });
+            }
+        }
+    }
+
+    /// Surface nodes that violate a sphere at displacements `u` by more
+    /// than `tol_m` and have no skull row in `have`.
+    pub fn violations(
+        &self,
+        model: &Model,
+        u: &[Vector3<f64>],
+        have: &[Row],
+        tol_m: f64,
+        out: &mut Vec<u32>,
+    ) {
+        out.clear();
+        let held: std::collections::HashSet<u32> = have
+            .iter()
+            .filter(|r| r.owner == SKULL_OWNER)
+            .map(|r| r.row.node)
+            .collect();
+        for &v in &model.surface.to_volume {
+            if model.fixed_mask[v as usize] || held.contains(&v) {
+                continue;
+            }
+            let x = model.mesh.nodes[v as usize] + u[v as usize];
+            let out_of = self
+                .skull
+                .containing
+                .is_some_and(|s| (x - s.centre).norm() > s.radius + tol_m);
+            let into = self
+                .skull
+                .excluding
+                .is_some_and(|s| (x - s.centre).norm() < s.radius - tol_m);
+            if out_of || into {
+                out.push(v);
+            }
+        }
+    }
+}
+
+/// The deformation stage: the FEM solver of the scene's strategy.
 pub struct Deformer {
     solver: Box<dyn DeformationSolver>,
-    prescribed: Vec<Prescribed>,
-    /// Enforced entry -> its index in `prescribed` (None: a fixed node).
-    slot: Vec<Option<usize>>,
-    /// Per volume node: fixed.
-    fixed: Vec<bool>,
+    answer: ContactAnswer,
+    fem_rows: Vec<ContactRow>,
+    patch: CompliancePatch,
 }
 
 impl std::fmt::Debug for Deformer {
@@ -587,20 +804,16 @@ impl std::fmt::Debug for Deformer {
     }
 }
 
-/// What one successful step produced.
-#[derive(Debug)]
-pub struct StepResult {
-    /// Displacement of every node, m.
-    pub displacements: Vec<Vector3<f64>>,
-    /// Reaction per prescribed node, N (order of the contact output's enforced list).
-    pub reactions: Vec<Vector3<f64>>,
-    /// The local force model.
-    pub force_model: ForceModel,
-}
-
 impl Deformer {
-    /// Builds (and factorizes) the solver the scene asks for.
-    pub fn new(scene: &Scene, model: &Model) -> Result<Self, SimError> {
+    /// Builds (and factorizes) the solver the scene asks for. `columns`
+    /// says how a solve gets compliance columns it lacks (`hook` runs first
+    /// on the background thread of [`ColumnPolicy::Defer`]).
+    pub fn new(
+        scene: &Scene,
+        model: &Model,
+        columns: ColumnPolicy,
+        hook: Option<Arc<dyn Fn() + Send + Sync>>,
+    ) -> Result<Self, SimError> {
         let strategy = scene.solver.strategy;
         let material = fem::Material {
             youngs_modulus_pa: scene.material.youngs_modulus_pa,
@@ -609,199 +822,639 @@ impl Deformer {
         let mut options = fem::SolverOptions::default();
         options.iterative.tolerance = scene.solver.tolerance;
         options.iterative.max_outer = scene.solver.max_iterations;
-        // The skull is modelled only when the scene names it.
-        options.skull = scene.skull.as_ref().map(|skull| {
-            let sphere = |s: &crate::scene::SphereSpec| fem::skull::Sphere {
-                centre: nalgebra::Point3::from(s.centre_m),
-                radius: s.radius_m,
-            };
-            fem::skull::Skull {
-                containing: skull.containing.as_ref().map(sphere),
-                excluding: skull.excluding.as_ref().map(sphere),
-            }
-        });
-        let solver = fem::build_solver(strategy, &model.mesh, material, &model.fixed, &options)
+        let mut solver = fem::build_solver(strategy, &model.mesh, material, &model.fixed, &options)
             .map_err(|e| SimError::Solver(e.to_string()))?;
+        solver.set_column_policy(columns, hook);
         Ok(Self {
             solver,
-            prescribed: Vec::new(),
-            slot: Vec::new(),
-            fixed: {
-                let mut mask = vec![false; model.mesh.nodes.len()];
-                for &n in &model.fixed {
-                    mask[n as usize] = true;
-                }
-                mask
-            },
+            answer: ContactAnswer::default(),
+            fem_rows: Vec::new(),
+            patch: CompliancePatch::default(),
         })
+    }
+
+    /// The strategy's name.
+    pub fn strategy(&self) -> &'static str {
+        self.solver.name()
     }
 
     /// Back to rest (an unconstrained solve gives zero displacement and resets
     /// warm starts).
     pub fn reset(&mut self) {
         let _ = self.solver.solve(&[]);
+        self.answer = ContactAnswer::default();
     }
 
-    /// Solves with the contact output's enforced displacements.
-    pub fn step(&mut self, contacts: &ContactOutput) -> Result<StepResult, fem::SolveError> {
-        // A fixed node stays fixed: an enforced displacement there (a face
-        // touching the supported region) is dropped and gets no reaction.
-        self.prescribed.clear();
-        self.slot.clear();
-        for e in &contacts.enforced {
-            if self
-                .fixed
-                .get(e.volume_node as usize)
-                .copied()
-                .unwrap_or(false)
-            {
-                self.slot.push(None);
-            } else {
-                self.slot.push(Some(self.prescribed.len()));
-                self.prescribed.push(Prescribed {
-                    node: e.volume_node,
-                    displacement: e.displacement,
-                });
-            }
+    /// Solves the contact problem of `rows`, warm-started from `warm` (one
+    /// multiplier per row, or empty). On success the multipliers are in
+    /// [`Self::answer`] and the displacements in [`Self::displacements`].
+    pub fn solve(&mut self, rows: &[Row], warm: &[f64]) -> Result<(), fem::SolveError> {
+        self.fem_rows.clear();
+        self.fem_rows.extend(rows.iter().map(|r| r.row));
+        self.answer.multipliers.clear();
+        if warm.len() == rows.len() {
+            self.answer.multipliers.extend_from_slice(warm);
         }
-        let solution = self.solver.solve(&self.prescribed)?;
-        let displacements = solution.displacements.clone();
-        let reactions: Vec<Vector3<f64>> = self
-            .slot
-            .iter()
-            .map(|j| j.map_or_else(Vector3::zeros, |j| solution.reactions[j]))
-            .collect();
-        let force_model = match self.solver.local_model() {
-            Some(local) => force_model_from(local, contacts, |n| n),
-            None => held_force_model(contacts, &reactions),
+        self.solver.solve_contact(&self.fem_rows, &mut self.answer)
+    }
+
+    /// The last contact solve's answer.
+    pub fn answer(&self) -> &ContactAnswer {
+        &self.answer
+    }
+
+    /// Every node's displacement after the last successful solve, m.
+    pub fn displacements(&self) -> &[Vector3<f64>] {
+        self.solver
+            .last_solution()
+            .map(|s| s.displacements.as_slice())
+            .unwrap_or(&[])
+    }
+
+    /// Solver iterations of the last solve.
+    pub fn iterations(&self) -> u32 {
+        self.solver.last_solution().map_or(0, |s| s.iterations)
+    }
+
+    /// The compliance patch over `nodes`, if the strategy has one.
+    pub fn patch(&mut self, nodes: &[u32]) -> Option<CompliancePatch> {
+        if self.solver.compliance_patch(nodes, &mut self.patch) {
+            Some(std::mem::take(&mut self.patch))
+        } else {
+            None
+        }
+    }
+
+    /// Asks for the compliance of `nodes` ahead of contact.
+    pub fn prefetch(&mut self, nodes: &[u32]) {
+        self.solver.prefetch(nodes);
+    }
+}
+
+/// The penalty answer of a row whose node has no compliance yet
+/// (flagged): `lambda = k max(0, -g)` for a unilateral row (`-k g` for a
+/// bilateral one) at the gap `g = g_free + d . u` of the displacements `u`
+/// the tissue has now, with the node's penalty stiffness `k`.
+pub fn penalty(model: &Model, row: &Row, u: &[Vector3<f64>]) -> f64 {
+    let k = row
+        .row
+        .nodes()
+        .map(|(n, _)| model.penalty_n_per_m[n as usize])
+        .fold(0.0, f64::max);
+    let g = row.row.gap_free_m + row.row.normal_motion(u);
+    match row.row.kind {
+        RowKind::Unilateral => k * (-g).max(0.0),
+        RowKind::Bilateral => -k * g,
+        _ => 0.0,
+    }
+}
+
+/// What one deformation step did, beyond the snapshot it publishes.
+#[derive(Debug, Clone, Default)]
+pub struct StepReport {
+    /// Rows of the contact problem.
+    pub rows: usize,
+    /// Rows answered by a penalty (their compliance is not computed yet).
+    pub pending: usize,
+    /// Solver iterations.
+    pub iterations: u32,
+    /// Skull rounds (solves) of the step.
+    pub rounds: u32,
+    /// The contact solver's check of its answer.
+    pub check: fem::lcp::Report,
+    /// Nodes of the published compliance patch.
+    pub patch_nodes: usize,
+}
+
+/// The deformation step of a scene: collision of every instrument, the
+/// contact rows, the solve, and the snapshot the force loops read. Used by
+/// the free-running deformation thread and by the stepped runner alike.
+pub struct StepEngine {
+    scene: Scene,
+    model: Arc<Model>,
+    deformer: Deformer,
+    query: ContactQuery,
+    /// The contact search's own collision stage (its own backend, fitted
+    /// to each solved shape).
+    search: ContactQuery,
+    bvhs: Option<SurfaceBvhs>,
+    paper_history: Vec<History>,
+    anchors: Anchors,
+    rule: RowRule,
+    skull: Option<SkullRows>,
+    next_frame: u64,
+    rows: Vec<Row>,
+    warm: Vec<f64>,
+    extra: Vec<u32>,
+    lambda: Vec<f64>,
+}
+
+impl std::fmt::Debug for StepEngine {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("StepEngine")
+            .field("scene", &self.scene.name)
+            .field("next_frame", &self.next_frame)
+            .finish_non_exhaustive()
+    }
+}
+
+/// Most solves of one step while the skull finds new nodes leaving it.
+const SKULL_ROUNDS: u32 = 8;
+
+/// Most contact searches on a step's solved shape.
+const CONTACT_SEARCHES: u32 = 3;
+
+/// A row's gap below this (m) on the solved shape is a violation the
+/// contact search adds.
+const SEARCH_TOLERANCE_M: f64 = 1e-9;
+
+impl StepEngine {
+    /// The step of `scene` over `model` (factorizes the solver). `columns`
+    /// and `hook` as in [`Deformer::new`]; `query` casts on the scene's
+    /// backend unless the caller gives one.
+    pub fn new(
+        scene: &Scene,
+        model: Arc<Model>,
+        columns: ColumnPolicy,
+        hook: Option<Arc<dyn Fn() + Send + Sync>>,
+        backend: Option<Box<dyn RayBackend>>,
+    ) -> Result<Self, SimError> {
+        let deformer = Deformer::new(scene, &model, columns, hook)?;
+        let query = match backend {
+            Some(b) => ContactQuery::with_backend(scene, b),
+            None => ContactQuery::new(scene, Par::rayon(0)),
         };
-        Ok(StepResult {
-            displacements,
-            reactions,
-            force_model,
+        // The search casts on a CPU tree of its own (every backend gives the
+        // same answers).
+        let search = ContactQuery::with_backend(
+            scene,
+            Box::new(
+                Bvh::new(&model.surface.triangles, &model.rest_surface)
+                    .expect("surface checked at load"),
+            ),
+        );
+        let bvhs = SurfaceBvhs::new(scene, &model);
+        let paper_history = (0..model.instruments.len())
+            .map(|i| model.new_history(i))
+            .collect();
+        Ok(Self {
+            scene: scene.clone(),
+            deformer,
+            query,
+            search,
+            bvhs,
+            paper_history,
+            anchors: Anchors::default(),
+            rule: RowRule::of(scene),
+            skull: SkullRows::of(scene),
+            next_frame: 0,
+            rows: Vec::new(),
+            warm: Vec::new(),
+            extra: Vec::new(),
+            lambda: Vec::new(),
+            model,
         })
     }
-}
 
-/// For strategies without a local model (the iterative ones): the step's
-/// contact set with its reactions and a zero stiffness, so the force loop holds
-/// the step's reactions (a zero-order hold) until the next step, releasing the
-/// nodes the instrument leaves.
-fn held_force_model(contacts: &ContactOutput, reactions: &[Vector3<f64>]) -> ForceModel {
-    let m = contacts.enforced.len();
-    ForceModel::new(
-        contacts.enforced.iter().map(|e| e.volume_node).collect(),
-        contacts.enforced.iter().map(|e| e.instrument).collect(),
-        contacts.enforced.iter().map(|e| e.displacement).collect(),
-        reactions.to_vec(),
-        &DMatrix::zeros(3 * m, 3 * m),
-    )
-}
+    /// The model.
+    pub fn model(&self) -> &Arc<Model> {
+        &self.model
+    }
 
-/// The local force model of a step: the condensed stiffness `S = C^-1` of
-/// the local model's contact nodes, with each node's owner (the instrument
-/// that enforced it). `node_map` maps the solver's node indices to the
-/// collision stage's (the identity unless the FEM runs on a cropped mesh).
-/// `rest` is left empty and `frame` zero: the publisher fills them.
-pub fn force_model_from(
-    local: &fem::LocalModel,
-    contacts: &ContactOutput,
-    node_map: impl Fn(u32) -> u32,
-) -> ForceModel {
-    let owner_of: HashMap<u32, u16> = contacts
-        .enforced
-        .iter()
-        .map(|e| (e.volume_node, e.instrument))
-        .collect();
-    let m = local.nodes.len();
-    let stiffness = if m == 0 {
-        DMatrix::zeros(0, 0)
-    } else {
-        match local.compliance.clone().cholesky() {
-            Some(ch) => ch.inverse(),
-            None => {
-                tracing::warn!(
-                    nodes = m,
-                    "the compliance block is not positive definite; forces held at the step's values"
-                );
-                DMatrix::zeros(3 * m, 3 * m)
+    /// The solver strategy's name.
+    pub fn strategy(&self) -> &'static str {
+        self.deformer.strategy()
+    }
+
+    /// The rest state as the next frame (at `sim_time_s`), with the
+    /// histories, anchors and solver back to rest.
+    pub fn rest(&mut self, sim_time_s: f64) -> Snapshot {
+        self.deformer.reset();
+        for (i, h) in self.paper_history.iter_mut().enumerate() {
+            *h = self.model.new_history(i);
+        }
+        self.anchors = Anchors::default();
+        let frame = self.next_frame;
+        self.next_frame += 1;
+        let mut snap = self.model.rest_snapshot(&self.scene, frame, sim_time_s);
+        snap.surface_bvh = self.bvhs.as_mut().map(|b| b.fit(&snap.surface));
+        // A strategy with a compliance operator answers contacts before the
+        // first step too (with penalties until its columns exist).
+        if self.deformer.patch(&[]).is_some() {
+            if let Some(fm) = Arc::get_mut(&mut snap.force_model) {
+                fm.has_patch = true;
             }
         }
-    };
-    let nodes: Vec<u32> = local.nodes.iter().map(|&n| node_map(n)).collect();
-    let owner = nodes
-        .iter()
-        .map(|n| owner_of.get(n).copied().unwrap_or(u16::MAX))
-        .collect();
-    ForceModel::new(
-        nodes,
-        owner,
-        local.displacements.clone(),
-        local.reactions.clone(),
-        &stiffness,
-    )
-}
+        snap
+    }
 
-impl Model {
-    /// Builds the snapshot of a successful step.
-    pub(crate) fn snapshot_from(
-        &self,
-        scene: &Scene,
+    /// One deformation step at `sim_time_s` from `prev`: instrument `i` at
+    /// `poses[i]` with the force loop's history `histories[i]` (force-rate
+    /// mode; `None`: an instrument at home, or the paper's mode, uses the
+    /// step's own history).
+    pub fn step(
+        &mut self,
+        prev: &Snapshot,
+        sim_time_s: f64,
+        poses: &[Isometry3<f64>],
+        histories: Vec<Option<History>>,
+    ) -> (Snapshot, Option<StepReport>) {
+        let started = Instant::now();
+        let model = self.model.clone();
+        let frame = self.next_frame;
+        self.next_frame += 1;
+        let paper_mode = self.scene.collision.history == HistoryMode::Paper;
+        let own: Vec<bool> = histories
+            .iter()
+            .map(|h| paper_mode || h.is_none())
+            .collect();
+        let mut step_histories: Vec<History> = histories
+            .into_iter()
+            .enumerate()
+            .map(|(i, h)| match h {
+                Some(h) if !paper_mode => h,
+                _ => self.paper_history[i].clone(),
+            })
+            .collect();
+        let t0 = Instant::now();
+        let contacts = tracing::debug_span!("collision").in_scope(|| {
+            self.query
+                .query_all(&model, prev, poses, &mut step_histories)
+        });
+        let mut after = step_histories.clone();
+        for (i, h) in step_histories.into_iter().enumerate() {
+            if own[i] {
+                self.paper_history[i] = h;
+            }
+        }
+        let collision_us = t0.elapsed().as_secs_f64() * 1e6;
+        let t1 = Instant::now();
+        // Rows: the instruments', then the skull's.
+        self.rows.clear();
+        self.rule.rows(
+            &model,
+            contacts,
+            &FreePositions::Rest(&model.mesh.nodes),
+            &self.anchors,
+            poses,
+            &mut self.rows,
+        );
+        let last = prev.force_model.clone();
+        let n_instrument_rows = self.rows.len();
+        // What the snapshot needs of the collision output.
+        let counts: Vec<(u32, u32)> = (0..model.instruments.len())
+            .map(|k| {
+                let pairs = contacts.pairs_of(k as u16).count() as u32;
+                let culled = contacts
+                    .cancelled
+                    .iter()
+                    .filter(|p| p.instrument as usize == k)
+                    .count() as u32;
+                (pairs, culled)
+            })
+            .collect();
+        let nearby = contacts.nearby.clone();
+        if let Some(skull) = &self.skull {
+            skull.rows(&model, &prev.displacements, &[], &mut self.rows);
+        }
+        // Warm start from the last step's multipliers, by key.
+        self.warm.clear();
+        self.warm.extend(
+            self.rows
+                .iter()
+                .map(|r| last.step_multiplier(r.key).unwrap_or(0.0)),
+        );
+        let mut rounds = 0;
+        let mut searches = 0;
+        let result = loop {
+            rounds += 1;
+            if let Err(e) = self.deformer.solve(&self.rows, &self.warm) {
+                break Err(e);
+            }
+            // Skull nodes leaving the sphere join the problem.
+            if let Some(skull) = &self.skull {
+                let u = self.deformer.displacements();
+                skull.violations(
+                    &model,
+                    u,
+                    &self.rows,
+                    1e-9 * skull.band_m.max(1e-6),
+                    &mut self.extra,
+                );
+                if !self.extra.is_empty() && rounds < SKULL_ROUNDS {
+                    let extra = std::mem::take(&mut self.extra);
+                    let u = self.deformer.displacements().to_vec();
+                    skull.rows(&model, &u, &extra, &mut self.rows);
+                    self.extra = extra;
+                    self.warm = self.deformer.answer().multipliers.clone();
+                    self.warm.resize(self.rows.len(), 0.0);
+                    continue;
+                }
+            }
+            // Contact search on the solved shape: rows a query at the
+            // step's poses finds there that the solution violates (tissue
+            // the plate now pierces elsewhere) join the problem.
+            if searches < CONTACT_SEARCHES {
+                searches += 1;
+                if self.search_solved(&model, poses, &after) > 0 {
+                    self.warm = self.deformer.answer().multipliers.clone();
+                    self.warm.resize(self.rows.len(), 0.0);
+                    continue;
+                }
+            }
+            break Ok(());
+        };
+        let solve_us = t1.elapsed().as_secs_f64() * 1e6;
+        let timings = |total: f64| StepTimings {
+            collision_us,
+            solve_us,
+            total_us: total,
+        };
+        if let Err(e) = result {
+            tracing::warn!(frame, error = %e, "deformation step failed; keeping the last good state");
+            let mut summary = (*prev.frame_summary).clone();
+            summary.frame = frame;
+            summary.sim_time_s = sim_time_s;
+            summary.timings = timings(started.elapsed().as_secs_f64() * 1e6);
+            summary.solver_error = Some(e.to_string());
+            let mut fm = (*prev.force_model).clone();
+            fm.frame = frame;
+            return (
+                Snapshot {
+                    frame,
+                    sim_time_s,
+                    published: Instant::now(),
+                    surface: prev.surface.clone(),
+                    displacements: prev.displacements.clone(),
+                    surface_bvh: prev.surface_bvh.clone(),
+                    force_model: Arc::new(fm),
+                    paper_history: prev.paper_history.clone(),
+                    solver_error: Some(e.to_string()),
+                    frame_summary: Arc::new(summary),
+                },
+                None,
+            );
+        }
+        let answer = self.deformer.answer();
+        self.lambda.clear();
+        self.lambda.extend_from_slice(&answer.multipliers);
+        for (k, h) in self.paper_history.iter_mut().enumerate() {
+            if own[k] {
+                h.set_held(rows::held_by(&self.rows, &self.lambda, k as u16));
+            }
+        }
+        // Rows whose node has no compliance yet: a penalty at the tissue's
+        // present shape.
+        for &p in &answer.pending {
+            self.lambda[p as usize] = penalty(&model, &self.rows[p as usize], &prev.displacements);
+        }
+        let pending = answer.pending.clone();
+        let check = answer.report;
+        let iterations = self.deformer.iterations();
+        let displacements = Arc::new(self.deformer.displacements().to_vec());
+        if self.rule.friction.is_some() {
+            self.update_anchors(&model, poses, &displacements, n_instrument_rows);
+        }
+        // The new surface and its tree; the force loops query it, so the
+        // patch covers the rows a query at the step's poses finds on it too.
+        let mut surface = Vec::with_capacity(model.rest_surface.len());
+        for (s, &v) in model.surface.to_volume.iter().enumerate() {
+            surface.push(model.rest_surface[s] + displacements[v as usize]);
+        }
+        let surface = Arc::new(surface);
+        let surface_bvh =
+            tracing::debug_span!("refit").in_scope(|| self.bvhs.as_mut().map(|b| b.fit(&surface)));
+        let mut patch_nodes: Vec<u32> = self
+            .rows
+            .iter()
+            .flat_map(|r| r.row.nodes().map(|(n, _)| n))
+            .collect();
+        let mut ahead = Vec::new();
+        let band2 = 2.0 * self.scene.contact.band_m;
+        for n in &nearby {
+            if n.distance_m <= band2 {
+                patch_nodes.push(n.volume_node);
+            } else {
+                ahead.push(n.volume_node);
+            }
+        }
+        let post =
+            self.query
+                .query_all_on(&model, &surface, surface_bvh.as_ref(), poses, &mut after);
+        let mut post_rows = Vec::new();
+        self.rule.rows(
+            &model,
+            post,
+            &FreePositions::Rest(&model.mesh.nodes),
+            &self.anchors,
+            poses,
+            &mut post_rows,
+        );
+        patch_nodes.extend(post_rows.iter().flat_map(|r| r.row.nodes().map(|(n, _)| n)));
+        for n in &post.nearby {
+            if n.distance_m <= band2 {
+                patch_nodes.push(n.volume_node);
+            } else {
+                ahead.push(n.volume_node);
+            }
+        }
+        patch_nodes.sort_unstable();
+        patch_nodes.dedup();
+        patch_nodes.retain(|&v| !model.fixed_mask[v as usize]);
+        let patch = self.deformer.patch(&patch_nodes);
+        ahead.sort_unstable();
+        ahead.dedup();
+        ahead.retain(|&v| !model.fixed_mask[v as usize]);
+        self.deformer.prefetch(&ahead);
+        let has_patch = patch.is_some();
+        let patch = Arc::new(patch.unwrap_or_default());
+        let mut patch_index = vec![u32::MAX; model.mesh.nodes.len()];
+        for (i, &v) in patch.nodes.iter().enumerate() {
+            patch_index[v as usize] = i as u32;
+        }
+        let report = StepReport {
+            rows: self.rows.len(),
+            pending: pending.len(),
+            iterations,
+            rounds,
+            check,
+            patch_nodes: patch.nodes.len(),
+        };
+        let total_us = started.elapsed().as_secs_f64() * 1e6;
+        let snap = self.snapshot(
+            frame,
+            sim_time_s,
+            &counts,
+            poses,
+            surface,
+            surface_bvh,
+            displacements,
+            ForcePatch {
+                patch,
+                patch_index: Arc::new(patch_index),
+                has_patch,
+            },
+            &pending,
+            timings(total_us),
+        );
+        (snap, Some(report))
+    }
+
+    /// The contact search of [`Self::step`]: queries the solved shape at
+    /// `poses` (with copies of the histories after the step's query) and
+    /// adds the rows it finds that are not in the problem and whose gap the
+    /// solution violates. Returns how many rows it added.
+    fn search_solved(
+        &mut self,
+        model: &Model,
+        poses: &[Isometry3<f64>],
+        histories: &[History],
+    ) -> usize {
+        let u = self.deformer.displacements();
+        let surface: Vec<Point3<f64>> = model
+            .surface
+            .to_volume
+            .iter()
+            .enumerate()
+            .map(|(s, &v)| model.rest_surface[s] + u[v as usize])
+            .collect();
+        let surface = Arc::new(surface);
+        let mut h = histories.to_vec();
+        let found = self
+            .search
+            .query_all_on(model, &surface, None, poses, &mut h);
+        let mut post = Vec::new();
+        self.rule.rows(
+            model,
+            found,
+            &FreePositions::Rest(&model.mesh.nodes),
+            &self.anchors,
+            poses,
+            &mut post,
+        );
+        let have: std::collections::HashMap<u64, usize> = self
+            .rows
+            .iter()
+            .enumerate()
+            .map(|(i, r)| (r.key, i))
+            .collect();
+        let mut added = 0;
+        let mut i = 0;
+        while i < post.len() {
+            // A normal row with the tangent rows that follow it.
+            let mut j = i + 1;
+            while j < post.len() && matches!(post[j].row.kind, RowKind::Tangent { .. }) {
+                j += 1;
+            }
+            let r = &post[i];
+            let g = r.row.gap_free_m + r.row.normal_motion(u);
+            if !have.contains_key(&r.key) && g < -SEARCH_TOLERANCE_M {
+                rows::append(&mut self.rows, &post[i..j]);
+                added += 1;
+            }
+            i = j;
+        }
+        added
+    }
+
+    /// Friction: a contact that slipped sticks where it ended; one that
+    /// stuck keeps its anchor (a new one anchors where it touched); an
+    /// open one forgets its anchor.
+    fn update_anchors(
+        &mut self,
+        model: &Model,
+        poses: &[Isometry3<f64>],
+        u: &[Vector3<f64>],
+        n_instrument_rows: usize,
+    ) {
+        let mut keep = std::collections::HashSet::new();
+        let rows = &self.rows[..n_instrument_rows];
+        for (i, r) in rows.iter().enumerate() {
+            if r.row.kind != RowKind::Unilateral || self.lambda[i] <= 0.0 {
+                continue;
+            }
+            let (owner, node) = (r.owner, r.row.node);
+            let Some(pose) = poses.get(owner as usize) else {
+                continue;
+            };
+            let mu = self.rule.friction.unwrap_or(0.0);
+            let lt: f64 = rows
+                .iter()
+                .zip(&self.lambda)
+                .filter(|(t, _)| matches!(t.row.kind, RowKind::Tangent { normal, .. } if normal as usize == i))
+                .map(|(_, l)| l * l)
+                .sum::<f64>()
+                .sqrt();
+            let slipping = lt >= mu * self.lambda[i] * (1.0 - 1e-6);
+            keep.insert((owner, node));
+            if slipping || self.anchors.get(owner, node).is_none() {
+                // Where the vertex is now, on the face plane.
+                let x = model.mesh.nodes[node as usize] + u[node as usize];
+                let on_face = x - r.row.dir * r.row.dir.dot(&(x - r.point));
+                self.anchors.set(owner, node, pose.inverse() * on_face);
+            }
+        }
+        self.anchors.retain(|i, n| keep.contains(&(i, n)));
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn snapshot(
+        &mut self,
         frame: u64,
         sim_time_s: f64,
-        step: StepResult,
-        contacts: &ContactOutput,
+        counts: &[(u32, u32)],
         poses: &[Isometry3<f64>],
-        paper_history: Vec<History>,
+        surface: Arc<Vec<Point3<f64>>>,
+        surface_bvh: Option<Arc<Bvh>>,
+        displacements: Arc<Vec<Vector3<f64>>>,
+        patch: ForcePatch,
+        pending: &[u32],
         timings: StepTimings,
     ) -> Snapshot {
-        let mut surface = Vec::with_capacity(self.rest_surface.len());
-        let mut max_d: f64 = 0.0;
-        for (s, &v) in self.surface.to_volume.iter().enumerate() {
-            let u = step.displacements[v as usize];
-            max_d = max_d.max(u.norm());
-            surface.push(self.rest_surface[s] + u);
-        }
-        let mut force_model = step.force_model;
-        force_model.frame = frame;
-        force_model.rest = force_model
-            .nodes
+        let model = &self.model;
+        let max_d = model
+            .surface
+            .to_volume
             .iter()
-            .map(|&n| self.mesh.nodes[n as usize])
-            .collect();
-        let instruments = scene
+            .map(|&v| displacements[v as usize].norm())
+            .fold(0.0, f64::max);
+        let mut step_force = Vec::with_capacity(self.scene.instruments.len());
+        let instruments = self
+            .scene
             .instruments
             .iter()
             .enumerate()
             .map(|(k, spec)| {
                 let handle = poses[k].translation.vector;
-                let mut force = Vector3::zeros();
-                let mut torque = Vector3::zeros();
-                let mut contact_vertices = 0;
-                for (e, r) in contacts.enforced.iter().zip(&step.reactions) {
-                    if e.instrument as usize == k {
-                        let p = self.mesh.nodes[e.volume_node as usize].coords + e.displacement;
-                        force -= r;
-                        torque += (p - handle).cross(&(-r));
-                        contact_vertices += 1;
-                    }
-                }
+                let (force, torque) =
+                    rows::owner_force(&self.rows, &self.lambda, k as u16, &handle);
+                step_force.push((force, torque));
+                let mut touching: Vec<u32> = self
+                    .rows
+                    .iter()
+                    .zip(&self.lambda)
+                    .filter(|(r, l)| r.owner as usize == k && **l != 0.0)
+                    .map(|(r, _)| r.row.node)
+                    .collect();
+                touching.sort_unstable();
+                touching.dedup();
+                let mut waiting: Vec<u32> = pending
+                    .iter()
+                    .map(|&p| &self.rows[p as usize])
+                    .filter(|r| r.owner as usize == k)
+                    .map(|r| r.row.node)
+                    .collect();
+                waiting.sort_unstable();
+                waiting.dedup();
                 let q = poses[k].rotation.quaternion();
                 InstrumentReaction {
                     name: spec.name.clone(),
                     force_n: force,
                     torque_nm: torque,
-                    pairs: contacts
-                        .pairs
-                        .iter()
-                        .filter(|p| p.instrument as usize == k)
-                        .count() as u32,
-                    culled: contacts
-                        .cancelled
-                        .iter()
-                        .filter(|p| p.instrument as usize == k)
-                        .count() as u32,
-                    contact_vertices,
+                    pairs: counts[k].0,
+                    culled: counts[k].1,
+                    contact_vertices: touching.len() as u32,
+                    pending_vertices: waiting.len() as u32,
                     position_m: handle,
                     orientation: [q.w, q.i, q.j, q.k],
                 }
@@ -811,14 +1464,25 @@ impl Model {
             .iter()
             .map(|p| [p.x as f32, p.y as f32, p.z as f32])
             .collect();
+        let force_model = ForceModel::new(
+            frame,
+            patch.patch,
+            patch.patch_index,
+            self.rows.clone(),
+            self.lambda.clone(),
+            self.anchors.clone(),
+            patch.has_patch,
+            step_force,
+        );
         Snapshot {
             frame,
             sim_time_s,
             published: Instant::now(),
-            surface: Arc::new(surface),
-            surface_bvh: None,
+            surface,
+            displacements,
+            surface_bvh,
             force_model: Arc::new(force_model),
-            paper_history,
+            paper_history: self.paper_history.clone(),
             solver_error: None,
             frame_summary: Arc::new(Frame {
                 frame,
@@ -831,4 +1495,11 @@ impl Model {
             }),
         }
     }
+}
+
+/// A step's compliance patch with its index.
+struct ForcePatch {
+    patch: Arc<CompliancePatch>,
+    patch_index: Arc<Vec<u32>>,
+    has_patch: bool,
 }

@@ -1,42 +1,55 @@
 //! The force loop and the deformation loop, their shared state and recording
 //! (DESIGN.md section 4).
 //!
-//! * The **deformation loop** runs on its own thread: latest poses -> collision
-//!   with culling for every instrument -> FEM step -> a [`Snapshot`] swapped in
-//!   atomically (latest wins) and a [`Frame`] sent on a `watch` channel (slow
-//!   watchers see only the latest frame). With the CPU BVH, the snapshot also
-//!   carries the tree refitted to its surface, which every force loop casts on
+//! * The **deformation loop** ([`engine::StepEngine`]) runs on its own
+//!   thread: latest poses -> collision with culling for every instrument ->
+//!   the contact rows -> the contact problem's solve -> a [`Snapshot`]
+//!   swapped in atomically (latest wins) and a [`Frame`] sent on a `watch`
+//!   channel (slow watchers see only the latest frame). The snapshot carries
+//!   the compliance patch the force loops solve on and, with the CPU BVH, the
+//!   tree refitted to its surface, which every force loop casts on
 //!   read-only. The thread and its rayon pool run at a lower priority
 //!   ([`priority`], [`SimOptions::deformation_nice`]) so that force samples
-//!   preempt the solver.
-//! * The **force loop** of a claimed instrument ([`Claim::force_sample`]) runs in
-//!   the caller's thread: a fresh collision query (sequential, on the
-//!   snapshot's tree) against the latest snapshot's surface and the local model
-//!   of its step. In free-running mode it never
-//!   waits for the deformation loop.
-//! * **Stepped mode** makes runs reproducible: deformation step `k` happens at
-//!   simulation time `t_k = k * dt` and uses, per instrument, the latest pose
-//!   with `t <= t_k`; a force sample at pose time `t` uses frame
-//!   `ceil(t / dt) - 1` (the last step strictly before `t`) and waits for it.
-//!   Step `k` runs once every instrument that is claimed has been given a pose
-//!   with `t > t_k` (or its stream ended), and at least
-//!   [`SimOptions::stepped_clients`] instruments have been claimed.
+//!   preempt the solver; compliance it lacks is computed on a background
+//!   thread lower still (contacts on such vertices are answered by a
+//!   penalty and flagged meanwhile), so no step waits for it.
+//! * The **force loop** of a claimed instrument ([`Claim::force_sample`],
+//!   [`force_loop`]) runs in the caller's thread: a fresh collision query
+//!   (sequential, on the snapshot's tree) against the latest snapshot's
+//!   surface, the instrument's rows, and the contact problem coupled with
+//!   the other instruments' latest rows, on the compliance of the last
+//!   step. It never waits for the deformation loop.
+//! * **Stepped mode** ([`stepped`]) makes runs reproducible: one thread runs
+//!   a [`stepped::SteppedRunner`], which answers the poses of each time
+//!   together once every claimed instrument has sent its next pose (and at
+//!   least [`SimOptions::stepped_clients`] have been claimed): deformation
+//!   step `k` happens at `t_k = t_0 + k dt` (`t_0` the session's first pose
+//!   time) with, per instrument, the latest pose with `t <= t_k`; a force
+//!   sample at pose time `t` uses the last step strictly before `t`. Columns
+//!   of the compliance are computed when a step needs them (the answers do
+//!   not depend on timing). `fissure study` drives the same runner.
 
 pub mod engine;
+pub mod force_loop;
 pub mod local_model;
 pub mod pose;
 pub mod priority;
 pub mod recording;
+pub mod rows;
 pub mod snapshot;
 pub mod stats;
+pub mod stepped;
 
-use crate::scene::{HistoryMode, Scene};
-use engine::{ContactQuery, Deformer, Model};
-use faer::Par;
-use local_model::ForceWorkspace;
-use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
+pub use stepped::step_before;
+
+use crate::fem::compliance::ColumnPolicy;
+use crate::scene::Scene;
+use engine::{Model, StepEngine};
+use force_loop::{ForceLoop, SampleForce};
+use nalgebra::{Isometry3, Vector3};
 use pose::{PoseError, RawPose, TimedPose};
-use snapshot::{Frame, Snapshot, StepTimings};
+use rows::Row;
+use snapshot::{Frame, Snapshot};
 use stats::{LatencyRecorder, StatsSummary};
 use std::collections::VecDeque;
 use std::path::PathBuf;
@@ -44,6 +57,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex, RwLock};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
+use stepped::{StepDone, SteppedRunner};
 
 /// Safety flags of a force sample (same bits as `fissure.v1.SafetyFlag`).
 pub mod flags {
@@ -57,6 +71,12 @@ pub mod flags {
     pub const SOLVER_FAILED: u32 = 8;
     /// The pose jumped farther than the scene allows in one sample.
     pub const POSE_JUMP: u32 = 16;
+    /// A vertex the instrument touches has no compliance yet: its force is
+    /// a penalty estimate until its columns are computed.
+    pub const COLUMNS_PENDING: u32 = 32;
+    /// The sample's contact problem was not solved: the last good force is
+    /// repeated.
+    pub const CONTACT_UNSOLVED: u32 = 64;
 }
 
 /// Options of a simulation beyond the scene file.
@@ -152,23 +172,41 @@ pub struct ForceOut {
     pub compute_us: f64,
 }
 
-/// Per-instrument input state shared between its force loop and the
-/// deformation loop.
-#[derive(Debug, Clone)]
+/// A pose waiting for the stepped runner, and where its answer goes.
+struct Pending {
+    pose: TimedPose,
+    reply: Arc<Reply>,
+}
+
+/// A claim's answer slot (reused from one pose to the next).
+#[derive(Default)]
+struct Reply {
+    slot: Mutex<Option<Result<ForceOut, PoseError>>>,
+    ready: Condvar,
+}
+
+impl Reply {
+    fn send(&self, r: Result<ForceOut, PoseError>) {
+        *self.slot.lock().expect("reply lock") = Some(r);
+        self.ready.notify_all();
+    }
+}
+
+/// Per-instrument input state shared between its force loop and the loops.
+#[derive(Default)]
 struct InstrumentInput {
     claimed: bool,
     /// Ever claimed (stepped mode counts these).
     ever_claimed: bool,
-    /// Latest accepted pose and the force-rate history after it.
+    /// Free-running: the latest accepted pose and the force-rate history
+    /// after it.
     latest: Option<(TimedPose, engine::History)>,
-    /// Stepped mode: accepted poses (with history after each), oldest first.
-    log: VecDeque<(TimedPose, engine::History)>,
-    /// Stepped mode: time of the pose the force loop is working on.
-    reached_t: f64,
-    /// Stepped mode: the stream ended at this pose time.
-    ended_at: Option<f64>,
     /// Bumped at each accepted pose (free-running: has anything changed?).
     version: u64,
+    /// Stepped: poses waiting for the runner, oldest first.
+    queue: VecDeque<Pending>,
+    /// Stepped: the claim's stream ended and the runner has not been told.
+    ended: bool,
 }
 
 struct Inputs {
@@ -176,7 +214,14 @@ struct Inputs {
     reset: bool,
 }
 
-/// A running simulation: the model, the deformation thread, the shared state.
+/// An instrument's latest rows, for the other force loops (free-running).
+#[derive(Default)]
+struct SharedRows {
+    live: bool,
+    rows: Arc<Vec<Row>>,
+}
+
+/// A running simulation: the model, the loop thread, the shared state.
 pub struct Simulation {
     scene: Scene,
     model: Arc<Model>,
@@ -186,8 +231,9 @@ pub struct Simulation {
     frames: tokio::sync::watch::Sender<Arc<Frame>>,
     inputs: Mutex<Inputs>,
     inputs_changed: Condvar,
-    published: Condvar,
-    published_lock: Mutex<u64>,
+    /// Resets done so far, and the frame of the last.
+    resets: Mutex<(u64, u64)>,
+    reset_done: Condvar,
     shutdown: AtomicBool,
     thread: Mutex<Option<JoinHandle<()>>>,
     started: Instant,
@@ -198,6 +244,7 @@ pub struct Simulation {
     failed_steps: AtomicU64,
     watchers: AtomicU64,
     recorder: Option<recording::Recorder>,
+    shared_rows: Vec<Mutex<SharedRows>>,
 }
 
 impl std::fmt::Debug for Simulation {
@@ -208,16 +255,31 @@ impl std::fmt::Debug for Simulation {
     }
 }
 
+/// Nice value of the background column thread above the deformation
+/// loop's.
+const COLUMN_WORKER_NICE_ABOVE: i32 = 5;
+
+/// How long [`Simulation::reset`] waits for the rest frame.
+const RESET_WAIT: Duration = Duration::from_secs(10);
+
 impl Simulation {
     /// Builds the model and the solver, publishes the rest state as frame 0 and
-    /// starts the deformation thread.
+    /// starts the loop thread.
     pub fn start(mut scene: Scene, options: SimOptions) -> Result<Arc<Self>, SimError> {
         let model = Arc::new(Model::build(&scene)?);
-        let deformer = Deformer::new(&scene, &model)?;
         let stepped = options.stepped.unwrap_or(scene.loops.stepped);
         // The scene as run: GetScene and the recording header report the
         // effective mode, not the file's.
         scene.loops.stepped = stepped;
+        let nice = options.deformation_nice;
+        let hook: Arc<dyn Fn() + Send + Sync> =
+            Arc::new(move || priority::lower_current_thread(nice + COLUMN_WORKER_NICE_ABOVE));
+        let columns = if stepped {
+            ColumnPolicy::Compute
+        } else {
+            ColumnPolicy::Defer
+        };
+        let mut engine = StepEngine::new(&scene, model.clone(), columns, Some(hook), None)?;
         let recorder = match &options.recording {
             Some(path) => Some(
                 recording::Recorder::create(
@@ -231,35 +293,36 @@ impl Simulation {
             ),
             None => None,
         };
-        let mut bvhs = engine::SurfaceBvhs::new(&scene, &model);
-        let mut rest = model.rest_snapshot(&scene);
-        rest.surface_bvh = bvhs.as_mut().map(|b| b.current());
-        let (frames, _) = tokio::sync::watch::channel(rest.frame_summary.clone());
         let n = scene.instruments.len();
+        enum Runner {
+            Stepped(Box<SteppedRunner>),
+            Free(Box<StepEngine>),
+        }
+        let (runner, rest) = if stepped {
+            let loops = (0..n)
+                .map(|i| ForceLoop::new(&scene, &model, i, None))
+                .collect();
+            let r = SteppedRunner::new(&scene, engine, loops);
+            let rest = r.snapshot().clone();
+            (Runner::Stepped(Box::new(r)), rest)
+        } else {
+            let rest = Arc::new(engine.rest(0.0));
+            (Runner::Free(Box::new(engine)), rest)
+        };
+        let (frames, _) = tokio::sync::watch::channel(rest.frame_summary.clone());
         let sim = Arc::new(Self {
             model: model.clone(),
             stepped,
             options,
-            snapshot: RwLock::new(Arc::new(rest)),
+            snapshot: RwLock::new(rest.clone()),
             frames,
             inputs: Mutex::new(Inputs {
-                per_instrument: vec![
-                    InstrumentInput {
-                        claimed: false,
-                        ever_claimed: false,
-                        latest: None,
-                        log: VecDeque::new(),
-                        reached_t: f64::NEG_INFINITY,
-                        ended_at: None,
-                        version: 0,
-                    };
-                    n
-                ],
+                per_instrument: (0..n).map(|_| InstrumentInput::default()).collect(),
                 reset: false,
             }),
             inputs_changed: Condvar::new(),
-            published: Condvar::new(),
-            published_lock: Mutex::new(0),
+            resets: Mutex::new((0, 0)),
+            reset_done: Condvar::new(),
             shutdown: AtomicBool::new(false),
             thread: Mutex::new(None),
             started: Instant::now(),
@@ -270,20 +333,35 @@ impl Simulation {
             failed_steps: AtomicU64::new(0),
             watchers: AtomicU64::new(0),
             recorder,
+            shared_rows: (0..n).map(|_| Mutex::new(SharedRows::default())).collect(),
             scene,
         });
+        if let Some(rec) = &sim.recorder {
+            rec.frame(&rest.frame_summary);
+        }
         let worker = sim.clone();
         let handle = std::thread::Builder::new()
-            .name("deformation-loop".into())
+            .name(
+                if stepped {
+                    "stepped-loop"
+                } else {
+                    "deformation-loop"
+                }
+                .into(),
+            )
             .spawn(move || {
                 let nice = worker.options.deformation_nice;
                 priority::lower_current_thread(nice);
+                let run = move || match runner {
+                    Runner::Stepped(r) => worker.stepped_loop(*r),
+                    Runner::Free(e) => worker.deformation_loop(*e),
+                };
                 match priority::deformation_pool(nice) {
-                    Some(pool) => pool.install(|| worker.deformation_loop(deformer, bvhs)),
-                    None => worker.deformation_loop(deformer, bvhs),
+                    Some(pool) => pool.install(run),
+                    None => run(),
                 }
             })
-            .map_err(|e| SimError::Solver(format!("cannot start the deformation thread: {e}")))?;
+            .map_err(|e| SimError::Solver(format!("cannot start the loop thread: {e}")))?;
         *sim.thread.lock().expect("thread lock") = Some(handle);
         Ok(sim)
     }
@@ -346,9 +424,8 @@ impl Simulation {
             }
             slot.claimed = true;
             slot.ever_claimed = true;
-            slot.ended_at = None;
-            slot.reached_t = f64::NEG_INFINITY;
-            slot.log.clear();
+            slot.ended = false;
+            slot.queue.clear();
         }
         self.inputs_changed.notify_all();
         tracing::info!(instrument = name, "instrument claimed");
@@ -357,19 +434,42 @@ impl Simulation {
             index,
             name: name.to_owned(),
             last: None,
-            history: self.model.new_history(index),
-            query: ContactQuery::new(&self.scene, Par::Seq),
-            ws: ForceWorkspace::default(),
+            resets_seen: self.resets.lock().expect("resets lock").0,
+            force_loop: (!self.stepped)
+                .then(|| ForceLoop::new(&self.scene, &self.model, index, None)),
+            held: Vec::new(),
+            reply: Arc::new(Reply::default()),
         })
     }
 
-    /// Returns the tissue to rest and clears the histories (at the next step).
+    /// Returns the tissue to rest, clears the histories and restarts the
+    /// stepped clock; waits (up to 10 s) for the rest frame and returns its
+    /// number.
     pub fn reset(&self) -> u64 {
-        let mut inputs = self.inputs.lock().expect("inputs lock");
-        inputs.reset = true;
-        drop(inputs);
+        let before = self.resets.lock().expect("resets lock").0;
+        {
+            let mut inputs = self.inputs.lock().expect("inputs lock");
+            inputs.reset = true;
+        }
         self.inputs_changed.notify_all();
-        self.snapshot().frame + 1
+        let deadline = Instant::now() + RESET_WAIT;
+        let mut resets = self.resets.lock().expect("resets lock");
+        while resets.0 == before && !self.shutdown.load(Ordering::SeqCst) {
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                break;
+            }
+            resets = self
+                .reset_done
+                .wait_timeout(resets, left)
+                .expect("resets lock")
+                .0;
+        }
+        if resets.0 == before {
+            self.snapshot().frame + 1
+        } else {
+            resets.1
+        }
     }
 
     /// Counters and latency percentiles.
@@ -399,16 +499,30 @@ impl Simulation {
         }
     }
 
-    /// Stops the deformation loop, flushes the recording, releases waiters.
+    /// Stops the loop thread, flushes the recording, releases waiters.
     pub fn shutdown(&self) {
         self.shutdown.store(true, Ordering::SeqCst);
         self.inputs_changed.notify_all();
-        self.published.notify_all();
+        self.reset_done.notify_all();
         if let Some(handle) = self.thread.lock().expect("thread lock").take() {
             let _ = handle.join();
         }
+        self.fail_pending();
         if let Some(rec) = &self.recorder {
             rec.flush();
+        }
+    }
+
+    /// Answers every pose still waiting for the stepped runner with a
+    /// refusal (the server is stopping).
+    fn fail_pending(&self) {
+        let mut inputs = self.inputs.lock().expect("inputs lock");
+        for slot in &mut inputs.per_instrument {
+            for p in slot.queue.drain(..) {
+                p.reply.send(Err(PoseError::NotAnswered(
+                    "the server is shutting down".into(),
+                )));
+            }
         }
     }
 
@@ -423,56 +537,86 @@ impl Simulation {
         self.recorder.as_ref()
     }
 
-    fn publish(&self, snap: Snapshot) {
+    fn publish(&self, snap: Arc<Snapshot>) {
         let frame = snap.frame_summary.clone();
-        let number = snap.frame;
-        *self.snapshot.write().expect("snapshot lock") = Arc::new(snap);
+        *self.snapshot.write().expect("snapshot lock") = snap;
         self.frames.send_replace(frame.clone());
         if let Some(rec) = &self.recorder {
             rec.frame(&frame);
         }
-        *self.published_lock.lock().expect("published lock") = number;
-        self.published.notify_all();
     }
 
-    /// Waits (stepped mode) until frame `k` or a later one is published.
-    fn wait_for_frame(&self, k: u64) -> Arc<Snapshot> {
-        let mut published = self.published_lock.lock().expect("published lock");
-        while *published < k && !self.shutdown.load(Ordering::SeqCst) {
-            published = self.published.wait(published).expect("published lock");
+    fn note_step(&self, done: &StepDone) {
+        if done.report.is_none() && done.snapshot.solver_error.is_some() {
+            self.failed_steps.fetch_add(1, Ordering::Relaxed);
         }
-        drop(published);
-        self.snapshot()
+        if done.step_us > 0.0 {
+            self.step_latency.record(done.step_us);
+        }
+        self.publish(done.snapshot.clone());
     }
 
-    fn home_pose(&self, index: usize) -> Isometry3<f64> {
-        let spec = &self.scene.instruments[index];
-        let [w, x, y, z] = spec.home_orientation;
-        let [px, py, pz] = spec.home_position_m;
-        Isometry3::from_parts(
-            Translation3::new(px, py, pz),
-            UnitQuaternion::new_normalize(Quaternion::new(w, x, y, z)),
-        )
+    fn finish_reset(&self, frame: u64) {
+        let mut r = self.resets.lock().expect("resets lock");
+        r.0 += 1;
+        r.1 = frame;
+        drop(r);
+        self.reset_done.notify_all();
     }
 
-    fn deformation_loop(
-        self: Arc<Self>,
-        mut deformer: Deformer,
-        mut bvhs: Option<engine::SurfaceBvhs>,
-    ) {
+    /// A force sample's answer: the sample with the scene's safety
+    /// processing (threshold flag, clamp) and the model's age.
+    fn answer(
+        &self,
+        pose: &TimedPose,
+        s: &SampleForce,
+        frame: u64,
+        model_age_s: f64,
+        solver_failed: bool,
+        compute_us: f64,
+    ) -> ForceOut {
+        let loops = &self.scene.loops;
+        let mut flags = s.flags;
+        let mut force = s.force_n;
+        let magnitude = force.norm();
+        if magnitude > loops.safe_force_n {
+            flags |= flags::FORCE_ABOVE_THRESHOLD;
+        }
+        if magnitude > loops.max_force_n {
+            force *= loops.max_force_n / magnitude;
+            flags |= flags::FORCE_CLAMPED;
+        }
+        if solver_failed {
+            flags |= flags::SOLVER_FAILED;
+        }
+        if model_age_s > 10.0 * loops.deformation_interval_s {
+            flags |= flags::MODEL_STALE;
+        }
+        ForceOut {
+            sequence: pose.sequence,
+            t_s: pose.t_s,
+            force_n: force,
+            torque_nm: s.torque_nm,
+            contact_count: s.contact_count,
+            model_frame: frame,
+            model_age_s,
+            safety_flags: flags,
+            compute_us,
+        }
+    }
+
+    /// Free-running: a step whenever a pose changed and the interval has
+    /// passed.
+    fn deformation_loop(self: Arc<Self>, mut engine: StepEngine) {
         let dt = self.scene.loops.deformation_interval_s;
         let n = self.scene.instruments.len();
-        let mut query = ContactQuery::new(&self.scene, Par::rayon(0));
-        let mut paper_history: Vec<engine::History> =
-            (0..n).map(|i| self.model.new_history(i)).collect();
         let mut seen_versions = vec![u64::MAX; n];
-        let mut k: u64 = 0;
         let mut last_start = Instant::now();
+        let homes: Vec<Isometry3<f64>> =
+            (0..n).map(|i| stepped::home_pose(&self.scene, i)).collect();
         loop {
-            // 1. Wait for the inputs of the next step.
             let mut poses = Vec::with_capacity(n);
             let mut histories = Vec::with_capacity(n);
-            let sim_time;
             {
                 let mut inputs = self.inputs.lock().expect("inputs lock");
                 loop {
@@ -482,197 +626,152 @@ impl Simulation {
                     if inputs.reset {
                         break;
                     }
-                    if self.stepped {
-                        // Same product as `step_before`.
-                        let t_next = (k + 1) as f64 * dt;
-                        let ever = inputs
-                            .per_instrument
-                            .iter()
-                            .filter(|s| s.ever_claimed)
-                            .count();
-                        let any_active = inputs.per_instrument.iter().any(|s| s.claimed);
-                        let ready = ever >= self.options.stepped_clients.max(1)
-                            && any_active
-                            && inputs.per_instrument.iter().all(|s| {
-                                !s.claimed || s.reached_t > t_next || s.ended_at.is_some()
-                            });
-                        if ready {
-                            break;
-                        }
-                        inputs = self.inputs_changed.wait(inputs).expect("inputs lock");
-                    } else {
-                        let changed = inputs
-                            .per_instrument
-                            .iter()
-                            .zip(&seen_versions)
-                            .any(|(s, &v)| s.version != v);
-                        let due = last_start.elapsed().as_secs_f64() >= dt;
-                        if changed && due {
-                            break;
-                        }
-                        let wait = if changed {
-                            Duration::from_secs_f64(
-                                (dt - last_start.elapsed().as_secs_f64()).max(0.0),
-                            )
-                        } else {
-                            Duration::from_millis(50)
-                        };
-                        inputs = self
-                            .inputs_changed
-                            .wait_timeout(inputs, wait)
-                            .expect("inputs lock")
-                            .0;
+                    let changed = inputs
+                        .per_instrument
+                        .iter()
+                        .zip(&seen_versions)
+                        .any(|(s, &v)| s.version != v);
+                    let due = last_start.elapsed().as_secs_f64() >= dt;
+                    if changed && due {
+                        break;
                     }
+                    let wait = if changed {
+                        Duration::from_secs_f64((dt - last_start.elapsed().as_secs_f64()).max(0.0))
+                    } else {
+                        Duration::from_millis(50)
+                    };
+                    inputs = self
+                        .inputs_changed
+                        .wait_timeout(inputs, wait)
+                        .expect("inputs lock")
+                        .0;
                 }
                 if inputs.reset {
                     inputs.reset = false;
                     drop(inputs);
-                    deformer.reset();
-                    for (i, h) in paper_history.iter_mut().enumerate() {
-                        *h = self.model.new_history(i);
-                    }
-                    let prev = self.snapshot();
-                    let mut rest = self.model.rest_snapshot(&self.scene);
-                    rest.surface_bvh = bvhs.as_mut().map(|b| b.fit(&rest.surface));
-                    rest.frame = prev.frame + 1;
-                    rest.sim_time_s = prev.sim_time_s;
-                    Arc::make_mut(&mut rest.frame_summary).frame = rest.frame;
-                    Arc::make_mut(&mut rest.frame_summary).sim_time_s = rest.sim_time_s;
+                    let rest = Arc::new(engine.rest(self.started.elapsed().as_secs_f64()));
+                    let frame = rest.frame;
                     self.publish(rest);
+                    self.finish_reset(frame);
                     continue;
                 }
-                k += 1;
-                sim_time = if self.stepped {
-                    k as f64 * dt
-                } else {
-                    self.started.elapsed().as_secs_f64()
-                };
                 for i in 0..n {
-                    let slot = &mut inputs.per_instrument[i];
+                    let slot = &inputs.per_instrument[i];
                     seen_versions[i] = slot.version;
-                    let chosen = if self.stepped {
-                        // Latest logged pose with t <= t_k; drop older ones.
-                        while slot.log.len() >= 2 && slot.log[1].0.t_s <= sim_time {
-                            slot.log.pop_front();
-                        }
-                        match (slot.log.front(), slot.ended_at) {
-                            (Some(_), Some(end)) if sim_time > end => None,
-                            (Some((p, h)), _) if p.t_s <= sim_time => Some((p.pose, h.clone())),
-                            _ => None,
-                        }
-                    } else if slot.claimed {
-                        slot.latest.as_ref().map(|(p, h)| (p.pose, h.clone()))
-                    } else {
-                        None
-                    };
-                    match chosen {
+                    match slot.latest.as_ref().filter(|_| slot.claimed) {
                         Some((p, h)) => {
-                            poses.push(p);
-                            histories.push(Some(h));
+                            poses.push(p.pose);
+                            histories.push(Some(h.clone()));
                         }
                         None => {
-                            poses.push(self.home_pose(i));
+                            poses.push(homes[i]);
                             histories.push(None);
                         }
                     }
                 }
             }
             last_start = Instant::now();
-            // 2. Collision, FEM, publish.
-            let _step_span = tracing::debug_span!("deformation_step", frame = k).entered();
+            let _span = tracing::debug_span!("deformation_step").entered();
             let prev = self.snapshot();
-            let paper_mode = self.scene.collision.history == HistoryMode::Paper;
-            let t0 = Instant::now();
-            // Force-rate mode: a copy of the force loop's latest history (never
-            // written back); paper mode, or an instrument at home: the
-            // deformation loop's own history, renewed here.
-            let own: Vec<bool> = histories
-                .iter()
-                .map(|h| paper_mode || h.is_none())
-                .collect();
-            let mut step_histories: Vec<engine::History> = histories
-                .into_iter()
-                .enumerate()
-                .map(|(i, h)| match h {
-                    Some(h) if !paper_mode => h,
-                    _ => paper_history[i].clone(),
-                })
-                .collect();
-            let contacts = tracing::debug_span!("collision")
-                .in_scope(|| query.query_all(&self.model, &prev, &poses, &mut step_histories));
-            for (i, h) in step_histories.into_iter().enumerate() {
-                if own[i] {
-                    paper_history[i] = h;
-                }
-            }
-            let collision_us = t0.elapsed().as_secs_f64() * 1e6;
-            let t1 = Instant::now();
-            let result = tracing::debug_span!("solve").in_scope(|| deformer.step(contacts));
-            let solve_us = t1.elapsed().as_secs_f64() * 1e6;
-            let total_us = last_start.elapsed().as_secs_f64() * 1e6;
-            self.step_latency.record(total_us);
-            let timings = StepTimings {
-                collision_us,
-                solve_us,
-                total_us,
-            };
-            let snap = match result {
-                Ok(step) => {
-                    let mut snap = self.model.snapshot_from(
-                        &self.scene,
-                        k,
-                        sim_time,
-                        step,
-                        contacts,
-                        &poses,
-                        paper_history.clone(),
-                        timings,
-                    );
-                    snap.surface_bvh = tracing::debug_span!("refit")
-                        .in_scope(|| bvhs.as_mut().map(|b| b.fit(&snap.surface)));
-                    snap
-                }
-                Err(e) => {
-                    self.failed_steps.fetch_add(1, Ordering::Relaxed);
-                    tracing::warn!(frame = k, error = %e, "deformation step failed; keeping the last good state");
-                    let mut frame = (*prev.frame_summary).clone();
-                    frame.frame = k;
-                    frame.sim_time_s = sim_time;
-                    frame.timings = timings;
-                    frame.solver_error = Some(e.to_string());
-                    Snapshot {
-                        frame: k,
-                        sim_time_s: sim_time,
-                        published: Instant::now(),
-                        surface: prev.surface.clone(),
-                        surface_bvh: prev.surface_bvh.clone(),
-                        force_model: prev.force_model.clone(),
-                        paper_history: prev.paper_history.clone(),
-                        solver_error: Some(e.to_string()),
-                        frame_summary: Arc::new(frame),
-                    }
-                }
-            };
-            self.publish(snap);
+            let sim_time = self.started.elapsed().as_secs_f64();
+            let (snap, report) = engine.step(&prev, sim_time, &poses, histories);
+            let step_us = last_start.elapsed().as_secs_f64() * 1e6;
+            self.note_step(&StepDone {
+                snapshot: Arc::new(snap),
+                report,
+                step_us,
+            });
         }
     }
-}
 
-/// The last stepped-mode step strictly before time `t` (s): the largest `k >= 0`
-/// with `k * dt < t`, or 0. Computed with the same products `k as f64 * dt`
-/// as the deformation loop's step times, so both sides agree to the bit.
-pub fn step_before(t: f64, dt: f64) -> u64 {
-    if t.is_nan() || t <= 0.0 {
-        return 0;
+    /// Stepped: answers the poses of each time once every claimed
+    /// instrument has sent its next one.
+    fn stepped_loop(self: Arc<Self>, mut runner: SteppedRunner) {
+        let mut answers = Vec::new();
+        loop {
+            let mut batch: Vec<(usize, Pending)> = Vec::new();
+            {
+                let mut inputs = self.inputs.lock().expect("inputs lock");
+                loop {
+                    if self.shutdown.load(Ordering::SeqCst) {
+                        return;
+                    }
+                    if inputs.reset {
+                        break;
+                    }
+                    for (i, slot) in inputs.per_instrument.iter_mut().enumerate() {
+                        if slot.ended && slot.queue.is_empty() {
+                            slot.ended = false;
+                            runner.end(i);
+                        }
+                    }
+                    let ever = inputs
+                        .per_instrument
+                        .iter()
+                        .filter(|s| s.ever_claimed)
+                        .count();
+                    let claimed = || inputs.per_instrument.iter().filter(|s| s.claimed);
+                    let any = claimed().any(|s| !s.queue.is_empty());
+                    let all = claimed().all(|s| !s.queue.is_empty());
+                    // An ended stream's poses still queued are answered too.
+                    let leftover = inputs
+                        .per_instrument
+                        .iter()
+                        .any(|s| !s.claimed && !s.queue.is_empty());
+                    if ever >= self.options.stepped_clients.max(1) && ((any && all) || leftover) {
+                        break;
+                    }
+                    inputs = self.inputs_changed.wait(inputs).expect("inputs lock");
+                }
+                if inputs.reset {
+                    inputs.reset = false;
+                    drop(inputs);
+                    let mut frame = 0;
+                    runner.reset(&mut |done| {
+                        frame = done.snapshot.frame;
+                        self.publish(done.snapshot.clone());
+                    });
+                    self.finish_reset(frame);
+                    continue;
+                }
+                let t = inputs
+                    .per_instrument
+                    .iter()
+                    .filter_map(|s| s.queue.front().map(|p| p.pose.t_s))
+                    .fold(f64::INFINITY, f64::min);
+                for (i, slot) in inputs.per_instrument.iter_mut().enumerate() {
+                    if slot.queue.front().is_some_and(|p| p.pose.t_s == t) {
+                        batch.push((i, slot.queue.pop_front().expect("front checked")));
+                    }
+                }
+            }
+            let t = batch[0].1.pose.t_s;
+            if let Some(clock) = runner.clock().filter(|&c| t < c) {
+                for (_, p) in batch {
+                    self.rejected.fetch_add(1, Ordering::Relaxed);
+                    p.reply.send(Err(PoseError::BehindClock { got: t, clock }));
+                }
+                continue;
+            }
+            let poses: Vec<(usize, Isometry3<f64>)> =
+                batch.iter().map(|(i, p)| (*i, p.pose.pose)).collect();
+            answers.clear();
+            runner.tick(t, &poses, &mut |done| self.note_step(done), &mut answers);
+            for ((_, p), a) in batch.into_iter().zip(&answers) {
+                let out = self.answer(
+                    &p.pose,
+                    &a.force,
+                    a.frame,
+                    a.model_age_s,
+                    a.solver_failed,
+                    a.compute_us,
+                );
+                self.force_latency.record(a.compute_us);
+                self.force_samples.fetch_add(1, Ordering::Relaxed);
+                p.reply.send(Ok(out));
+            }
+        }
     }
-    let mut k = (t / dt).ceil().max(1.0) as u64 - 1;
-    while k > 0 && k as f64 * dt >= t {
-        k -= 1;
-    }
-    while (k + 1) as f64 * dt < t {
-        k += 1;
-    }
-    k
 }
 
 impl Drop for Simulation {
@@ -702,9 +801,12 @@ pub struct Claim {
     index: usize,
     name: String,
     last: Option<TimedPose>,
-    history: engine::History,
-    query: ContactQuery,
-    ws: ForceWorkspace,
+    resets_seen: u64,
+    /// Free-running: the instrument's force loop (stepped: the runner's).
+    force_loop: Option<ForceLoop>,
+    /// Free-running: the other instruments' rows read for one sample.
+    held: Vec<Option<Arc<Vec<Row>>>>,
+    reply: Arc<Reply>,
 }
 
 impl std::fmt::Debug for Claim {
@@ -746,15 +848,20 @@ impl Claim {
         &self.name
     }
 
-    /// Answers one pose: validates it (a rejected pose changes nothing), runs a
-    /// collision query against the latest surface and extrapolates the reactions
-    /// with the local model. Blocking in stepped mode (it waits for the frame the
-    /// pose's time needs); never blocking otherwise.
+    /// Answers one pose: validates it (a rejected pose changes nothing), then
+    /// the force loop ([`force_loop`]). Blocking in stepped mode (the stepped
+    /// runner answers once every claimed instrument has sent its pose of that
+    /// time); never blocking otherwise.
     pub fn force_sample(&mut self, raw: &RawPose) -> Result<ForceOut, PoseError> {
         let _span = tracing::trace_span!("force_sample", instrument = %self.name).entered();
-        // Compute time excludes the stepped-mode wait for the frame.
-        let mut t_start = Instant::now();
+        let t_start = Instant::now();
         let sim = self.sim.clone();
+        // A reset starts a new session: its timestamps may start over.
+        let resets = sim.resets.lock().expect("resets lock").0;
+        if resets != self.resets_seen {
+            self.resets_seen = resets;
+            self.last = None;
+        }
         let pose = match pose::validate(raw, self.last.as_ref()) {
             Ok(p) => p,
             Err(e) => {
@@ -762,94 +869,115 @@ impl Claim {
                 return Err(e);
             }
         };
-        let mut flags = 0;
+        let mut jump = 0;
         if let Some(last) = &self.last {
-            let jump = (pose.pose.translation.vector - last.pose.translation.vector).norm();
-            if jump > sim.scene.loops.max_jump_m {
-                flags |= flags::POSE_JUMP;
+            let d = (pose.pose.translation.vector - last.pose.translation.vector).norm();
+            if d > sim.scene.loops.max_jump_m {
+                jump = flags::POSE_JUMP;
             }
         }
-        let dt = sim.scene.loops.deformation_interval_s;
-        let snap = if sim.stepped {
-            {
-                let mut inputs = sim.inputs.lock().expect("inputs lock");
-                inputs.per_instrument[self.index].reached_t = pose.t_s;
+        let mut out = if sim.stepped {
+            self.stepped_sample(&pose)?
+        } else {
+            self.free_sample(&pose, t_start)
+        };
+        out.safety_flags |= jump;
+        self.last = Some(pose);
+        Ok(out)
+    }
+
+    fn stepped_sample(&mut self, pose: &TimedPose) -> Result<ForceOut, PoseError> {
+        let sim = &self.sim;
+        *self.reply.slot.lock().expect("reply lock") = None;
+        {
+            let mut inputs = sim.inputs.lock().expect("inputs lock");
+            inputs.per_instrument[self.index].queue.push_back(Pending {
+                pose: *pose,
+                reply: self.reply.clone(),
+            });
+        }
+        sim.inputs_changed.notify_all();
+        let mut slot = self.reply.slot.lock().expect("reply lock");
+        loop {
+            if let Some(r) = slot.take() {
+                return r;
             }
-            sim.inputs_changed.notify_all();
-            let before_wait = t_start.elapsed();
-            let snap = sim.wait_for_frame(step_before(pose.t_s, dt));
-            t_start = Instant::now() - before_wait;
-            snap
-        } else {
-            sim.snapshot()
-        };
-        let paper_mode = sim.scene.collision.history == HistoryMode::Paper;
-        if paper_mode {
-            self.history.copy_from(&snap.paper_history[self.index]);
+            if sim.shutdown.load(Ordering::SeqCst) {
+                drop(slot);
+                sim.fail_pending();
+                slot = self.reply.slot.lock().expect("reply lock");
+                if let Some(r) = slot.take() {
+                    return r;
+                }
+                return Err(PoseError::NotAnswered("the server is shutting down".into()));
+            }
+            slot = self
+                .reply
+                .ready
+                .wait_timeout(slot, Duration::from_millis(100))
+                .expect("reply lock")
+                .0;
         }
-        let contact =
-            self.query
-                .query(&sim.model, &snap, self.index, &pose.pose, &mut self.history);
-        let handle = pose.pose.translation.vector;
-        let index = self.index as u16;
-        let fm = &snap.force_model;
-        let f = fm.instrument_force(
-            index,
-            |node| contact.displacement_of(node),
-            &handle,
-            &mut self.ws,
-        );
-        let mut force = f.force;
-        let magnitude = force.norm();
-        if magnitude > sim.scene.loops.safe_force_n {
-            flags |= flags::FORCE_ABOVE_THRESHOLD;
+    }
+
+    fn free_sample(&mut self, pose: &TimedPose, t_start: Instant) -> ForceOut {
+        let sim = self.sim.clone();
+        let snap = sim.snapshot();
+        let fl = self
+            .force_loop
+            .as_mut()
+            .expect("free-running claims have a force loop");
+        fl.query(&sim.model, &snap, &pose.pose);
+        {
+            let mut mine = sim.shared_rows[self.index].lock().expect("rows lock");
+            mine.live = true;
+            match Arc::get_mut(&mut mine.rows) {
+                Some(v) => {
+                    v.clear();
+                    v.extend_from_slice(fl.rows());
+                }
+                None => mine.rows = Arc::new(fl.rows().to_vec()),
+            }
         }
-        if magnitude > sim.scene.loops.max_force_n {
-            force *= sim.scene.loops.max_force_n / magnitude;
-            flags |= flags::FORCE_CLAMPED;
+        self.held.clear();
+        for (j, slot) in sim.shared_rows.iter().enumerate() {
+            if j == self.index {
+                self.held.push(None);
+                continue;
+            }
+            let s = slot.lock().expect("rows lock");
+            self.held.push(s.live.then(|| s.rows.clone()));
         }
-        if snap.solver_error.is_some() {
-            flags |= flags::SOLVER_FAILED;
-        }
-        let model_age_s = if sim.stepped {
-            pose.t_s - snap.sim_time_s
-        } else {
-            snap.published.elapsed().as_secs_f64()
-        };
-        if model_age_s > 10.0 * dt {
-            flags |= flags::MODEL_STALE;
-        }
-        let contact_count = contact.contact_count();
+        let held = &self.held;
+        let others = |j: usize| held.get(j).and_then(|h| h.as_deref().map(|v| v.as_slice()));
+        let sample = fl.solve(&sim.model, &snap, &others, &pose.pose.translation.vector);
+        self.held.clear();
         {
             let mut inputs = sim.inputs.lock().expect("inputs lock");
             let slot = &mut inputs.per_instrument[self.index];
             slot.version += 1;
-            if sim.stepped {
-                slot.log.push_back((pose, self.history.clone()));
-            } else if let Some((p, h)) = slot.latest.as_mut() {
-                // Reuse the slot's flags (no allocation per sample).
-                *p = pose;
-                h.copy_from(&self.history);
-            } else {
-                slot.latest = Some((pose, self.history.clone()));
+            match slot.latest.as_mut() {
+                Some((p, h)) => {
+                    // Reuse the slot's flags (no allocation per sample).
+                    *p = *pose;
+                    h.copy_from(fl.history());
+                }
+                None => slot.latest = Some((*pose, fl.history().clone())),
             }
         }
         sim.inputs_changed.notify_all();
-        self.last = Some(pose);
+        let model_age_s = snap.published.elapsed().as_secs_f64();
         let compute_us = t_start.elapsed().as_secs_f64() * 1e6;
         sim.force_latency.record(compute_us);
         sim.force_samples.fetch_add(1, Ordering::Relaxed);
-        Ok(ForceOut {
-            sequence: pose.sequence,
-            t_s: pose.t_s,
-            force_n: force,
-            torque_nm: f.torque,
-            contact_count,
-            model_frame: snap.frame,
+        sim.answer(
+            pose,
+            &sample,
+            snap.frame,
             model_age_s,
-            safety_flags: flags,
+            snap.solver_error.is_some(),
             compute_us,
-        })
+        )
     }
 }
 
@@ -861,33 +989,13 @@ impl Drop for Claim {
             slot.claimed = false;
             slot.latest = None;
             slot.version += 1;
-            slot.ended_at = Some(self.last.map_or(f64::NEG_INFINITY, |p| p.t_s));
+            slot.ended = true;
+        }
+        {
+            let mut mine = self.sim.shared_rows[self.index].lock().expect("rows lock");
+            mine.live = false;
         }
         self.sim.inputs_changed.notify_all();
         tracing::info!(instrument = %self.name, "instrument released");
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::step_before;
-
-    #[test]
-    fn step_before_is_consistent_with_step_times() {
-        let dt = 0.02;
-        assert_eq!(step_before(0.0, dt), 0);
-        assert_eq!(step_before(0.001, dt), 0);
-        assert_eq!(step_before(0.02, dt), 0);
-        assert_eq!(step_before(0.021, dt), 1);
-        // 0.14 / 0.02 rounds to 7.000000000000001: still step 6.
-        assert_eq!(step_before(0.14, dt), 6);
-        for i in 1..100_000u64 {
-            let t = i as f64 * 1e-3;
-            let k = step_before(t, dt);
-            assert!(
-                (k as f64 * dt) < t && ((k + 1) as f64 * dt) >= t,
-                "t = {t}, k = {k}"
-            );
-        }
     }
 }

@@ -49,6 +49,16 @@ pub enum PoseError {
     /// Timestamp going back.
     #[error("pose timestamp t_s = {got} s is before the previous {last} s")]
     TimeBack { got: f64, last: f64 },
+    /// Stepped mode: the pose is older than the session's clock (the time
+    /// the other instruments' poses have reached): it would change the
+    /// past.
+    #[error(
+        "pose timestamp t_s = {got} s is behind the stepped clock ({clock} s): the session has already been answered up to there"
+    )]
+    BehindClock { got: f64, clock: f64 },
+    /// The pose could not be answered.
+    #[error("the pose was not answered: {0}")]
+    NotAnswered(String),
 }
 
 /// Checks one pose against the previous accepted one (if any) and converts it.

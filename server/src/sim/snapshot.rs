@@ -22,8 +22,11 @@ pub struct InstrumentReaction {
     pub pairs: u32,
     /// Pairs cancelled by the history culling.
     pub culled: u32,
-    /// Surface vertices given an enforced displacement.
+    /// Surface vertices the instrument pushes (a non-zero multiplier).
     pub contact_vertices: u32,
+    /// Of those, vertices answered by a penalty because their compliance
+    /// is not computed yet.
+    pub pending_vertices: u32,
     /// Handle position used, m.
     pub position_m: Vector3<f64>,
     /// Orientation used (w, x, y, z).
@@ -72,11 +75,13 @@ pub struct Snapshot {
     pub published: Instant,
     /// Current surface vertex positions, m.
     pub surface: Arc<Vec<Point3<f64>>>,
+    /// Displacement of every volume node from rest, m.
+    pub displacements: Arc<Vec<Vector3<f64>>>,
     /// A BVH fitted to `surface` (scenes with the CPU BVH), refitted once per
     /// step by the deformation loop and shared read-only by every force loop,
     /// so that no force sample pays for a refit.
     pub surface_bvh: Option<Arc<Bvh>>,
-    /// The local model of the contact DOFs, for the force loops.
+    /// The compliance and contact state the force loops solve on.
     pub force_model: Arc<ForceModel>,
     /// Paper-mode history flags per instrument (renewed once a step).
     pub paper_history: Vec<super::engine::History>,

@@ -1,0 +1,243 @@
+//! The force loop of one instrument (DESIGN.md section 4): for a fresh
+//! pose, the collision query against the last published surface (its own
+//! history renewed at every sample), the instrument's contact rows, and the
+//! contact problem coupled with the other instruments' latest rows and the
+//! skull's, solved on the last step's compliance
+//! ([`super::local_model`]). The force on the instrument is minus the sum
+//! of its rows' forces; a row whose vertex has no compliance yet is
+//! answered by a penalty and flagged ([`super::flags::COLUMNS_PENDING`]).
+//! A sample whose contact problem fails repeats the last good force,
+//! flagged ([`super::flags::CONTACT_UNSOLVED`]). Strategies without a
+//! compliance patch hold the last step's force while the instrument is in
+//! contact.
+//!
+//! The same functions serve the free-running force loops (each on its own
+//! thread, reading the others' rows from shared slots) and the stepped
+//! runner ([`super::stepped`]), which queries every instrument of one time
+//! before solving any.
+
+use super::engine::{ContactQuery, History, Model, RowRule, penalty};
+use super::flags;
+use super::local_model::{ForceSolver, SampleAnswer};
+use super::rows::{self, FreePositions, Row, SKULL_OWNER};
+use super::snapshot::Snapshot;
+use crate::scene::{HistoryMode, Scene};
+use faer::Par;
+use nalgebra::{Isometry3, Vector3};
+
+/// A sample's force on one instrument.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct SampleForce {
+    /// Force of the tissue on the instrument, N.
+    pub force_n: Vector3<f64>,
+    /// Torque about the handle point, N m.
+    pub torque_nm: Vector3<f64>,
+    /// Surface vertices the instrument's rows name.
+    pub contact_count: u32,
+    /// [`super::flags`] bits of the sample's contact solve.
+    pub flags: u32,
+}
+
+/// The force-loop state of one instrument.
+pub struct ForceLoop {
+    index: usize,
+    history: History,
+    paper_mode: bool,
+    query: ContactQuery,
+    rule: RowRule,
+    rows: Vec<Row>,
+    all: Vec<Row>,
+    poses: Vec<Isometry3<f64>>,
+    solver: ForceSolver,
+    answer: SampleAnswer,
+    contact_count: u32,
+    touching: Vec<u32>,
+    last_good: (Vector3<f64>, Vector3<f64>),
+}
+
+impl std::fmt::Debug for ForceLoop {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ForceLoop")
+            .field("instrument", &self.index)
+            .field("rows", &self.rows.len())
+            .finish_non_exhaustive()
+    }
+}
+
+impl ForceLoop {
+    /// The force loop of instrument `index` of `scene`, casting on the
+    /// snapshots' published trees (or `backend`, when given).
+    pub fn new(
+        scene: &Scene,
+        model: &Model,
+        index: usize,
+        backend: Option<Box<dyn crate::collide::RayBackend>>,
+    ) -> Self {
+        Self {
+            index,
+            history: model.new_history(index),
+            paper_mode: scene.collision.history == HistoryMode::Paper,
+            query: match backend {
+                Some(b) => ContactQuery::with_backend(scene, b),
+                None => ContactQuery::new(scene, Par::Seq),
+            },
+            rule: RowRule::of(scene),
+            rows: Vec::new(),
+            all: Vec::new(),
+            poses: Vec::new(),
+            solver: ForceSolver::new(),
+            answer: SampleAnswer::default(),
+            contact_count: 0,
+            touching: Vec::new(),
+            last_good: (Vector3::zeros(), Vector3::zeros()),
+        }
+    }
+
+    /// The instrument's index.
+    pub fn index(&self) -> usize {
+        self.index
+    }
+
+    /// The instrument's rows of the last query.
+    pub fn rows(&self) -> &[Row] {
+        &self.rows
+    }
+
+    /// The history after the last query.
+    pub fn history(&self) -> &History {
+        &self.history
+    }
+
+    /// Back to no contact (a reset): all flags off, no rows, no cache.
+    pub fn clear(&mut self, model: &Model) {
+        self.history = model.new_history(self.index);
+        self.rows.clear();
+        self.solver = ForceSolver::new();
+        self.last_good = (Vector3::zeros(), Vector3::zeros());
+    }
+
+    /// The collision query for `pose` against `snap`, and the instrument's
+    /// rows. Returns the number of surface vertices the rows name (the
+    /// candidates; [`Self::solve`] counts those in contact).
+    pub fn query(&mut self, model: &Model, snap: &Snapshot, pose: &Isometry3<f64>) -> u32 {
+        if self.paper_mode {
+            self.history.copy_from(&snap.paper_history[self.index]);
+        }
+        let out = self
+            .query
+            .query(model, snap, self.index, pose, &mut self.history);
+        let fm = &snap.force_model;
+        let free = if fm.patch.linear || !fm.has_patch {
+            FreePositions::Rest(&model.mesh.nodes)
+        } else {
+            FreePositions::Tangent {
+                rest: &model.mesh.nodes,
+                index: &fm.patch_index,
+                positions: &fm.patch.free_positions,
+            }
+        };
+        self.poses.clear();
+        self.poses.resize(self.index + 1, *pose);
+        self.rows.clear();
+        self.rule
+            .rows(model, out, &free, &fm.anchors, &self.poses, &mut self.rows);
+        self.contact_count = out.contact_vertices() as u32;
+        self.contact_count
+    }
+
+    /// The coupled contact problem of this instrument's rows (from the
+    /// last [`Self::query`]), the other instruments' rows (`others(j)`:
+    /// `Some` their latest rows, `None` their rows of the snapshot's step;
+    /// never asked for this instrument) and the skull's; the force on this
+    /// instrument about `handle` (m).
+    pub fn solve<'a>(
+        &mut self,
+        model: &Model,
+        snap: &Snapshot,
+        others: &dyn Fn(usize) -> Option<&'a [Row]>,
+        handle: &Vector3<f64>,
+    ) -> SampleForce {
+        let fm = &snap.force_model;
+        let me = self.index as u16;
+        if !fm.has_patch {
+            // Held: in contact where a row is closed at the step's shape.
+            self.touching.clear();
+            self.touching.extend(
+                self.rows
+                    .iter()
+                    .filter(|r| {
+                        r.row.kind != super::rows::RowKind::Off
+                            && r.row.gap_free_m + r.row.normal_motion(&snap.displacements) <= 0.0
+                    })
+                    .map(|r| r.row.node),
+            );
+            self.touching.sort_unstable();
+            self.touching.dedup();
+            self.contact_count = self.touching.len() as u32;
+            let (force_n, torque_nm) = if self.touching.is_empty() {
+                (Vector3::zeros(), Vector3::zeros())
+            } else {
+                fm.step_force
+                    .get(self.index)
+                    .copied()
+                    .unwrap_or((Vector3::zeros(), Vector3::zeros()))
+            };
+            return SampleForce {
+                force_n,
+                torque_nm,
+                contact_count: self.contact_count,
+                flags: 0,
+            };
+        }
+        self.all.clear();
+        rows::append(&mut self.all, &self.rows);
+        for j in 0..model.instruments.len() {
+            if j == self.index {
+                continue;
+            }
+            match others(j) {
+                Some(r) => rows::append(&mut self.all, r),
+                None => rows::append_owner(&mut self.all, &fm.step_rows, j as u16),
+            }
+        }
+        rows::append_owner(&mut self.all, &fm.step_rows, SKULL_OWNER);
+        let mut out_flags = 0;
+        if let Err(e) = self.solver.solve(fm, &self.all, &mut self.answer) {
+            tracing::debug!(instrument = self.index, error = %e, "force-loop contact solve failed");
+            return SampleForce {
+                force_n: self.last_good.0,
+                torque_nm: self.last_good.1,
+                contact_count: self.contact_count,
+                flags: flags::CONTACT_UNSOLVED,
+            };
+        }
+        for &p in &self.answer.pending {
+            let r = &self.all[p as usize];
+            let l = penalty(model, r, &snap.displacements);
+            self.answer.lambda[p as usize] = l;
+            if r.owner == me && l != 0.0 {
+                out_flags |= flags::COLUMNS_PENDING;
+            }
+        }
+        let (force_n, torque_nm) = rows::owner_force(&self.all, &self.answer.lambda, me, handle);
+        self.last_good = (force_n, torque_nm);
+        // In contact: the vertices of this instrument's rows with a force.
+        self.touching.clear();
+        for (r, &l) in self.all.iter().zip(&self.answer.lambda) {
+            if r.owner == me && l != 0.0 {
+                self.touching.extend(r.row.nodes().map(|(n, _)| n));
+            }
+        }
+        self.touching.sort_unstable();
+        self.touching.dedup();
+        self.contact_count = self.touching.len() as u32;
+        self.history
+            .set_held(rows::held_by(&self.all, &self.answer.lambda, me));
+        SampleForce {
+            force_n,
+            torque_nm,
+            contact_count: self.contact_count,
+            flags: out_flags,
+        }
+    }
+}
