@@ -8,10 +8,12 @@ pub mod adjacency;
 pub mod blocks;
 pub mod from_surface;
 pub mod io;
+pub mod manifold;
 pub mod phantom;
 pub mod quality;
 pub mod sdf;
 pub mod stuffing;
+pub mod units;
 pub mod validate;
 pub mod winding;
 
