@@ -245,6 +245,7 @@ async fn a_stepped_client_far_ahead_of_the_steps_is_held_back_not_disconnected()
         );
         stream.send_data(raw_h2::frame(&p), k + 1 == N)?;
     }
+    let started = std::time::Instant::now();
     let mut answers = raw_h2::Reader::new(resp).await?;
     let mut next = 1;
     let end = loop {
@@ -259,6 +260,11 @@ async fn a_stepped_client_far_ahead_of_the_steps_is_held_back_not_disconnected()
             Err(end) => break end,
         }
     };
+    eprintln!(
+        "stepped, far ahead: {} answers in {:.2} s",
+        next - 1,
+        started.elapsed().as_secs_f64()
+    );
     assert_eq!(end.0, 0, "the stream ends with OK: {end:?}");
     assert_eq!(next - 1, N);
     let (stats, _s) = raw_h2::call(
@@ -538,4 +544,49 @@ async fn subnormal_quaternions_report_their_norm_and_stats_count_accepted_poses(
     assert_eq!((stats.force_samples, stats.rejected_poses), (3, 3));
     haptic.close().await;
     server.stop().await
+}
+
+/// README.md gives every flag of `fissure-server --help` with its default:
+/// a row of its flag table names the flag and, where `--help` shows a
+/// default, that value.
+#[test]
+fn the_readme_gives_every_server_flag_with_its_default() {
+    let help = std::process::Command::new(reliability_common::server_binary())
+        .arg("--help")
+        .output()
+        .expect("fissure-server --help");
+    let help = String::from_utf8_lossy(&help.stdout).into_owned();
+    let readme = include_str!("../../README.md");
+    let rows: Vec<&str> = readme.lines().filter(|l| l.starts_with("| `--")).collect();
+    // Flag blocks of the help: a line `      --name <VALUE>` (clap indents
+    // flags by 6, their text by 10), then its text.
+    let mut flags: Vec<(String, Option<String>)> = Vec::new();
+    for line in help.lines() {
+        let t = line.trim_start();
+        if let Some(rest) = line.strip_prefix("      --") {
+            let name = rest.split([' ', '=']).next().unwrap_or("").to_owned();
+            flags.push((name, None));
+        }
+        if let (Some(last), Some(d)) = (flags.last_mut(), t.split("[default: ").nth(1)) {
+            last.1 = Some(d.trim_end_matches(']').to_owned());
+        }
+    }
+    let flags: Vec<_> = flags
+        .into_iter()
+        .filter(|(n, _)| n != "help" && n != "version")
+        .collect();
+    assert!(flags.len() >= 13, "{flags:?}");
+    for (name, default) in flags {
+        let flag = format!("`--{name}");
+        let row = rows
+            .iter()
+            .find(|r| r.contains(&flag))
+            .unwrap_or_else(|| panic!("README has no row for --{name}"));
+        if let Some(d) = default {
+            assert!(
+                row.contains(&format!("`{d}`")),
+                "--{name}: default {d} not in {row}"
+            );
+        }
+    }
 }
