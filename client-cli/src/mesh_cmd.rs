@@ -586,15 +586,7 @@ pub fn inspect(path: &Path, opts: &InspectOptions) -> anyhow::Result<Report> {
                 tets: Vec::new(),
             };
             let (lo, hi) = mesh.bounds();
-            // Enclosed volume: sum over triangles of a . (b x c) / 6.
-            let volume: f64 = s
-                .triangles
-                .iter()
-                .map(|t| {
-                    let [a, b, c] = t.map(|i| s.vertices[i as usize].coords);
-                    a.dot(&b.cross(&c)) / 6.0
-                })
-                .sum();
+            let volume = fissure_server::mesh::enclosed_volume(&s.vertices, &s.triangles);
             Ok(Report {
                 file,
                 kind: "surface",
@@ -901,7 +893,7 @@ mod tests {
     /// does).
     #[test]
     fn inspect_counts_every_problem_and_checks_orientation_and_intersections() {
-        use fissure_server::mesh::winding::icosphere;
+        use fissure_server::mesh::winding::{icosphere, join_surfaces};
         let dir = tempfile::tempdir().unwrap();
         let (mut v, mut t) = icosphere(nalgebra::Point3::origin(), 0.02, 2);
         let n = v.len();
@@ -926,14 +918,10 @@ mod tests {
         );
         assert!(r.table().contains("the surface is inside out"));
         let (v1, t1) = icosphere(nalgebra::Point3::origin(), 0.02, 1);
-        let (v2, t2) = icosphere(nalgebra::Point3::new(0.01, 0.0, 0.0), 0.02, 1);
-        let m = v1.len() as u32;
-        let v: Vec<_> = v1.into_iter().chain(v2).collect();
-        let t: Vec<_> = t1
-            .iter()
-            .copied()
-            .chain(t2.iter().map(|x| x.map(|k| k + m)))
-            .collect();
+        let (v, t) = join_surfaces(
+            (v1, t1),
+            icosphere(nalgebra::Point3::new(0.01, 0.0, 0.0), 0.02, 1),
+        );
         let crossing = dir.path().join("crossing.ply");
         io::write_surface(&crossing, &v, &t).unwrap();
         let r = inspect(&crossing, &InspectOptions::default()).unwrap();

@@ -367,14 +367,8 @@ pub fn mesh_surface(
         triangles.len()
     ));
     check_surface(vertices, triangles)?;
-    // Enclosed volume by the divergence theorem; negative when inside out.
-    let enclosed: f64 = triangles
-        .iter()
-        .map(|t| {
-            let [a, b, c] = t.map(|i| vertices[i as usize].coords);
-            a.dot(&b.cross(&c)) / 6.0
-        })
-        .sum();
+    // Negative when inside out.
+    let enclosed = super::enclosed_volume(vertices, triangles);
     crate::progress::stage(format_args!(
         "meshing the inside: isosurface stuffing at {} m",
         params.spacing
@@ -408,7 +402,7 @@ pub fn mesh_surface(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::mesh::winding::icosphere;
+    use crate::mesh::winding::{icosphere, join_surfaces};
 
     #[test]
     fn sphere_volume() {
@@ -427,13 +421,7 @@ mod tests {
         .mesh;
         let vol: f64 = (0..m.tets.len()).map(|t| m.signed_volume(t)).sum();
         // Volume of the polyhedron (the icosphere is slightly inside the sphere).
-        let poly: f64 = f
-            .iter()
-            .map(|t| {
-                let [a, b, c] = t.map(|k| v[k as usize].coords);
-                a.dot(&b.cross(&c)) / 6.0
-            })
-            .sum();
+        let poly = crate::mesh::enclosed_volume(&v, &f);
         assert!((vol - poly).abs() < 0.03 * poly, "{vol} vs {poly}");
         let (lo, hi) = stuffing::dihedral_range(&m);
         assert!(
@@ -473,14 +461,10 @@ mod tests {
     fn surfaces_closer_than_the_spacing_mesh_to_a_closed_manifold() {
         let r = 0.02;
         let (v1, f1) = icosphere(Point3::origin(), r, 3);
-        let (v2, f2) = icosphere(Point3::new(2.0 * r + 0.0015, 0.0013, 0.0007), r, 3);
-        let n = v1.len() as u32;
-        let v: Vec<_> = v1.into_iter().chain(v2).collect();
-        let f: Vec<_> = f1
-            .iter()
-            .copied()
-            .chain(f2.iter().map(|t| t.map(|k| k + n)))
-            .collect();
+        let (v, f) = join_surfaces(
+            (v1, f1),
+            icosphere(Point3::new(2.0 * r + 0.0015, 0.0013, 0.0007), r, 3),
+        );
         let params = SurfaceMeshing {
             spacing: 0.003,
             levels: 1,
@@ -581,17 +565,11 @@ mod tests {
         // Two closed spheres overlapping: each is closed and manifold, together
         // they intersect.
         let (v1, f1) = icosphere(Point3::origin(), 0.03, 1);
-        let (v2, f2) = icosphere(Point3::new(0.02, 0.0, 0.0), 0.03, 1);
-        let n = v1.len() as u32;
-        let v: Vec<_> = v1.into_iter().chain(v2).collect();
-        let f: Vec<_> = f1
-            .iter()
-            .copied()
-            .chain(f2.iter().map(|t| t.map(|k| k + n)))
-            .collect();
+        let (n, f1_len) = (v1.len() as u32, f1.len());
+        let (v, f) = join_surfaces((v1, f1), icosphere(Point3::new(0.02, 0.0, 0.0), 0.03, 1));
         match check_surface(&v, &f) {
             Err(SurfaceError::SelfIntersection { first, second }) => {
-                assert!(first < f1.len() && second >= f1.len(), "{first} {second}");
+                assert!(first < f1_len && second >= f1_len, "{first} {second}");
             }
             other => panic!("wrong result {other:?}"),
         }

@@ -237,10 +237,15 @@ pub fn findings(nodes: &[Point3<f64>], tets: &[[u32; 4]], opts: &ValidateOptions
     check_topology(&usable, &mut out);
 
     check_duplicates(nodes, &finite, opts.duplicate_tolerance, &mut out);
+    check_unused(n, tets, &mut out);
+    out.finish()
+}
 
+/// Nodes of `0..n` that no element uses.
+fn check_unused<const K: usize>(n: usize, elements: &[[u32; K]], out: &mut Problems) {
     let mut used = vec![false; n];
-    for t in tets {
-        for &i in t {
+    for e in elements {
+        for &i in e {
             if let Some(u) = used.get_mut(i as usize) {
                 *u = true;
             }
@@ -251,7 +256,6 @@ pub fn findings(nodes: &[Point3<f64>], tets: &[[u32; 4]], opts: &ValidateOptions
             out.push(Problem::UnusedNode { node });
         }
     }
-    out.finish()
 }
 
 /// The topology checks of tetrahedra whose node indices are in range and
@@ -385,14 +389,7 @@ pub fn surface_findings(
     }
     let all_finite = finite.iter().all(|f| *f);
     if manifold && oriented && all_finite && !good.is_empty() {
-        // Enclosed volume by the divergence theorem: sum of a . (b x c) / 6.
-        let volume_m3: f64 = good
-            .iter()
-            .map(|t| {
-                let [a, b, c] = t.map(|i| vertices[i as usize].coords);
-                a.dot(&b.cross(&c)) / 6.0
-            })
-            .sum();
+        let volume_m3 = super::enclosed_volume(vertices, &good);
         if volume_m3 < 0.0 {
             out.push(Problem::InsideOut { volume_m3 });
         }
@@ -403,19 +400,7 @@ pub fn surface_findings(
         }
     }
     check_duplicates(vertices, &finite, opts.duplicate_tolerance, &mut out);
-    let mut used = vec![false; n];
-    for t in triangles {
-        for &i in t {
-            if let Some(u) = used.get_mut(i as usize) {
-                *u = true;
-            }
-        }
-    }
-    for (node, u) in used.iter().enumerate() {
-        if !u {
-            out.push(Problem::UnusedNode { node });
-        }
-    }
+    check_unused(n, triangles, &mut out);
     out.finish()
 }
 
@@ -620,7 +605,7 @@ mod tests {
     /// volume); two crossing spheres intersect, every crossing pair listed.
     #[test]
     fn inside_out_and_self_intersecting_surfaces_are_problems() {
-        use crate::mesh::winding::icosphere;
+        use crate::mesh::winding::{icosphere, join_surfaces};
         let (v, mut f) = icosphere(Point3::origin(), 0.03, 1);
         assert_eq!(validate_surface(&v, &f, &opts()), vec![]);
         for t in &mut f {
@@ -631,14 +616,8 @@ mod tests {
             other => panic!("{other:?}"),
         }
         let (v1, f1) = icosphere(Point3::origin(), 0.03, 1);
-        let (v2, f2) = icosphere(Point3::new(0.02, 0.0, 0.0), 0.03, 1);
-        let n = v1.len() as u32;
-        let v: Vec<_> = v1.into_iter().chain(v2).collect();
-        let f: Vec<_> = f1
-            .iter()
-            .copied()
-            .chain(f2.iter().map(|t| t.map(|k| k + n)))
-            .collect();
+        let f1_len = f1.len();
+        let (v, f) = join_surfaces((v1, f1), icosphere(Point3::new(0.02, 0.0, 0.0), 0.03, 1));
         let p = validate_surface(&v, &f, &opts());
         let pairs: Vec<(usize, usize)> = p
             .iter()
@@ -648,7 +627,7 @@ mod tests {
             })
             .collect();
         assert!(pairs.len() > 10, "{p:?}");
-        assert!(pairs.iter().all(|&(a, b)| a < f1.len() && b >= f1.len()));
+        assert!(pairs.iter().all(|&(a, b)| a < f1_len && b >= f1_len));
         assert_eq!(
             pairs.first().copied(),
             crate::mesh::from_surface::first_intersection(&v, &f)
