@@ -8,6 +8,7 @@ pub mod bench_loop;
 pub mod bridge;
 pub mod demo;
 pub mod mesh_cmd;
+pub mod progress;
 pub mod render;
 pub mod replay;
 pub mod report;

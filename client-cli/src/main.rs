@@ -167,13 +167,24 @@ struct ReplayArgs {
 
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_env("FISSURE_LOG")
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
-        )
-        .with_writer(std::io::stderr)
-        .init();
+    {
+        use fissure_cli::progress::ProgressLayer;
+        use tracing_subscriber::Layer;
+        use tracing_subscriber::layer::SubscriberExt;
+        use tracing_subscriber::util::SubscriberInitExt;
+        // Log lines (FISSURE_LOG, warnings by default) and, beside them, a
+        // spinner for the progress of long work (scene loading, meshing).
+        let log = tracing_subscriber::fmt::layer()
+            .with_writer(std::io::stderr)
+            .with_filter(
+                tracing_subscriber::EnvFilter::try_from_env("FISSURE_LOG")
+                    .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+            );
+        tracing_subscriber::registry()
+            .with(log)
+            .with(ProgressLayer::stderr().with_filter(ProgressLayer::filter()))
+            .init();
+    }
     let rt = tokio::runtime::Runtime::new().context("starting the async runtime")?;
     match cli.command {
         Command::Study(args) => fissure_cli::study::run(&args)?,

@@ -7,8 +7,12 @@
 use anyhow::{Context, bail};
 use fissure_server::mesh::TetMesh;
 use fissure_server::mesh::io::{self, SurfaceFormat, VolumeFormat};
+use fissure_server::mesh::manifold::BoundaryRepair;
 use fissure_server::mesh::quality::{Histogram, QualitySummary, tets_quality};
-use fissure_server::mesh::validate::{Problem, ValidateOptions, validate, validate_surface};
+use fissure_server::mesh::units;
+use fissure_server::mesh::validate::{
+    Findings, Problem, ValidateOptions, findings, surface_findings,
+};
 use std::path::{Path, PathBuf};
 
 /// Mesh tools.
@@ -43,13 +47,17 @@ pub enum MeshCommand {
         #[arg(long)]
         proven: bool,
     },
-    /// Mesh the inside of a closed triangle surface (.obj, .ply, .stl) with
-    /// tetrahedra (isosurface stuffing, uniform at the surface and graded
-    /// inside, dihedral angles within the proven 8.9 to 158.8 degrees) and
-    /// write it (format from the extension). An open, non-manifold or
-    /// self-intersecting surface is refused with the offending element named.
+    /// Mesh the inside of a closed triangle surface (.obj, .ply, .stl, or a
+    /// .vtu of triangles) with tetrahedra (isosurface stuffing, uniform at the
+    /// surface and graded inside, dihedral angles within the proven 8.9 to
+    /// 158.8 degrees) and write it (format from the extension). An open,
+    /// non-manifold or self-intersecting surface is refused with the
+    /// offending element named, one over 1 m across as being in another unit
+    /// (use --scale). Where two parts of the surface come closer than the
+    /// resolution, the mesh's boundary is repaired to a closed manifold and
+    /// the repair is reported.
     FromSurface {
-        /// Closed surface file, positions in metres.
+        /// Closed surface file.
         #[arg(value_name = "FILE")]
         file: PathBuf,
         /// Output volume mesh: .vtu, .msh, .vtk or .node/.ele.
@@ -62,24 +70,35 @@ pub enum MeshCommand {
         /// away from the surface (0: uniform).
         #[arg(long, value_name = "N", default_value_t = 2)]
         levels: u32,
+        /// Factor from the file's unit to metres, applied to the positions
+        /// as read (0.001 for a file in millimetres).
+        #[arg(long, value_name = "FACTOR", default_value_t = 1.0)]
+        scale: f64,
     },
     /// Convert a mesh file to another format (format from the extensions). A
     /// volume mesh written to .obj, .ply or .stl gives its boundary surface.
     Convert {
         /// Input file: .msh (Gmsh 2.2/4.1), .vtk, .vtu, .node/.ele (TetGen),
-        /// or a surface .obj, .ply, .stl.
+        /// or a surface .obj, .ply, .stl, or .vtu of triangles.
         #[arg(value_name = "IN")]
         input: PathBuf,
         /// Output file: .vtu, .msh (4.1), .vtk, .node/.ele, or a surface
         /// .obj, .ply (binary), .stl (binary), .vtu.
         #[arg(value_name = "OUT")]
         output: PathBuf,
+        /// Factor applied to every position (0.001 turns a file in
+        /// millimetres into metres).
+        #[arg(long, value_name = "FACTOR", default_value_t = 1.0)]
+        scale: f64,
     },
-    /// Print counts, bounding box, volume, element quality and problems
-    /// (inverted or degenerate tetrahedra, open or non-manifold surface,
-    /// duplicate or unused nodes) of a mesh file.
+    /// Print counts, bounding box, volume, element quality and problems of a
+    /// mesh file: a size implausible for metres, inverted or degenerate
+    /// tetrahedra, an open or non-manifold boundary, duplicate or unused
+    /// nodes; for a surface also an inside-out orientation and
+    /// self-intersections.
     Inspect {
-        /// Volume (.msh, .vtk, .vtu, .node/.ele) or surface (.obj, .ply, .stl) file.
+        /// Volume (.msh, .vtk, .vtu, .node/.ele) or surface (.obj, .ply, .stl,
+        /// or a .vtu of triangles) file.
         #[arg(value_name = "FILE")]
         file: PathBuf,
         /// Print one JSON object instead of a table.
@@ -94,6 +113,10 @@ pub enum MeshCommand {
         /// Problems listed in full (all are counted), at most.
         #[arg(long, value_name = "N", default_value_t = 20)]
         max_listed: usize,
+        /// Factor from the file's unit to metres, applied before the checks
+        /// (0.001 for a file in millimetres).
+        #[arg(long, value_name = "FACTOR", default_value_t = 1.0)]
+        scale: f64,
     },
 }
 
@@ -107,7 +130,7 @@ pub fn run(cmd: MeshCommand) -> anyhow::Result<()> {
             cells,
             proven,
         } => {
-            let mesh = generate(
+            let (mesh, repair) = generate(
                 &preset,
                 &out,
                 &PresetOptions {
@@ -116,6 +139,9 @@ pub fn run(cmd: MeshCommand) -> anyhow::Result<()> {
                     proven,
                 },
             )?;
+            if !repair.is_empty() {
+                println!("repaired: {repair}");
+            }
             println!(
                 "wrote {}: {} nodes, {} tetrahedra",
                 out.display(),
@@ -128,18 +154,33 @@ pub fn run(cmd: MeshCommand) -> anyhow::Result<()> {
             out,
             resolution,
             levels,
+            scale,
         } => {
-            let mesh = from_surface(&file, resolution, levels)?;
+            let meshed = from_surface(&file, resolution, levels, scale)?;
+            if meshed.inside_out {
+                println!(
+                    "note: {} is inside out (its triangles face inward); its inside was meshed all the same",
+                    file.display()
+                );
+            }
+            if !meshed.repair.is_empty() {
+                println!("repaired: {}", meshed.repair);
+            }
+            let mesh = meshed.mesh;
             write_any(&mesh, &out)?;
             println!(
-                "wrote {}: {} nodes, {} tetrahedra",
+                "wrote {}: {} nodes, {} tetrahedra; the boundary is a closed manifold",
                 out.display(),
                 mesh.nodes.len(),
                 mesh.tets.len()
             );
         }
-        MeshCommand::Convert { input, output } => {
-            let s = convert(&input, &output)?;
+        MeshCommand::Convert {
+            input,
+            output,
+            scale,
+        } => {
+            let s = convert(&input, &output, scale)?;
             println!("wrote {}: {s}", output.display());
         }
         MeshCommand::Inspect {
@@ -148,11 +189,13 @@ pub fn run(cmd: MeshCommand) -> anyhow::Result<()> {
             duplicate_tolerance,
             bins,
             max_listed,
+            scale,
         } => {
             let opts = InspectOptions {
                 duplicate_tolerance,
                 bins,
                 max_listed,
+                scale,
             };
             let report = inspect(&file, &opts)?;
             if json {
@@ -165,19 +208,32 @@ pub fn run(cmd: MeshCommand) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Reads a closed surface and meshes its inside.
-pub fn from_surface(file: &Path, resolution_m: f64, levels: u32) -> anyhow::Result<TetMesh> {
+/// Reads a closed surface, scales it by `scale` (the file's unit to m) and
+/// meshes its inside.
+pub fn from_surface(
+    file: &Path,
+    resolution_m: f64,
+    levels: u32,
+    scale: f64,
+) -> anyhow::Result<fissure_server::mesh::from_surface::Meshed> {
+    use fissure_server::mesh::from_surface::{SurfaceError, SurfaceMeshing, mesh_surface};
     if !(resolution_m.is_finite() && resolution_m > 0.0) {
         bail!("--resolution must be a positive length in metres, got {resolution_m}");
     }
-    let surface = fissure_server::mesh::io::read_surface(file)?;
-    let params = fissure_server::mesh::from_surface::SurfaceMeshing {
+    units::check_scale(scale, "--scale").map_err(anyhow::Error::msg)?;
+    let mut surface = fissure_server::mesh::io::read_surface(file)?;
+    units::scale_points(&mut surface.vertices, scale);
+    let params = SurfaceMeshing {
         spacing: resolution_m,
         levels,
         rate: 0.5,
     };
-    fissure_server::mesh::from_surface::mesh_surface(&surface.vertices, &surface.triangles, &params)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", file.display()))
+    mesh_surface(&surface.vertices, &surface.triangles, &params).map_err(|e| match e {
+        SurfaceError::Units(u) => {
+            anyhow::anyhow!("{}: {u}: use --scale {}", file.display(), u.scale * scale)
+        }
+        e => anyhow::anyhow!("{}: {e}", file.display()),
+    })
 }
 
 /// Size of the `cube` preset.
@@ -204,11 +260,22 @@ pub const PRESETS: &[&str] = &[
 
 /// The mesh of a named preset.
 pub fn preset_mesh(name: &str, cube: &PresetOptions) -> anyhow::Result<TetMesh> {
+    preset_mesh_repaired(name, cube).map(|(mesh, _)| mesh)
+}
+
+/// The mesh of a named preset, with the repair of the mesher's output that
+/// made its boundary a closed manifold (empty for the blocks).
+pub fn preset_mesh_repaired(
+    name: &str,
+    cube: &PresetOptions,
+) -> anyhow::Result<(TetMesh, BoundaryRepair)> {
     use fissure_server::mesh::blocks;
     // The single list of presets (keep PRESETS in step).
+    let block = |mesh| (mesh, BoundaryRepair::default());
     Ok(match name {
         "coarse" | "paper-34k" | "paper-48k" => {
-            fissure_server::mesh::phantom::preset_meshed(name, cube.proven)?.mesh
+            let p = fissure_server::mesh::phantom::preset_meshed(name, cube.proven)?;
+            (p.mesh, p.repair)
         }
         "cube" => {
             if !(cube.size_m > 0.0 && cube.size_m.is_finite()) || cube.cells == 0 {
@@ -217,36 +284,84 @@ pub fn preset_mesh(name: &str, cube: &PresetOptions) -> anyhow::Result<TetMesh> 
                     cube.size_m
                 );
             }
-            blocks::cube(cube.size_m, cube.cells)
+            block(blocks::cube(cube.size_m, cube.cells))
         }
-        "v-valley" => blocks::v_valley(),
-        "u-valley" => blocks::u_valley(),
+        "v-valley" => block(blocks::v_valley()),
+        "u-valley" => block(blocks::u_valley()),
         other => bail!("unknown preset '{other}' (known: {})", PRESETS.join(", ")),
     })
 }
 
 /// Generates a preset and writes it to `out` (a volume format, or a surface
-/// format for its boundary).
-pub fn generate(preset: &str, out: &Path, cube: &PresetOptions) -> anyhow::Result<TetMesh> {
-    let mesh = preset_mesh(preset, cube)?;
+/// format for its boundary); returns it with the repair of its boundary.
+pub fn generate(
+    preset: &str,
+    out: &Path,
+    cube: &PresetOptions,
+) -> anyhow::Result<(TetMesh, BoundaryRepair)> {
+    let (mesh, repair) = preset_mesh_repaired(preset, cube)?;
     write_any(&mesh, out)?;
-    Ok(mesh)
+    Ok((mesh, repair))
 }
 
-fn write_any(mesh: &TetMesh, out: &Path) -> anyhow::Result<()> {
+/// Writes `mesh` to `out`: the volume, or its boundary surface for a surface
+/// format. Returns what was written.
+fn write_any(mesh: &TetMesh, out: &Path) -> anyhow::Result<String> {
     if VolumeFormat::from_path(out).is_some() {
         io::write_volume(out, mesh)?;
+        Ok(format!(
+            "{} nodes, {} tetrahedra",
+            mesh.nodes.len(),
+            mesh.tets.len()
+        ))
     } else {
         let b = mesh.boundary();
         let mut v = Vec::new();
         b.gather(&mesh.nodes, &mut v);
         io::write_surface(out, &v, &b.triangles)?;
+        Ok(format!(
+            "the boundary surface, {} vertices, {} triangles",
+            v.len(),
+            b.triangles.len()
+        ))
     }
-    Ok(())
 }
 
-/// Converts `input` to `output`; returns a one-line summary.
-pub fn convert(input: &Path, output: &Path) -> anyhow::Result<String> {
+/// A mesh file as read: a volume (every node of the file, tetrahedra as in
+/// the file) or a surface (a surface format, or a `.vtu` of triangles only,
+/// such as `fissure watch` writes).
+#[derive(Debug, Clone)]
+pub enum Loaded {
+    /// Tetrahedra.
+    Volume(io::RawVolume),
+    /// Triangles.
+    Surface(io::SurfaceMesh),
+}
+
+/// Reads a mesh file, volume or surface, by its extension and content.
+pub fn load(path: &Path) -> anyhow::Result<Loaded> {
+    if SurfaceFormat::from_path(path).is_some() {
+        return Ok(Loaded::Surface(io::read_surface(path)?));
+    }
+    let Some(format) = VolumeFormat::from_path(path) else {
+        return Err(io::IoError::UnknownFormat {
+            path: path.to_path_buf(),
+            expected: "expected .msh, .vtk, .vtu, .node, .ele, .obj, .ply or .stl",
+        }
+        .into());
+    };
+    let raw = io::read_volume_raw(path)?;
+    if raw.tets.is_empty() && format == VolumeFormat::Vtu {
+        // No tetrahedra: a surface .vtu, or an error naming what is missing.
+        return Ok(Loaded::Surface(io::read_surface(path)?));
+    }
+    Ok(Loaded::Volume(raw))
+}
+
+/// Converts `input` to `output`, positions multiplied by `scale`; returns a
+/// one-line summary of what was read and what was written.
+pub fn convert(input: &Path, output: &Path, scale: f64) -> anyhow::Result<String> {
+    units::check_scale(scale, "--scale").map_err(anyhow::Error::msg)?;
     let out_volume = VolumeFormat::from_path(output).is_some();
     let out_surface = SurfaceFormat::from_path(output).is_some() || out_volume;
     if !out_surface {
@@ -255,52 +370,62 @@ pub fn convert(input: &Path, output: &Path) -> anyhow::Result<String> {
             output.display()
         );
     }
-    if VolumeFormat::from_path(input).is_some() {
-        let r = io::read_volume_report(input)?;
-        write_any(&r.mesh, output)?;
-        let mut s = format!(
-            "{} nodes, {} tetrahedra",
-            r.mesh.nodes.len(),
-            r.mesh.tets.len()
-        );
-        for (n, what) in [
-            (r.ignored_cells, "other cells skipped"),
-            (
-                r.higher_order_tets,
-                "higher-order tetrahedra reduced to corners",
-            ),
-            (r.flipped_tets, "tetrahedra reoriented"),
-            (r.dropped_nodes, "unused nodes dropped"),
-        ] {
-            if n > 0 {
-                s += &format!(", {n} {what}");
+    match load(input)? {
+        Loaded::Volume(raw) => {
+            if raw.tets.is_empty() {
+                return Err(io::IoError::NoTetrahedra {
+                    path: input.to_path_buf(),
+                    ignored: raw.ignored_cells,
+                }
+                .into());
             }
-        }
-        return Ok(s);
-    }
-    if SurfaceFormat::from_path(input).is_some() {
-        if out_volume
-            && !output
-                .extension()
-                .is_some_and(|e| e.eq_ignore_ascii_case("vtu"))
-        {
-            bail!(
-                "{}: a surface cannot be converted to a volume format; mesh its inside first",
-                input.display()
+            let mut r = io::finish_volume(raw).map_err(|source| io::IoError::Mesh {
+                path: input.to_path_buf(),
+                source,
+            })?;
+            units::scale_points(&mut r.mesh.nodes, scale);
+            let written = write_any(&r.mesh, output)?;
+            let mut s = format!(
+                "read {} nodes, {} tetrahedra",
+                r.mesh.nodes.len(),
+                r.mesh.tets.len()
             );
+            for (n, what) in [
+                (r.ignored_cells, "other cells skipped"),
+                (
+                    r.higher_order_tets,
+                    "higher-order tetrahedra reduced to corners",
+                ),
+                (r.flipped_tets, "tetrahedra reoriented"),
+                (r.dropped_nodes, "unused nodes dropped"),
+            ] {
+                if n > 0 {
+                    s += &format!(", {n} {what}");
+                }
+            }
+            Ok(format!("{s}; wrote {written}"))
         }
-        let s = io::read_surface(input)?;
-        io::write_surface(output, &s.vertices, &s.triangles)?;
-        return Ok(format!(
-            "{} vertices, {} triangles",
-            s.vertices.len(),
-            s.triangles.len()
-        ));
+        Loaded::Surface(mut surface) => {
+            if out_volume
+                && !output
+                    .extension()
+                    .is_some_and(|e| e.eq_ignore_ascii_case("vtu"))
+            {
+                bail!(
+                    "{}: a surface cannot be converted to a volume format; mesh its inside first \
+                     (`fissure mesh from-surface`)",
+                    input.display()
+                );
+            }
+            units::scale_points(&mut surface.vertices, scale);
+            io::write_surface(output, &surface.vertices, &surface.triangles)?;
+            Ok(format!(
+                "wrote the surface, {} vertices, {} triangles",
+                surface.vertices.len(),
+                surface.triangles.len()
+            ))
+        }
     }
-    bail!(
-        "{}: unknown input format (expected .msh, .vtk, .vtu, .node, .ele, .obj, .ply or .stl)",
-        input.display()
-    )
 }
 
 /// Options of [`inspect`].
@@ -312,6 +437,9 @@ pub struct InspectOptions {
     pub bins: usize,
     /// Problems listed in full.
     pub max_listed: usize,
+    /// Factor applied to the positions before the checks (the file's unit
+    /// to m).
+    pub scale: f64,
 }
 
 impl Default for InspectOptions {
@@ -320,6 +448,7 @@ impl Default for InspectOptions {
             duplicate_tolerance: 1e-9,
             bins: 10,
             max_listed: 20,
+            scale: 1.0,
         }
     }
 }
@@ -381,7 +510,7 @@ pub struct Report {
     pub radius_ratio_histogram: Option<HistogramReport>,
     /// Minimum dihedral angle histogram over [0, 90] degrees.
     pub min_dihedral_histogram: Option<HistogramReport>,
-    /// Number of problems found (capped at 10,000).
+    /// Number of problems found, all of them.
     pub problems_found: usize,
     /// The first problems.
     pub problems: Vec<Problem>,
@@ -389,102 +518,97 @@ pub struct Report {
 
 /// Reads a mesh file and reports on it. The tetrahedra are checked as
 /// [`io::read_volume`] would load them (negatively oriented ones reoriented)
-/// but with every node of the file, so unused nodes show up as problems.
+/// but with every node of the file, so unused nodes show up as problems. A
+/// `.vtu` holding triangles only is inspected as a surface. Positions are
+/// multiplied by `opts.scale` first.
 pub fn inspect(path: &Path, opts: &InspectOptions) -> anyhow::Result<Report> {
+    units::check_scale(opts.scale, "--scale").map_err(anyhow::Error::msg)?;
     let vopts = ValidateOptions {
         duplicate_tolerance: opts.duplicate_tolerance,
+        max_problems: opts.max_listed,
         ..Default::default()
     };
     let file = path.display().to_string();
-    if VolumeFormat::from_path(path).is_some() {
-        let raw = io::read_volume_raw(path)?;
-        let mut tets = raw.tets.clone();
-        let mut flipped = 0;
-        for t in &mut tets {
-            let [a, b, c, d] = t.map(|i| raw.nodes[i as usize]);
-            if (b - a).cross(&(c - a)).dot(&(d - a)) < 0.0 {
-                t.swap(2, 3);
-                flipped += 1;
+    let listed = |f: Findings| (f.total, f.problems);
+    match load(path).with_context(|| format!("inspecting {}", path.display()))? {
+        Loaded::Volume(mut raw) => {
+            units::scale_points(&mut raw.nodes, opts.scale);
+            let mut tets = raw.tets.clone();
+            let mut flipped = 0;
+            for t in &mut tets {
+                let [a, b, c, d] = t.map(|i| raw.nodes[i as usize]);
+                if (b - a).cross(&(c - a)).dot(&(d - a)) < 0.0 {
+                    t.swap(2, 3);
+                    flipped += 1;
+                }
             }
-        }
-        let problems = validate(&raw.nodes, &tets, &vopts);
-        let q = tets_quality(&raw.nodes, &tets);
-        let s = QualitySummary::of(&q);
-        let mesh = TetMesh {
-            nodes: raw.nodes,
-            tets,
-        };
-        let surface_triangles = mesh.boundary().triangles.len();
-        let (lo, hi) = mesh.bounds();
-        let bins = opts.bins.max(1);
-        return Ok(Report {
-            file,
-            kind: "volume",
-            nodes: mesh.nodes.len(),
-            tets: mesh.tets.len(),
-            surface_triangles,
-            ignored_cells: raw.ignored_cells,
-            higher_order_tets: raw.higher_order_tets,
-            flipped_tets: flipped,
-            bounding_box_m: bbox(lo, hi, mesh.nodes.is_empty()),
-            volume_m3: s.map_or(0.0, |s| s.total_volume),
-            min_dihedral_deg: s.map(|s| s.min_dihedral_deg),
-            max_dihedral_deg: s.map(|s| s.max_dihedral_deg),
-            min_radius_ratio: s.map(|s| s.min_radius_ratio),
-            mean_radius_ratio: s.map(|s| s.mean_radius_ratio),
-            radius_ratio_histogram: Some(
-                Histogram::new(q.iter().map(|q| q.radius_ratio), 0.0, 1.0, bins).into(),
-            ),
-            min_dihedral_histogram: Some(
-                Histogram::new(q.iter().map(|q| q.min_dihedral_deg), 0.0, 90.0, bins).into(),
-            ),
-            problems_found: problems.len(),
-            problems: problems.into_iter().take(opts.max_listed).collect(),
-        });
-    }
-    if SurfaceFormat::from_path(path).is_some() {
-        let s = io::read_surface(path)?;
-        let problems = validate_surface(&s.vertices, &s.triangles, &vopts);
-        let mesh = TetMesh {
-            nodes: s.vertices.clone(),
-            tets: Vec::new(),
-        };
-        let (lo, hi) = mesh.bounds();
-        // Enclosed volume: sum over triangles of a . (b x c) / 6.
-        let volume: f64 = s
-            .triangles
-            .iter()
-            .map(|t| {
-                let [a, b, c] = t.map(|i| s.vertices[i as usize].coords);
-                a.dot(&b.cross(&c)) / 6.0
+            let (problems_found, problems) = listed(findings(&raw.nodes, &tets, &vopts));
+            let q = tets_quality(&raw.nodes, &tets);
+            let s = QualitySummary::of(&q);
+            let mesh = TetMesh {
+                nodes: raw.nodes,
+                tets,
+            };
+            let surface_triangles = mesh.boundary().triangles.len();
+            let (lo, hi) = mesh.bounds();
+            let bins = opts.bins.max(1);
+            Ok(Report {
+                file,
+                kind: "volume",
+                nodes: mesh.nodes.len(),
+                tets: mesh.tets.len(),
+                surface_triangles,
+                ignored_cells: raw.ignored_cells,
+                higher_order_tets: raw.higher_order_tets,
+                flipped_tets: flipped,
+                bounding_box_m: bbox(lo, hi, mesh.nodes.is_empty()),
+                volume_m3: s.map_or(0.0, |s| s.total_volume),
+                min_dihedral_deg: s.map(|s| s.min_dihedral_deg),
+                max_dihedral_deg: s.map(|s| s.max_dihedral_deg),
+                min_radius_ratio: s.map(|s| s.min_radius_ratio),
+                mean_radius_ratio: s.map(|s| s.mean_radius_ratio),
+                radius_ratio_histogram: Some(
+                    Histogram::new(q.iter().map(|q| q.radius_ratio), 0.0, 1.0, bins).into(),
+                ),
+                min_dihedral_histogram: Some(
+                    Histogram::new(q.iter().map(|q| q.min_dihedral_deg), 0.0, 90.0, bins).into(),
+                ),
+                problems_found,
+                problems,
             })
-            .sum();
-        return Ok(Report {
-            file,
-            kind: "surface",
-            nodes: s.vertices.len(),
-            tets: 0,
-            surface_triangles: s.triangles.len(),
-            ignored_cells: 0,
-            higher_order_tets: 0,
-            flipped_tets: 0,
-            bounding_box_m: bbox(lo, hi, s.vertices.is_empty()),
-            volume_m3: volume,
-            min_dihedral_deg: None,
-            max_dihedral_deg: None,
-            min_radius_ratio: None,
-            mean_radius_ratio: None,
-            radius_ratio_histogram: None,
-            min_dihedral_histogram: None,
-            problems_found: problems.len(),
-            problems: problems.into_iter().take(opts.max_listed).collect(),
-        });
+        }
+        Loaded::Surface(mut s) => {
+            units::scale_points(&mut s.vertices, opts.scale);
+            let (problems_found, problems) =
+                listed(surface_findings(&s.vertices, &s.triangles, &vopts));
+            let mesh = TetMesh {
+                nodes: s.vertices.clone(),
+                tets: Vec::new(),
+            };
+            let (lo, hi) = mesh.bounds();
+            let volume = fissure_server::mesh::enclosed_volume(&s.vertices, &s.triangles);
+            Ok(Report {
+                file,
+                kind: "surface",
+                nodes: s.vertices.len(),
+                tets: 0,
+                surface_triangles: s.triangles.len(),
+                ignored_cells: 0,
+                higher_order_tets: 0,
+                flipped_tets: 0,
+                bounding_box_m: bbox(lo, hi, s.vertices.is_empty()),
+                volume_m3: volume,
+                min_dihedral_deg: None,
+                max_dihedral_deg: None,
+                min_radius_ratio: None,
+                mean_radius_ratio: None,
+                radius_ratio_histogram: None,
+                min_dihedral_histogram: None,
+                problems_found,
+                problems,
+            })
+        }
     }
-    Err(io::IoError::UnknownFormat {
-        path: path.to_path_buf(),
-        expected: "expected .msh, .vtk, .vtu, .node, .ele, .obj, .ply or .stl",
-    })
-    .with_context(|| format!("inspecting {}", path.display()))
 }
 
 fn bbox(lo: nalgebra::Point3<f64>, hi: nalgebra::Point3<f64>, empty: bool) -> [[f64; 3]; 2] {
@@ -572,7 +696,7 @@ mod tests {
         let (v, t) = icosphere(nalgebra::Point3::origin(), 0.02, 3);
         let obj = dir.path().join("sphere.obj");
         io::write_surface(&obj, &v, &t).unwrap();
-        let mesh = from_surface(&obj, 0.003, 1).unwrap();
+        let mesh = from_surface(&obj, 0.003, 1, 1.0).unwrap().mesh;
         let volume: f64 = (0..mesh.tets.len()).map(|e| mesh.signed_volume(e)).sum();
         let exact = 4.0 / 3.0 * std::f64::consts::PI * 0.02f64.powi(3);
         assert!(
@@ -587,9 +711,9 @@ mod tests {
         );
         let open = dir.path().join("open.obj");
         io::write_surface(&open, &v, &t[1..]).unwrap();
-        let err = from_surface(&open, 0.003, 1).unwrap_err().to_string();
+        let err = from_surface(&open, 0.003, 1, 1.0).unwrap_err().to_string();
         assert!(err.contains("open.obj") && err.contains("edge"), "{err}");
-        assert!(from_surface(&obj, -1.0, 0).is_err());
+        assert!(from_surface(&obj, -1.0, 0, 1.0).is_err());
     }
 
     #[test]
@@ -602,7 +726,7 @@ mod tests {
             cells: 8,
             proven,
         };
-        let proven = generate("coarse", &vtu, &opts(true)).unwrap();
+        let (proven, _) = generate("coarse", &vtu, &opts(true)).unwrap();
         let plain = preset_mesh("coarse", &opts(false)).unwrap();
         assert_ne!(proven.tets.len(), plain.tets.len());
         let r = inspect(&vtu, &InspectOptions::default()).unwrap();
@@ -618,7 +742,7 @@ mod tests {
     fn generate_convert_inspect() {
         let dir = tempfile::tempdir().unwrap();
         let vtu = dir.path().join("v.vtu");
-        let mesh = generate(
+        let (mesh, repair) = generate(
             "v-valley",
             &vtu,
             &PresetOptions {
@@ -629,15 +753,24 @@ mod tests {
         )
         .unwrap();
         assert_eq!(mesh.tets.len(), 4608);
+        assert!(repair.is_empty());
 
         let msh = dir.path().join("v.msh");
-        let summary = convert(&vtu, &msh).unwrap();
-        assert!(
-            summary.starts_with(&format!("{} nodes, 4608 tetrahedra", mesh.nodes.len())),
-            "{summary}"
+        let summary = convert(&vtu, &msh, 1.0).unwrap();
+        assert_eq!(
+            summary,
+            format!(
+                "read {n} nodes, 4608 tetrahedra; wrote {n} nodes, 4608 tetrahedra",
+                n = mesh.nodes.len()
+            )
         );
         let stl = dir.path().join("v.stl");
-        convert(&msh, &stl).unwrap();
+        // To a surface format: the triangles written are reported.
+        let summary = convert(&msh, &stl, 1.0).unwrap();
+        assert!(
+            summary.ends_with("wrote the boundary surface, 546 vertices, 1088 triangles"),
+            "{summary}"
+        );
 
         let r = inspect(&msh, &InspectOptions::default()).unwrap();
         assert_eq!(
@@ -681,9 +814,9 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         // A cube with one tetrahedron reversed and one unused node, written
         // as TetGen files.
-        let mut mesh = fissure_server::mesh::blocks::cube(1.0, 1);
+        let mut mesh = fissure_server::mesh::blocks::cube(0.01, 1);
         mesh.tets[3].swap(0, 1);
-        mesh.nodes.push(nalgebra::Point3::new(5.0, 5.0, 5.0));
+        mesh.nodes.push(nalgebra::Point3::new(0.05, 0.05, 0.05));
         let node = dir.path().join("m.node");
         let mut w = Vec::new();
         io::tetgen::write_node(&mut w, &mesh.nodes).unwrap();
@@ -695,7 +828,7 @@ mod tests {
         assert_eq!(r.flipped_tets, 1);
         assert_eq!(r.problems, vec![Problem::UnusedNode { node: 8 }]);
         assert!(r.table().contains("node 8 is used by no element"));
-        let s = convert(&node, &dir.path().join("out.vtu")).unwrap();
+        let s = convert(&node, &dir.path().join("out.vtu"), 1.0).unwrap();
         assert!(
             s.contains("1 tetrahedra reoriented") && s.contains("1 unused nodes dropped"),
             "{s}"
@@ -703,9 +836,9 @@ mod tests {
 
         let e = inspect(&dir.path().join("nope.msh"), &InspectOptions::default()).unwrap_err();
         assert!(e.to_string().contains("nope.msh"), "{e}");
-        let e = convert(&node, &dir.path().join("x.txt")).unwrap_err();
+        let e = convert(&node, &dir.path().join("x.txt"), 1.0).unwrap_err();
         assert!(e.to_string().contains("x.txt"), "{e}");
-        let e = convert(&dir.path().join("s.stl"), &dir.path().join("x.msh")).unwrap_err();
+        let e = convert(&dir.path().join("s.stl"), &dir.path().join("x.msh"), 1.0).unwrap_err();
         assert!(e.to_string().contains("s.stl"), "{e}");
         assert!(
             preset_mesh(
@@ -718,6 +851,162 @@ mod tests {
             )
             .is_err()
         );
+    }
+
+    /// A .vtu of triangles only (what `fissure watch` writes) is a surface:
+    /// inspected as one (no "0 tets" volume, no problems, its enclosed
+    /// volume), converted to STL, refused as a volume format.
+    #[test]
+    fn surface_vtus_are_inspected_and_converted_as_surfaces() {
+        use fissure_server::mesh::winding::icosphere;
+        let dir = tempfile::tempdir().unwrap();
+        let (v, t) = icosphere(nalgebra::Point3::origin(), 0.02, 2);
+        let vtu = dir.path().join("surface-000001.vtu");
+        let mut bytes = Vec::new();
+        io::vtu::write_vtu_surface(&mut bytes, &v, &t, &[], &[]).unwrap();
+        std::fs::write(&vtu, bytes).unwrap();
+        let r = inspect(&vtu, &InspectOptions::default()).unwrap();
+        assert_eq!(
+            (r.kind, r.tets, r.surface_triangles, r.problems_found),
+            ("surface", 0, t.len(), 0),
+            "{:?}",
+            r.problems
+        );
+        let sphere = 4.0 / 3.0 * std::f64::consts::PI * 0.02f64.powi(3);
+        assert!(r.volume_m3 > 0.9 * sphere && r.volume_m3 < sphere);
+        let stl = dir.path().join("s.stl");
+        assert_eq!(
+            convert(&vtu, &stl, 1.0).unwrap(),
+            format!(
+                "wrote the surface, {} vertices, {} triangles",
+                v.len(),
+                t.len()
+            )
+        );
+        let e = convert(&vtu, &dir.path().join("s.msh"), 1.0).unwrap_err();
+        assert!(e.to_string().contains("mesh its inside first"), "{e}");
+    }
+
+    /// Every problem is counted (12,000 unused vertices; 20 listed, the
+    /// table says how many more); a closed surface facing inward is inside
+    /// out; two crossing spheres intersect (inspect checks as from-surface
+    /// does).
+    #[test]
+    fn inspect_counts_every_problem_and_checks_orientation_and_intersections() {
+        use fissure_server::mesh::winding::{icosphere, join_surfaces};
+        let dir = tempfile::tempdir().unwrap();
+        let (mut v, mut t) = icosphere(nalgebra::Point3::origin(), 0.02, 2);
+        let n = v.len();
+        v.extend((0..12_000).map(|k| nalgebra::Point3::new(0.03 + k as f64 * 1e-6, 0.0, 0.0)));
+        let obj = dir.path().join("unused.obj");
+        io::write_surface(&obj, &v, &t).unwrap();
+        let r = inspect(&obj, &InspectOptions::default()).unwrap();
+        assert_eq!((r.problems_found, r.problems.len()), (12_000, 20));
+        assert!(r.table().contains("... 11980 more"), "{}", r.table());
+        v.truncate(n);
+        for tri in &mut t {
+            tri.swap(1, 2);
+        }
+        let flipped = dir.path().join("flipped.stl");
+        io::write_surface(&flipped, &v, &t).unwrap();
+        let r = inspect(&flipped, &InspectOptions::default()).unwrap();
+        assert!(r.volume_m3 < 0.0);
+        assert!(
+            matches!(r.problems.as_slice(), [Problem::InsideOut { .. }]),
+            "{:?}",
+            r.problems
+        );
+        assert!(r.table().contains("the surface is inside out"));
+        let (v1, t1) = icosphere(nalgebra::Point3::origin(), 0.02, 1);
+        let (v, t) = join_surfaces(
+            (v1, t1),
+            icosphere(nalgebra::Point3::new(0.01, 0.0, 0.0), 0.02, 1),
+        );
+        let crossing = dir.path().join("crossing.ply");
+        io::write_surface(&crossing, &v, &t).unwrap();
+        let r = inspect(&crossing, &InspectOptions::default()).unwrap();
+        assert!(r.problems_found > 0);
+        assert!(
+            r.problems
+                .iter()
+                .all(|p| matches!(p, Problem::SelfIntersection { .. })),
+            "{:?}",
+            r.problems
+        );
+    }
+
+    /// A 20 mm sphere written in millimetres: from-surface refuses it with
+    /// "this looks like millimetres: use --scale 0.001" before meshing, and
+    /// meshes it with --scale 0.001; a volume in millimetres is a problem for
+    /// inspect (with the scale), none with --scale 0.001, and convert
+    /// --scale 0.001 writes it in metres.
+    #[test]
+    fn files_in_millimetres_are_named_and_scale_converts_them() {
+        use fissure_server::mesh::winding::icosphere;
+        let dir = tempfile::tempdir().unwrap();
+        let (v, t) = icosphere(nalgebra::Point3::origin(), 20.0, 3);
+        let obj = dir.path().join("sphere-mm.obj");
+        io::write_surface(&obj, &v, &t).unwrap();
+        let e = from_surface(&obj, 0.003, 1, 1.0).unwrap_err().to_string();
+        assert!(
+            e.contains("sphere-mm.obj")
+                && e.ends_with("this looks like millimetres: use --scale 0.001"),
+            "{e}"
+        );
+        let meshed = from_surface(&obj, 0.003, 1, 0.001).unwrap();
+        assert!(meshed.repair.is_empty() && !meshed.inside_out);
+        let volume: f64 = (0..meshed.mesh.tets.len())
+            .map(|e| meshed.mesh.signed_volume(e))
+            .sum();
+        let sphere = 4.0 / 3.0 * std::f64::consts::PI * 0.02f64.powi(3);
+        assert!((volume / sphere - 1.0).abs() < 0.05, "{volume}");
+
+        let mut mm = meshed.mesh.clone();
+        units::scale_points(&mut mm.nodes, 1000.0);
+        let vtu = dir.path().join("volume-mm.vtu");
+        io::write_volume(&vtu, &mm).unwrap();
+        let r = inspect(&vtu, &InspectOptions::default()).unwrap();
+        match r.problems.as_slice() {
+            [Problem::ImplausibleSize(u)] => assert_eq!((u.unit, u.scale), ("millimetres", 1e-3)),
+            other => panic!("{other:?}"),
+        }
+        let opts = InspectOptions {
+            scale: 1e-3,
+            ..Default::default()
+        };
+        assert_eq!(inspect(&vtu, &opts).unwrap().problems_found, 0);
+        let metres = dir.path().join("volume-m.msh");
+        convert(&vtu, &metres, 1e-3).unwrap();
+        let r = inspect(&metres, &InspectOptions::default()).unwrap();
+        assert_eq!(r.problems_found, 0, "{:?}", r.problems);
+        assert!((r.bounding_box_m[1][0] - 0.02).abs() < 1e-3, "{r:?}");
+    }
+
+    /// paper-34k: the graded mesher pinches its boundary at four edges (a
+    /// fissure wall closer to another surface than the lattice resolves);
+    /// generate repairs and reports it, and the file has no problem.
+    #[test]
+    fn a_pinched_phantom_is_repaired_and_reported() {
+        let dir = tempfile::tempdir().unwrap();
+        let vtu = dir.path().join("p34.vtu");
+        let opts = PresetOptions {
+            size_m: 0.05,
+            cells: 8,
+            proven: false,
+        };
+        let (mesh, repair) = generate("paper-34k", &vtu, &opts).unwrap();
+        assert_eq!(
+            (repair.pinched_edges, repair.pinched_nodes),
+            (4, 0),
+            "{repair}"
+        );
+        assert!(
+            repair.removed_volume_m3 < 1e-3 * repair.volume_m3,
+            "{repair}"
+        );
+        let r = inspect(&vtu, &InspectOptions::default()).unwrap();
+        assert_eq!(r.problems_found, 0, "{:?}", r.problems);
+        assert_eq!(r.tets, mesh.tets.len());
     }
 
     #[test]

@@ -9,6 +9,14 @@
 //!   (`frame-NNNNNN.png`);
 //! * an animated GIF of the session (`session.gif`).
 //!
+//! The files are completed (the `.pvd` index, the last PNG, the GIF) however
+//! the stream ends: the server shutting down, the connection failing,
+//! `--max-frames`, `--duration-s` or Ctrl-C. A task reads the stream as fast
+//! as it comes and keeps only the newest frame; the writer takes the newest
+//! each time it is ready, so a watcher slower than the simulation stays
+//! current and says how many frames it skipped ([`WatchReport::skipped`])
+//! instead of falling behind.
+//!
 //! The pictures come from the headless software rasteriser of
 //! [`crate::render`]; [`SessionView`] holds what they need (rest surface,
 //! instruments, a camera per scene) and is shared with `fissure demo`.
@@ -48,7 +56,8 @@ pub struct WatchArgs {
     #[arg(long)]
     pub max_frames: Option<usize>,
     /// Stop after this long, s (wall clock). Without a limit, watch until
-    /// the server ends the stream or Ctrl-C; the files are completed then.
+    /// the server ends the stream (or shuts down), the connection fails, or
+    /// Ctrl-C; the files are completed in every case.
     #[arg(long)]
     pub duration_s: Option<f64>,
     /// Image width, px (at least 320).
@@ -683,15 +692,76 @@ pub fn gif_delay_cs(dt_s: f64) -> u16 {
     }
 }
 
+/// How a watch ended.
+#[derive(Debug, Clone, PartialEq)]
+pub enum WatchEnd {
+    /// `--max-frames` frames were kept.
+    MaxFrames,
+    /// `--duration-s` passed.
+    Duration,
+    /// Ctrl-C.
+    Interrupted,
+    /// The server ended the stream.
+    ServerEnded,
+    /// The server shut down (`UNAVAILABLE`, "the server is shutting down").
+    ServerShutDown,
+    /// The stream failed (connection lost, another status): the message.
+    Failed(String),
+}
+
+impl std::fmt::Display for WatchEnd {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::MaxFrames => write!(f, "--max-frames reached"),
+            Self::Duration => write!(f, "--duration-s passed"),
+            Self::Interrupted => write!(f, "interrupted"),
+            Self::ServerEnded => write!(f, "the server ended the stream"),
+            Self::ServerShutDown => write!(f, "the server shut down"),
+            Self::Failed(why) => write!(f, "the stream failed: {why}"),
+        }
+    }
+}
+
 /// What `fissure watch` wrote.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone)]
 pub struct WatchReport {
-    /// Frames received and kept.
+    /// Frames taken from the stream (the newest each time the writer was
+    /// ready).
     pub received: usize,
-    /// Frames kept (every Nth).
+    /// Frames kept (every Nth of those received).
     pub kept: usize,
+    /// Frame numbers between the first and the last frame received that
+    /// were never received: skipped by the server (latest-wins) or replaced
+    /// by a newer one before the writer was ready.
+    pub skipped: u64,
+    /// Numbers of the first and the last frame received.
+    pub frames: Option<(u64, u64)>,
+    /// Why the watch ended.
+    pub ended: WatchEnd,
     /// Files written.
     pub files: Vec<PathBuf>,
+}
+
+/// Reads `stream` into a latest-wins slot until it ends; returns how.
+async fn receive(
+    mut stream: tonic::Streaming<pb::DeformationFrame>,
+    slot: tokio::sync::watch::Sender<Option<pb::DeformationFrame>>,
+) -> WatchEnd {
+    loop {
+        match stream.message().await {
+            Ok(Some(f)) => {
+                slot.send_replace(Some(f));
+            }
+            Ok(None) => return WatchEnd::ServerEnded,
+            Err(status)
+                if status.code() == tonic::Code::Unavailable
+                    && status.message().contains("shutting down") =>
+            {
+                return WatchEnd::ServerShutDown;
+            }
+            Err(status) => return WatchEnd::Failed(status.to_string()),
+        }
+    }
 }
 
 /// Runs `fissure watch`.
@@ -716,7 +786,7 @@ pub async fn run(args: &WatchArgs) -> anyhow::Result<WatchReport> {
     if let Some(e) = args.elevation_deg {
         view.camera.elevation_deg = e;
     }
-    let mut stream = client
+    let stream = client
         .watch(pb::WatchRequest {
             include_positions: true,
         })
@@ -727,7 +797,16 @@ pub async fn run(args: &WatchArgs) -> anyhow::Result<WatchReport> {
     let mut gif_renderer = FrameRenderer::new(args.width.min(640), args.height.min(427))?;
     let mut series = VtuSeries::new(&args.out, "surface");
     let mut gif = GifBuffer::new(args.gif_frames);
-    let mut report = WatchReport::default();
+    let (slot, mut latest) = tokio::sync::watch::channel(None);
+    let receiver = tokio::spawn(receive(stream, slot));
+    let mut report = WatchReport {
+        received: 0,
+        kept: 0,
+        skipped: 0,
+        frames: None,
+        ended: WatchEnd::ServerEnded,
+        files: Vec::new(),
+    };
     let mut max_mm: f64 = 0.0;
     let mut last: Option<pb::DeformationFrame> = None;
     let mut times = Vec::new();
@@ -736,26 +815,32 @@ pub async fn run(args: &WatchArgs) -> anyhow::Result<WatchReport> {
         .map(|d| Instant::now() + Duration::from_secs_f64(d.max(0.0)));
     let ctrl_c = tokio::signal::ctrl_c();
     tokio::pin!(ctrl_c);
-    loop {
-        let next = async {
+    let mut ended = None;
+    while ended.is_none() {
+        let timeout = async {
             match deadline {
-                Some(d) => tokio::time::timeout_at(d.into(), stream.message())
-                    .await
-                    .ok(),
-                None => Some(stream.message().await),
+                Some(d) => tokio::time::sleep_until(d.into()).await,
+                None => std::future::pending().await,
             }
         };
         let frame = tokio::select! {
-            r = next => match r {
-                None => break,
-                Some(r) => match r.context("reading a frame")? {
-                    Some(f) => f,
-                    None => break,
-                },
+            changed = latest.changed() => match changed {
+                Ok(()) => latest.borrow_and_update().clone(),
+                // The stream ended and its last frame was taken.
+                Err(_) => break,
             },
-            _ = &mut ctrl_c => break,
+            _ = timeout => { ended = Some(WatchEnd::Duration); None }
+            _ = &mut ctrl_c => { ended = Some(WatchEnd::Interrupted); None }
         };
+        let Some(frame) = frame else { continue };
         report.received += 1;
+        report.frames = Some(match report.frames {
+            None => (frame.frame, frame.frame),
+            Some((first, prev)) => {
+                report.skipped += frame.frame.saturating_sub(prev + 1);
+                (first, frame.frame.max(prev))
+            }
+        });
         if (report.received as u64 - 1) % args.every != 0 {
             continue;
         }
@@ -780,10 +865,18 @@ pub async fn run(args: &WatchArgs) -> anyhow::Result<WatchReport> {
         times.push(frame.sim_time_s);
         last = Some(frame);
         if args.max_frames.is_some_and(|m| report.kept >= m) {
-            break;
+            ended = Some(WatchEnd::MaxFrames);
         }
     }
-    drop(stream);
+    report.ended = match ended {
+        Some(e) => {
+            receiver.abort();
+            e
+        }
+        None => receiver
+            .await
+            .unwrap_or_else(|e| WatchEnd::Failed(e.to_string())),
+    };
     if let Some(frame) = &last {
         if !args.png_all && report.kept > 1 {
             let range_mm = args.range_mm.unwrap_or(max_mm.max(0.1));
@@ -814,15 +907,31 @@ pub async fn run(args: &WatchArgs) -> anyhow::Result<WatchReport> {
         )?;
         report.files.push(path);
     }
+    let span = report
+        .frames
+        .map_or(String::new(), |(a, b)| format!(" (frames {a}..{b})"));
+    let skipped = if report.skipped > 0 {
+        " (latest-wins: frames came faster than this watcher wrote them)"
+    } else {
+        ""
+    };
     println!(
-        "{} frames received, {} kept; {} VTU files (+ surface.pvd) in {}",
+        "{}: {} frames received{span}, {} kept, {} skipped{skipped}; {} VTU files (+ surface.pvd) in {}",
+        report.ended,
         report.received,
         report.kept,
+        report.skipped,
         series.len(),
         args.out.display()
     );
     for f in &report.files {
         println!("  {}", f.display());
+    }
+    if let WatchEnd::Failed(why) = &report.ended {
+        anyhow::bail!(
+            "the frame stream failed: {why} (the files written so far are completed, {} of them)",
+            report.files.len()
+        );
     }
     Ok(report)
 }

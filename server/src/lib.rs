@@ -16,12 +16,14 @@
 //! * [`scene`]: scene files (TOML) that say what is modelled.
 //! * [`sim`]: the force loop and the deformation loop, shared state, recording.
 //! * [`service`]: the tonic adapter of `fissure.v1`.
+//! * [`progress`]: progress events of long work (scene loading).
 //!
 //! Units are SI throughout: m, Pa, N, s.
 
 pub mod collide;
 pub mod fem;
 pub mod mesh;
+pub mod progress;
 pub mod scene;
 pub mod service;
 pub mod sim;

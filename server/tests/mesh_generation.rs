@@ -155,7 +155,8 @@ fn closed_box_surface_meshes_to_its_volume() {
             rate: 0.0,
         },
     )
-    .expect("meshes");
+    .expect("meshes")
+    .mesh;
     let vol: f64 = (0..m.tets.len()).map(|t| m.signed_volume(t)).sum();
     let exact = 0.04 * 0.03 * 0.02;
     // Stuffing rounds the box's edges and corners at the scale of the spacing.

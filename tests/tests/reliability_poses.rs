@@ -80,7 +80,7 @@ async fn invalid_values_are_rejected_and_change_nothing() -> anyhow::Result<()> 
         ("orientation", pose(0.001, 10, p, [1.0, 1.0, 1.0, 1.0])),
         // Norm 1.002: outside the 1e-3 tolerance.
         ("orientation", pose(0.001, 11, p, [1.002, 0.0, 0.0, 0.0])),
-        // Subnormal quaternion: its norm is 0, not 1.
+        // Subnormal quaternion: its norm is 1e-310, not 1.
         ("orientation", pose(0.001, 12, p, [1e-310, 0.0, 0.0, 0.0])),
         (
             "orientation",

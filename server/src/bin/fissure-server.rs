@@ -26,8 +26,9 @@ struct Args {
     /// use with --token and TLS).
     #[arg(long)]
     allow_remote: bool,
-    /// Bearer token clients must send (`authorization: Bearer <token>`) to claim
-    /// an instrument. Also read from FISSURE_TOKEN.
+    /// Bearer token clients must send (`authorization: Bearer <token>`) with the
+    /// calls that change the simulation: Haptic (claiming an instrument) and
+    /// Reset. The calls that only read need none. Also read from FISSURE_TOKEN.
     #[arg(long, env = "FISSURE_TOKEN", hide_env_values = true)]
     token: Option<String>,
     /// TLS certificate chain (PEM). Requires --tls-key.
@@ -45,7 +46,8 @@ struct Args {
     /// Append the session (poses, forces, frame summaries) to this recording file.
     #[arg(long)]
     record: Option<PathBuf>,
-    /// Largest number of concurrent watchers.
+    /// Largest number of concurrent watchers (Watch streams); one more is
+    /// refused with RESOURCE_EXHAUSTED naming this limit.
     #[arg(long, default_value_t = 16)]
     max_watchers: usize,
     /// Nice value of the deformation thread and its pool (Linux; 0: unchanged).

@@ -8,10 +8,12 @@ pub mod adjacency;
 pub mod blocks;
 pub mod from_surface;
 pub mod io;
+pub mod manifold;
 pub mod phantom;
 pub mod quality;
 pub mod sdf;
 pub mod stuffing;
+pub mod units;
 pub mod validate;
 pub mod winding;
 
@@ -134,6 +136,20 @@ impl TetMesh {
             to_volume,
         }
     }
+}
+
+/// The volume a closed triangle surface encloses, m^3 (vertices in m), by the
+/// divergence theorem: the sum over triangles `(a, b, c)` of
+/// `a . (b x c) / 6`. Positive for an outward (counter-clockwise seen from
+/// outside) surface, negative for one that is inside out.
+pub fn enclosed_volume(vertices: &[Point3<f64>], triangles: &[[u32; 3]]) -> f64 {
+    triangles
+        .iter()
+        .map(|t| {
+            let [a, b, c] = t.map(|i| vertices[i as usize].coords);
+            a.dot(&b.cross(&c)) / 6.0
+        })
+        .sum()
 }
 
 /// The boundary surface of a [`TetMesh`].

@@ -54,6 +54,9 @@ pub enum PhantomError {
     /// The mesher failed.
     #[error("meshing the phantom: {0}")]
     Stuffing(#[from] StuffingError),
+    /// The mesh's boundary could not be made a closed manifold.
+    #[error("meshing the phantom: {0}")]
+    Boundary(#[from] crate::mesh::manifold::BoundaryError),
 }
 
 /// A fissure as seen by an instrument: where it opens and how it lies.
@@ -88,8 +91,14 @@ pub struct Landmarks {
 /// A meshed phantom and its landmarks.
 #[derive(Debug, Clone)]
 pub struct Phantom {
+    /// The mesh, m; its boundary is a closed manifold.
     pub mesh: TetMesh,
+    /// Where the fissures and the fixed region are.
     pub landmarks: Landmarks,
+    /// How the mesher's output was repaired to make its boundary a closed
+    /// manifold (where a fissure wall comes closer to another surface than
+    /// the lattice resolves; paper-34k has four such edges).
+    pub repair: crate::mesh::manifold::BoundaryRepair,
 }
 
 /// Fissure sizes (m).
@@ -401,14 +410,24 @@ pub fn generate_with(params: &PhantomParams) -> Result<Phantom, PhantomError> {
         let to_gap = shape.fissures(p).max(0.0);
         surface.size(p, f).min(fissure.size(p, to_gap))
     };
+    crate::progress::stage(format_args!(
+        "meshing the brain phantom (isosurface stuffing{}, spacing {} m)",
+        if params.proven { ", proven" } else { "" },
+        params.spacing
+    ));
     let mesh = if params.proven {
         stuffing::stuff_proven(&shape, &lattice, &fissure)?
     } else {
         stuffing::stuff(&shape, &lattice, &size)?
     };
+    let (mesh, repair) = crate::mesh::manifold::repair_boundary(mesh)?;
+    if !repair.is_empty() {
+        tracing::info!("brain phantom: {repair}");
+    }
     Ok(Phantom {
         mesh,
         landmarks: shape.landmarks(),
+        repair,
     })
 }
 

@@ -3,6 +3,9 @@
 //!
 //! Checks, on raw connectivity (so that files that [`super::TetMesh::new`]
 //! would reject can still be inspected):
+//! * a size implausible for metres: the bounding box longer than
+//!   [`ValidateOptions::max_extent_m`] (the model is probably in mm, see
+//!   [`super::units`]);
 //! * node indices out of range and non-finite coordinates;
 //! * inverted tetrahedra (signed volume `< 0`) and degenerate ones: the
 //!   normalised volume `6 sqrt(2) |V| / l_rms^3` (1 for the regular
@@ -16,6 +19,14 @@
 //! * duplicate nodes: two nodes closer than [`ValidateOptions::duplicate_tolerance`]
 //!   (m), found with a uniform hash grid of that cell size;
 //! * unused nodes (in no tetrahedron).
+//!
+//! Surfaces ([`validate_surface`]) get the same size, boundary, duplicate and
+//! unused checks, plus degenerate triangles, inconsistently oriented
+//! neighbours, an inside-out orientation (a closed surface enclosing a
+//! negative volume: its normals point inward) and self-intersections.
+//!
+//! Every problem is counted ([`Findings::total`]); the first
+//! [`ValidateOptions::max_problems`] are kept in the list.
 
 use super::TetMesh;
 use super::adjacency::TET_FACES;
@@ -30,9 +41,13 @@ pub struct ValidateOptions {
     /// A tetrahedron whose normalised volume is below this is degenerate.
     /// Default 1e-6.
     pub degenerate_ratio: f64,
-    /// Stop after this many problems (a broken file can have millions).
-    /// Default 10,000.
+    /// Keep this many problems in the list (a broken file can have
+    /// millions); all are counted. Default 10,000.
     pub max_problems: usize,
+    /// A model whose bounding box is longer than this (m) is reported as
+    /// [`Problem::ImplausibleSize`]. Default [`super::units::MAX_MODEL_EXTENT_M`]
+    /// (1 m); infinite turns the check off.
+    pub max_extent_m: f64,
 }
 
 impl Default for ValidateOptions {
@@ -41,6 +56,7 @@ impl Default for ValidateOptions {
             duplicate_tolerance: 1e-9,
             degenerate_ratio: 1e-6,
             max_problems: 10_000,
+            max_extent_m: super::units::MAX_MODEL_EXTENT_M,
         }
     }
 }
@@ -49,6 +65,12 @@ impl Default for ValidateOptions {
 #[derive(Debug, Clone, PartialEq, thiserror::Error, serde::Serialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]
 pub enum Problem {
+    /// The model is too large to be in metres.
+    #[error(
+        "{0}: a scale of {scale} converts it to metres (`--scale {scale}`, or `scale = {scale}` in a scene's [model])",
+        scale = .0.scale
+    )]
+    ImplausibleSize(super::units::ImplausibleSize),
     /// A tetrahedron names a node that does not exist.
     #[error("tetrahedron {tet} refers to node {node}, but the mesh has {nodes} nodes")]
     NodeOutOfRange { tet: usize, node: u32, nodes: usize },
@@ -110,6 +132,27 @@ pub enum Problem {
     /// their orientations disagree.
     #[error("edge {edge:?} is used twice in the same direction (inconsistent orientation)")]
     InconsistentOrientation { edge: [u32; 2] },
+    /// A closed surface whose triangles are ordered clockwise seen from
+    /// outside: the volume it encloses by the divergence theorem is negative.
+    #[error(
+        "the surface is inside out: its triangles face inward (enclosed volume {volume_m3:e} m^3); \
+         reverse their vertex order"
+    )]
+    InsideOut { volume_m3: f64 },
+    /// Two triangles of a surface intersect (other than along the edge or
+    /// at the vertex they share).
+    #[error("triangles {first} and {second} intersect")]
+    SelfIntersection { first: usize, second: usize },
+}
+
+/// The problems found: all counted, the first kept.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Findings {
+    /// The first [`ValidateOptions::max_problems`] problems, in the order of
+    /// the checks.
+    pub problems: Vec<Problem>,
+    /// Every problem found.
+    pub total: usize,
 }
 
 /// Validates a [`TetMesh`].
@@ -117,14 +160,18 @@ pub fn validate_mesh(mesh: &TetMesh, opts: &ValidateOptions) -> Vec<Problem> {
     validate(&mesh.nodes, &mesh.tets, opts)
 }
 
-/// Validates raw nodes (m) and tetrahedra. Problems come in the order of the
-/// list in the module doc, each kind in increasing element or node order, at
-/// most `opts.max_problems` of them.
+/// Validates raw nodes (m) and tetrahedra: the first `opts.max_problems`
+/// problems of [`findings`].
 pub fn validate(nodes: &[Point3<f64>], tets: &[[u32; 4]], opts: &ValidateOptions) -> Vec<Problem> {
-    let mut out = Problems {
-        list: Vec::new(),
-        max: opts.max_problems,
-    };
+    findings(nodes, tets, opts).problems
+}
+
+/// Validates raw nodes (m) and tetrahedra. Problems come in the order of the
+/// list in the module doc, each kind in increasing element or node order;
+/// all are counted, the first `opts.max_problems` kept.
+pub fn findings(nodes: &[Point3<f64>], tets: &[[u32; 4]], opts: &ValidateOptions) -> Findings {
+    let mut out = Problems::new(opts.max_problems);
+    check_extent(nodes, opts.max_extent_m, &mut out);
     let n = nodes.len();
     let finite: Vec<bool> = nodes
         .iter()
@@ -181,12 +228,51 @@ pub fn validate(nodes: &[Point3<f64>], tets: &[[u32; 4]], opts: &ValidateOptions
         }
     }
 
+    let usable: Vec<[u32; 4]> = tets
+        .iter()
+        .zip(&good)
+        .filter(|(_, g)| **g)
+        .map(|(t, _)| *t)
+        .collect();
+    check_topology(&usable, &mut out);
+
+    check_duplicates(nodes, &finite, opts.duplicate_tolerance, &mut out);
+    check_unused(n, tets, &mut out);
+    out.finish()
+}
+
+/// Nodes of `0..n` that no element uses.
+fn check_unused<const K: usize>(n: usize, elements: &[[u32; K]], out: &mut Problems) {
+    let mut used = vec![false; n];
+    for e in elements {
+        for &i in e {
+            if let Some(u) = used.get_mut(i as usize) {
+                *u = true;
+            }
+        }
+    }
+    for (node, u) in used.iter().enumerate() {
+        if !u {
+            out.push(Problem::UnusedNode { node });
+        }
+    }
+}
+
+/// The topology checks of tetrahedra whose node indices are in range and
+/// distinct: faces shared by more than two of them, then the boundary
+/// surface's open and non-manifold edges and non-manifold vertices (node
+/// indices of the mesh). A mesh whose boundary is a closed 2-manifold has
+/// none of these.
+pub fn boundary_findings(tets: &[[u32; 4]], max_problems: usize) -> Findings {
+    let mut out = Problems::new(max_problems);
+    check_topology(tets, &mut out);
+    out.finish()
+}
+
+fn check_topology(tets: &[[u32; 4]], out: &mut Problems) {
     // Faces: count uses; the boundary is the faces used once.
     let mut faces: HashMap<[u32; 3], (u32, [u32; 3])> = HashMap::with_capacity(2 * tets.len());
-    for (tet, t) in tets.iter().enumerate() {
-        if !good[tet] {
-            continue;
-        }
+    for t in tets {
         for f in TET_FACES {
             let tri = [t[f[0]], t[f[1]], t[f[2]]];
             let mut key = tri;
@@ -212,39 +298,38 @@ pub fn validate(nodes: &[Point3<f64>], tets: &[[u32; 4]], opts: &ValidateOptions
         b
     };
 
-    check_surface(&boundary, &mut out);
-
-    check_duplicates(nodes, &finite, opts.duplicate_tolerance, &mut out);
-
-    let mut used = vec![false; n];
-    for t in tets {
-        for &i in t {
-            if let Some(u) = used.get_mut(i as usize) {
-                *u = true;
-            }
-        }
-    }
-    for (node, u) in used.iter().enumerate() {
-        if !u {
-            out.push(Problem::UnusedNode { node });
-        }
-    }
-    out.list
+    check_surface(&boundary, out);
 }
 
-/// Validates a triangle surface (vertices in m): out-of-range and degenerate
-/// triangles, open and non-manifold edges, non-manifold vertices,
-/// inconsistently oriented neighbours, duplicate and unused vertices. A
-/// surface that bounds a solid has none of these.
+fn check_extent(points: &[Point3<f64>], max_extent_m: f64, out: &mut Problems) {
+    if let Err(e) = super::units::check_extent(points, max_extent_m) {
+        out.push(Problem::ImplausibleSize(e));
+    }
+}
+
+/// Validates a triangle surface (vertices in m): the first
+/// `opts.max_problems` problems of [`surface_findings`].
 pub fn validate_surface(
     vertices: &[Point3<f64>],
     triangles: &[[u32; 3]],
     opts: &ValidateOptions,
 ) -> Vec<Problem> {
-    let mut out = Problems {
-        list: Vec::new(),
-        max: opts.max_problems,
-    };
+    surface_findings(vertices, triangles, opts).problems
+}
+
+/// Validates a triangle surface (vertices in m): an implausible size,
+/// out-of-range and degenerate triangles, open and non-manifold edges,
+/// non-manifold vertices, inconsistently oriented neighbours, an inside-out
+/// orientation (checked on a closed, manifold, consistently oriented
+/// surface), self-intersections (on in-range triangles), duplicate and unused
+/// vertices. A surface that bounds a solid, outward, has none of these.
+pub fn surface_findings(
+    vertices: &[Point3<f64>],
+    triangles: &[[u32; 3]],
+    opts: &ValidateOptions,
+) -> Findings {
+    let mut out = Problems::new(opts.max_problems);
+    check_extent(vertices, opts.max_extent_m, &mut out);
     let n = vertices.len();
     let finite: Vec<bool> = vertices
         .iter()
@@ -282,7 +367,9 @@ pub fn validate_surface(
             good.push(*t);
         }
     }
+    let before = out.total;
     check_surface(&good, &mut out);
+    let manifold = out.total == before;
     let mut directed: HashMap<(u32, u32), usize> = HashMap::with_capacity(3 * good.len());
     for t in &good {
         for k in 0..3 {
@@ -296,24 +383,25 @@ pub fn validate_surface(
         .collect();
     twice.sort_unstable();
     twice.dedup();
+    let oriented = twice.is_empty();
     for edge in twice {
         out.push(Problem::InconsistentOrientation { edge });
     }
+    let all_finite = finite.iter().all(|f| *f);
+    if manifold && oriented && all_finite && !good.is_empty() {
+        let volume_m3 = super::enclosed_volume(vertices, &good);
+        if volume_m3 < 0.0 {
+            out.push(Problem::InsideOut { volume_m3 });
+        }
+    }
+    if all_finite && good.len() == triangles.len() {
+        for (first, second) in super::from_surface::intersections(vertices, triangles) {
+            out.push(Problem::SelfIntersection { first, second });
+        }
+    }
     check_duplicates(vertices, &finite, opts.duplicate_tolerance, &mut out);
-    let mut used = vec![false; n];
-    for t in triangles {
-        for &i in t {
-            if let Some(u) = used.get_mut(i as usize) {
-                *u = true;
-            }
-        }
-    }
-    for (node, u) in used.iter().enumerate() {
-        if !u {
-            out.push(Problem::UnusedNode { node });
-        }
-    }
-    out.list
+    check_unused(n, triangles, &mut out);
+    out.finish()
 }
 
 /// Boundary-surface checks shared by volume and surface validation: open and
@@ -438,16 +526,33 @@ fn count_fans(v: u32, tris: &[u32], boundary: &[[u32; 3]]) -> usize {
         .count()
 }
 
-/// The problem list with a cap.
+/// The problem list with a cap on what is kept; everything is counted.
 struct Problems {
     list: Vec<Problem>,
     max: usize,
+    total: usize,
 }
 
 impl Problems {
+    fn new(max: usize) -> Self {
+        Self {
+            list: Vec::new(),
+            max,
+            total: 0,
+        }
+    }
+
     fn push(&mut self, p: Problem) {
+        self.total += 1;
         if self.list.len() < self.max {
             self.list.push(p);
+        }
+    }
+
+    fn finish(self) -> Findings {
+        Findings {
+            problems: self.list,
+            total: self.total,
         }
     }
 }
@@ -457,8 +562,77 @@ mod tests {
     use super::*;
     use crate::mesh::blocks::cube;
 
+    /// The defaults, without the size check (these meshes are 1 to 2 m).
     fn opts() -> ValidateOptions {
-        ValidateOptions::default()
+        ValidateOptions {
+            max_extent_m: f64::INFINITY,
+            ..Default::default()
+        }
+    }
+
+    /// A 2 m cube is reported as too large for metres (first), with the
+    /// scale; at 1 m and with the check off it is not; every problem is
+    /// counted beyond the list's cap.
+    #[test]
+    fn implausible_sizes_are_reported_and_every_problem_counted() {
+        let mesh = cube(2.0, 1);
+        let p = validate_mesh(&mesh, &ValidateOptions::default());
+        match p.as_slice() {
+            [Problem::ImplausibleSize(e)] => assert_eq!((e.unit, e.scale), ("centimetres", 0.01)),
+            other => panic!("{other:?}"),
+        }
+        assert!(p[0].to_string().contains("`--scale 0.01`"), "{}", p[0]);
+        assert_eq!(
+            validate_mesh(&cube(1.0, 1), &ValidateOptions::default()),
+            vec![]
+        );
+        assert_eq!(validate_mesh(&mesh, &opts()), vec![]);
+        // 30 unused nodes, a list capped at 10: all 30 counted.
+        let mut nodes = cube(0.01, 1).nodes;
+        nodes.extend((0..30).map(|k| Point3::new(0.1 + k as f64 * 1e-3, 0.0, 0.0)));
+        let f = findings(
+            &nodes,
+            &cube(0.01, 1).tets,
+            &ValidateOptions {
+                max_problems: 10,
+                ..Default::default()
+            },
+        );
+        assert_eq!((f.problems.len(), f.total), (10, 30));
+    }
+
+    /// A closed surface facing inward is inside out (with its negative
+    /// volume); two crossing spheres intersect, every crossing pair listed.
+    #[test]
+    fn inside_out_and_self_intersecting_surfaces_are_problems() {
+        use crate::mesh::winding::{icosphere, join_surfaces};
+        let (v, mut f) = icosphere(Point3::origin(), 0.03, 1);
+        assert_eq!(validate_surface(&v, &f, &opts()), vec![]);
+        for t in &mut f {
+            t.swap(1, 2);
+        }
+        match validate_surface(&v, &f, &opts()).as_slice() {
+            [Problem::InsideOut { volume_m3 }] => assert!(*volume_m3 < 0.0),
+            other => panic!("{other:?}"),
+        }
+        let (v1, f1) = icosphere(Point3::origin(), 0.03, 1);
+        let f1_len = f1.len();
+        let (v, f) = join_surfaces((v1, f1), icosphere(Point3::new(0.02, 0.0, 0.0), 0.03, 1));
+        let p = validate_surface(&v, &f, &opts());
+        let pairs: Vec<(usize, usize)> = p
+            .iter()
+            .filter_map(|x| match x {
+                Problem::SelfIntersection { first, second } => Some((*first, *second)),
+                _ => None,
+            })
+            .collect();
+        assert!(pairs.len() > 10, "{p:?}");
+        assert!(pairs.iter().all(|&(a, b)| a < f1_len && b >= f1_len));
+        assert_eq!(
+            pairs.first().copied(),
+            crate::mesh::from_surface::first_intersection(&v, &f)
+        );
+        assert_eq!(pairs.len(), p.len(), "only intersections: {p:?}");
     }
 
     #[test]

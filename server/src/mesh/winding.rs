@@ -373,6 +373,20 @@ pub fn closest_on_triangle(p: &Point3<f64>, t: &[Point3<f64>; 3]) -> Point3<f64>
     a + ab * v + ac * w
 }
 
+/// Two triangle surfaces as one: the vertices of `b` after those of `a`,
+/// its triangles renumbered (for tests and examples: several bodies, or
+/// bodies crossing each other, in one surface).
+pub fn join_surfaces(
+    a: (Vec<Point3<f64>>, Vec<[u32; 3]>),
+    b: (Vec<Point3<f64>>, Vec<[u32; 3]>),
+) -> (Vec<Point3<f64>>, Vec<[u32; 3]>) {
+    let (mut v, mut t) = a;
+    let n = v.len() as u32;
+    v.extend(b.0);
+    t.extend(b.1.iter().map(|x| x.map(|k| k + n)));
+    (v, t)
+}
+
 /// A closed, outward-oriented triangulation of a sphere (geodesic: an
 /// icosahedron subdivided `level` times and projected), for tests and examples.
 pub fn icosphere(

@@ -132,11 +132,21 @@ pub enum ModelSpec {
         #[serde(default)]
         proven: bool,
     },
-    /// A tetrahedral mesh file (MSH, VTK/VTU, TetGen), relative to the scene file.
+    /// A tetrahedral mesh file (MSH, VTK/VTU, TetGen), relative to the scene
+    /// file. Its boundary must be a closed manifold, and it must be at most
+    /// 1 m across once scaled.
     File {
         /// Path to the mesh.
         path: PathBuf,
+        /// Factor from the file's unit to metres (0.001 for a file in
+        /// millimetres). Default 1.
+        #[serde(default = "unit_scale")]
+        scale: f64,
     },
+}
+
+fn unit_scale() -> f64 {
+    1.0
 }
 
 /// Tissue material.
@@ -497,7 +507,7 @@ impl Scene {
             source,
         })?;
         let mut scene = Self::parse(&text, &path.display().to_string())?;
-        if let ModelSpec::File { path: mesh } = &mut scene.model {
+        if let ModelSpec::File { path: mesh, .. } = &mut scene.model {
             if mesh.is_relative() {
                 *mesh = path.parent().unwrap_or(Path::new(".")).join(&*mesh);
             }
@@ -539,6 +549,10 @@ impl Scene {
                 Err(bad(field, format!("must be finite, got {v:?}")))
             }
         };
+        if let ModelSpec::File { scale, .. } = &self.model {
+            crate::mesh::units::check_scale(*scale, "model.scale")
+                .map_err(|reason| bad("model.scale".into(), reason))?;
+        }
         if let ModelSpec::Cube { size_m, cells } = &self.model {
             positive("model.size_m", *size_m)?;
             if !(1..=64).contains(cells) {

@@ -1,7 +1,11 @@
 //! The tonic adapter of `fissure.v1`: moves messages, holds no logic.
 //!
-//! The service answers `UNAVAILABLE` until the scene is loaded and factorized
-//! (health reports `NOT_SERVING` until then). Each haptic stream gets its own
+//! The service answers `UNAVAILABLE` until the scene is loaded and factorized;
+//! health reports `NOT_SERVING` until then, for the server as a whole (`""`,
+//! what probes ask by default) and for `fissure.v1.Fissure`. With a token
+//! ([`ServeOptions::token`]), the calls that change the simulation (`Haptic`,
+//! `Reset`) need it; the calls that only read (`GetScene`, `GetSurface`,
+//! `Watch`, `GetStats`), health and reflection are open. Each haptic stream gets its own
 //! OS thread for its force loop: a 1 kHz loop should not share a scheduler
 //! with watchers' serialisation work. The stream itself is read by a task on
 //! the runtime, which hands decoded poses to the force loop through a
@@ -15,8 +19,21 @@
 //! so that the graceful HTTP/2 shutdown does not wait on clients that keep
 //! their streams open; connections still open after [`SHUTDOWN_GRACE`] are
 //! dropped.
+//!
+//! A haptic client that stops reading its force samples is not served
+//! forever into a growing queue: after [`MAX_UNREAD_ANSWERS`] answers it has
+//! not read, its stream ends with `RESOURCE_EXHAUSTED` (after the answers
+//! already queued) and the instrument is released; the server logs it. Its
+//! connection and the other streams on it keep working: the stream's pose
+//! reader keeps reading until then, and each stream's receive window is
+//! [`STREAM_RECEIVE_WINDOW_BYTES`], so that poses queued in the HTTP/2 layer
+//! stay within its limits (with the default 1 MiB window, about 3,000
+//! unread 100-byte poses made hyper's HTTP/2 layer end the whole connection
+//! with GOAWAY `ENHANCE_YOUR_CALM`, "too_many_data_frames").
 
 pub mod convert;
+pub mod monitor;
+pub mod reflection;
 pub mod transport;
 
 pub use transport::Transport;
@@ -31,13 +48,31 @@ use std::pin::Pin;
 use std::sync::{Arc, OnceLock};
 use std::time::Duration;
 use tokio_stream::wrappers::{ReceiverStream, WatchStream};
+use tonic::metadata::MetadataMap;
 use tonic::{Request, Response, Status, Streaming};
+use tonic_health::ServingStatus;
 
 /// Largest message accepted from a client, bytes (poses are ~100 bytes).
 pub const MAX_DECODING_MESSAGE_BYTES: usize = 64 * 1024;
 
 /// Largest message sent, bytes (a frame of a 16k-vertex surface is ~200 kB).
 pub const MAX_ENCODING_MESSAGE_BYTES: usize = 16 * 1024 * 1024;
+
+/// Answers (force samples and rejections) a haptic client may leave unread
+/// in the server's queue before its stream is ended with
+/// `RESOURCE_EXHAUSTED`: about a second at 1 kHz, beyond what its own HTTP/2
+/// window and the transport's buffers hold (with a 64 KiB window, about
+/// 1,500 answers of 90 bytes: the stream ends after about 2.5 s of not
+/// reading at 1 kHz). A client that pipelines its poses has a round trip's
+/// worth unread at any time (tens at 1 kHz), far below it.
+pub const MAX_UNREAD_ANSWERS: usize = 1024;
+
+/// HTTP/2 receive window of each stream, bytes: the poses a stream's reader
+/// has not taken yet that the HTTP/2 layer holds (about 700 poses). hyper's
+/// default (1 MiB) let small pose frames exhaust its per-connection budget
+/// for framing overhead (half the connection window) before flow control
+/// pushed back, and it then closed the connection.
+pub const STREAM_RECEIVE_WINDOW_BYTES: u32 = 64 * 1024;
 
 /// Longest wait, after the streams are ended, for connections to close at
 /// shutdown before they are dropped.
@@ -99,7 +134,8 @@ impl PoseBudget {
 /// How clients must authenticate and where the server listens.
 #[derive(Debug, Clone, Default)]
 pub struct ServeOptions {
-    /// Bearer token required to claim an instrument, if any.
+    /// Bearer token required by the calls that change the simulation
+    /// (`Haptic`, `Reset`), if any.
     pub token: Option<String>,
     /// TLS identity (PEM certificate chain and key), if TLS is on.
     pub tls: Option<(Vec<u8>, Vec<u8>)>,
@@ -145,23 +181,101 @@ impl FissureService {
             .ok_or_else(|| Status::unavailable("the scene is still loading"))
     }
 
-    fn check_token<T>(&self, req: &Request<T>) -> Result<(), Status> {
+    /// Checks the bearer token of a call that changes the simulation
+    /// (`call` names it in the error). The scheme is case-insensitive
+    /// (RFC 7235), one or more spaces separate it from the token; exactly
+    /// one `authorization` value is accepted.
+    fn check_token(&self, metadata: &MetadataMap, call: &str) -> Result<(), Status> {
         let Some(token) = &self.token else {
             return Ok(());
         };
-        let given = req
-            .metadata()
-            .get(AUTHORIZATION_METADATA_KEY)
-            .and_then(|v| v.to_str().ok())
-            .and_then(|v| v.strip_prefix("Bearer "));
+        let values: Vec<_> = metadata
+            .get_all(AUTHORIZATION_METADATA_KEY)
+            .iter()
+            .collect();
+        let value = match values.as_slice() {
+            [] => {
+                return Err(Status::unauthenticated(format!(
+                    "this server requires `authorization: Bearer <token>` for {call} \
+                     (the calls that change the simulation: Haptic, Reset)"
+                )));
+            }
+            [one] => *one,
+            many => {
+                return Err(Status::unauthenticated(format!(
+                    "{} `authorization` values given; send exactly one `Bearer <token>`",
+                    many.len()
+                )));
+            }
+        };
+        let given = value
+            .to_str()
+            .ok()
+            .and_then(|v| v.split_once(' '))
+            .filter(|(scheme, _)| scheme.eq_ignore_ascii_case("bearer"))
+            .map(|(_, t)| t.trim_start_matches(' '));
         match given {
             Some(g) if constant_time_eq(g.as_bytes(), token.as_bytes()) => Ok(()),
             Some(_) => Err(Status::unauthenticated("the bearer token is wrong")),
             None => Err(Status::unauthenticated(
-                "this server requires `authorization: Bearer <token>` to claim an instrument",
+                "the `authorization` value is not `Bearer <token>`",
             )),
         }
     }
+}
+
+/// The instrument a haptic stream claims: the single `fissure-instrument`
+/// value.
+fn instrument_name(metadata: &MetadataMap) -> Result<String, Status> {
+    let values: Vec<_> = metadata.get_all(INSTRUMENT_METADATA_KEY).iter().collect();
+    let value = match values.as_slice() {
+        [] => {
+            return Err(Status::invalid_argument(format!(
+                "the `{INSTRUMENT_METADATA_KEY}` metadata naming the instrument is missing"
+            )));
+        }
+        [one] => *one,
+        many => {
+            let names: Vec<String> = many
+                .iter()
+                .map(|v| format!("{:?}", v.to_str().unwrap_or("(not ASCII)")))
+                .collect();
+            return Err(Status::invalid_argument(format!(
+                "{} `{INSTRUMENT_METADATA_KEY}` values given ({}); a stream claims exactly one instrument",
+                many.len(),
+                names.join(", ")
+            )));
+        }
+    };
+    value
+        .to_str()
+        .map(str::to_owned)
+        .map_err(|_| Status::invalid_argument(format!("`{INSTRUMENT_METADATA_KEY}` is not ASCII")))
+}
+
+/// Queues one answer of a haptic stream; false when the stream is over: the
+/// client went away, or it left [`MAX_UNREAD_ANSWERS`] answers unread (then
+/// the last slot of the queue, kept for it, carries the status saying so).
+fn answer(
+    tx: &tokio::sync::mpsc::Sender<Result<pb::ForceSample, Status>>,
+    reply: pb::ForceSample,
+    instrument: &str,
+) -> bool {
+    if tx.capacity() > 1 {
+        return tx.try_send(Ok(reply)).is_ok();
+    }
+    tracing::warn!(
+        %instrument,
+        unread = MAX_UNREAD_ANSWERS,
+        "a haptic client stopped reading its force samples: its stream is ended \
+         (RESOURCE_EXHAUSTED) and the instrument released"
+    );
+    let _ = tx.try_send(Err(Status::resource_exhausted(format!(
+        "force samples not read: the client stopped reading its stream ({MAX_UNREAD_ANSWERS} \
+         answers queued beyond what its HTTP/2 window holds), so the stream is ended and \
+         instrument {instrument:?} released; read the answers as they come (one per pose)"
+    ))));
+    false
 }
 
 fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
@@ -192,11 +306,12 @@ impl Fissure for FissureService {
 
     async fn reset(
         &self,
-        _: Request<pb::ResetRequest>,
+        req: Request<pb::ResetRequest>,
     ) -> Result<Response<pb::ResetResponse>, Status> {
-        Ok(Response::new(pb::ResetResponse {
-            frame: self.sim()?.reset(),
-        }))
+        let sim = self.sim()?;
+        self.check_token(req.metadata(), "Reset")?;
+        tracing::info!(remote = ?req.remote_addr(), "reset: the tissue returns to rest");
+        Ok(Response::new(pb::ResetResponse { frame: sim.reset() }))
     }
 
     type HapticStream = BoxStream<pb::ForceSample>;
@@ -206,30 +321,21 @@ impl Fissure for FissureService {
         req: Request<Streaming<pb::PoseSample>>,
     ) -> Result<Response<Self::HapticStream>, Status> {
         let sim = self.sim()?.clone();
-        self.check_token(&req)?;
+        self.check_token(req.metadata(), "Haptic")?;
         if *self.stopping.borrow() {
             return Err(shutting_down());
         }
-        let name = req
-            .metadata()
-            .get(INSTRUMENT_METADATA_KEY)
-            .ok_or_else(|| {
-                Status::invalid_argument(format!(
-                    "the `{INSTRUMENT_METADATA_KEY}` metadata naming the instrument is missing"
-                ))
-            })?
-            .to_str()
-            .map_err(|_| {
-                Status::invalid_argument(format!("`{INSTRUMENT_METADATA_KEY}` is not ASCII"))
-            })?
-            .to_owned();
+        let name = instrument_name(req.metadata())?;
         let mut claim = sim.claim(&name).map_err(|e| match e {
             ClaimError::Unknown { .. } => Status::not_found(e.to_string()),
             ClaimError::Taken(_) => Status::already_exists(e.to_string()),
             ClaimError::ShuttingDown => Status::unavailable(e.to_string()),
         })?;
         let mut inbound = req.into_inner();
-        let (tx, rx) = tokio::sync::mpsc::channel::<Result<pb::ForceSample, Status>>(64);
+        // One slot more than the unread answers allowed: the last carries the
+        // status that ends the stream (see `answer`).
+        let (tx, rx) =
+            tokio::sync::mpsc::channel::<Result<pb::ForceSample, Status>>(MAX_UNREAD_ANSWERS + 1);
         let mut stopping = self.stopping.subscribe();
         let stopped = self.stopping.subscribe();
         let mut budget = (!sim.is_stepped())
@@ -271,7 +377,7 @@ impl Fissure for FissureService {
                             // E.g. a message over the size limit: the client
                             // gets the status, the claim is released.
                             tracing::debug!(instrument = %name, %status, "haptic stream ended with an error");
-                            let _ = tx.blocking_send(Err(status));
+                            let _ = tx.try_send(Err(status));
                             break;
                         }
                         Inbound::Stopping => {
@@ -290,7 +396,7 @@ impl Fissure for FissureService {
                                 b.rate_hz
                             ),
                         );
-                        if tx.blocking_send(Ok(reply)).is_err() {
+                        if !answer(&tx, reply, &name) {
                             break;
                         }
                         continue;
@@ -313,7 +419,7 @@ impl Fissure for FissureService {
                             convert::rejection(&msg, tonic::Code::InvalidArgument, e.to_string())
                         }
                     };
-                    if tx.blocking_send(Ok(reply)).is_err() {
+                    if !answer(&tx, reply, &name) {
                         break;
                     }
                 }
@@ -334,9 +440,13 @@ impl Fissure for FissureService {
             return Err(shutting_down());
         }
         let include = req.get_ref().include_positions;
-        let guard = sim
-            .watch()
-            .ok_or_else(|| Status::resource_exhausted("the server's watcher limit is reached"))?;
+        let guard = sim.watch().ok_or_else(|| {
+            let max = sim.max_watchers();
+            Status::resource_exhausted(format!(
+                "the server's watcher limit is reached: {max} watchers are connected, \
+                 at most {max} (`fissure-server --max-watchers`)"
+            ))
+        })?;
         let rx = guard.rx.clone();
         let mut stopping = self.stopping.subscribe();
         let stream = WatchStream::new(rx)
@@ -372,17 +482,20 @@ pub struct RunningServer {
 }
 
 impl RunningServer {
-    /// Makes the simulation available and reports SERVING.
+    /// Makes the simulation available and reports SERVING (for `""` and
+    /// `fissure.v1.Fissure`); starts the watch on the deformation loop's pace
+    /// ([`monitor`]).
     pub async fn set_simulation(&self, sim: Arc<Simulation>) {
-        self.service.set_simulation(sim);
-        self.health
-            .set_serving::<FissureServer<FissureService>>()
-            .await;
+        self.service.set_simulation(sim.clone());
+        set_health(&self.health, ServingStatus::Serving).await;
+        tokio::spawn(monitor::watch_pace(sim, self.service.stopping.subscribe()));
     }
 
     /// Ends the open streams, stops accepting calls and waits (at most
     /// [`SHUTDOWN_GRACE`]) for the connections to close; then drops them.
+    /// Health reports NOT_SERVING from the start of it.
     pub async fn shutdown(mut self) -> anyhow::Result<()> {
+        set_health(&self.health, ServingStatus::NotServing).await;
         self.service.stop_streams();
         if let Some(tx) = self.shutdown.take() {
             let _ = tx.send(());
@@ -401,8 +514,19 @@ impl RunningServer {
     }
 }
 
-/// Binds `addr` and serves `fissure.v1`, health and reflection. Health says
-/// NOT_SERVING until [`RunningServer::set_simulation`].
+/// The service names health answers for: the server as a whole (`""`, what
+/// probes ask when they name no service) and `fissure.v1.Fissure`.
+pub const HEALTH_SERVICES: [&str; 2] = ["", "fissure.v1.Fissure"];
+
+async fn set_health(health: &tonic_health::server::HealthReporter, status: ServingStatus) {
+    for name in HEALTH_SERVICES {
+        health.set_service_status(name, status).await;
+    }
+}
+
+/// Binds `addr` and serves `fissure.v1`, health and reflection (`v1` and
+/// `v1alpha`). Health says NOT_SERVING, for `""` and `fissure.v1.Fissure`,
+/// until [`RunningServer::set_simulation`].
 pub async fn serve(addr: SocketAddr, options: ServeOptions) -> anyhow::Result<RunningServer> {
     use anyhow::Context;
     let listener = tokio::net::TcpListener::bind(addr)
@@ -410,19 +534,19 @@ pub async fn serve(addr: SocketAddr, options: ServeOptions) -> anyhow::Result<Ru
         .with_context(|| format!("cannot listen on {addr}"))?;
     let addr = listener.local_addr()?;
     let (health, health_service) = tonic_health::server::health_reporter();
-    health
-        .set_not_serving::<FissureServer<FissureService>>()
-        .await;
-    let reflection = tonic_reflection::server::Builder::configure()
-        .register_encoded_file_descriptor_set(fissure_proto::FILE_DESCRIPTOR_SET)
-        .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
-        .build_v1()
-        .context("building the reflection service")?;
+    set_health(&health, ServingStatus::NotServing).await;
+    let reflection = reflection::Reflection::new(&[
+        fissure_proto::FILE_DESCRIPTOR_SET,
+        tonic_health::pb::FILE_DESCRIPTOR_SET,
+    ])
+    .context("building the reflection service")?;
     let service = FissureService::new(options.token.clone());
     let grpc = FissureServer::new(service.clone())
         .max_decoding_message_size(MAX_DECODING_MESSAGE_BYTES)
         .max_encoding_message_size(MAX_ENCODING_MESSAGE_BYTES);
-    let mut builder = tonic::transport::Server::builder().tcp_nodelay(true);
+    let mut builder = tonic::transport::Server::builder()
+        .tcp_nodelay(true)
+        .initial_stream_window_size(STREAM_RECEIVE_WINDOW_BYTES);
     if let Some((cert, key)) = &options.tls {
         builder = builder
             .tls_config(
@@ -434,7 +558,8 @@ pub async fn serve(addr: SocketAddr, options: ServeOptions) -> anyhow::Result<Ru
     let (tx, rx) = tokio::sync::oneshot::channel::<()>();
     let router = builder
         .add_service(health_service)
-        .add_service(reflection)
+        .add_service(reflection.v1())
+        .add_service(reflection.v1alpha())
         .add_service(grpc);
     let incoming = tokio_stream::wrappers::TcpListenerStream::new(listener).map(|s| {
         if let Ok(s) = &s {

@@ -111,9 +111,8 @@ impl Model {
                 landmarks = Some(p.landmarks);
                 p.mesh
             }
-            ModelSpec::File { path } => {
-                crate::mesh::io::read_volume(path).map_err(|e| SimError::Model(e.to_string()))?
-            }
+            ModelSpec::File { path, scale } => crate::mesh::io::read_model(path, *scale)
+                .map_err(|e| SimError::Model(e.to_string()))?,
         };
         let mut regions = Vec::with_capacity(scene.fixed.len());
         for r in &scene.fixed {

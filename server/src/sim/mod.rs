@@ -266,6 +266,8 @@ impl Simulation {
     /// Builds the model and the solver, publishes the rest state as frame 0 and
     /// starts the loop thread.
     pub fn start(mut scene: Scene, options: SimOptions) -> Result<Arc<Self>, SimError> {
+        let loading = Instant::now();
+        crate::progress::stage(format_args!("scene {}: building the model", scene.name));
         let model = Arc::new(Model::build(&scene)?);
         let stepped = options.stepped.unwrap_or(scene.loops.stepped);
         // The scene as run: GetScene and the recording header report the
@@ -279,6 +281,13 @@ impl Simulation {
         } else {
             ColumnPolicy::Defer
         };
+        crate::progress::stage(format_args!(
+            "scene {}: setting up the {} solver ({} nodes, {} tetrahedra)",
+            scene.name,
+            scene.solver.strategy.name(),
+            model.mesh.nodes.len(),
+            model.mesh.tets.len()
+        ));
         let mut engine = StepEngine::new(&scene, model.clone(), columns, Some(hook), None)?;
         let recorder = match &options.recording {
             Some(path) => Some(
@@ -363,6 +372,11 @@ impl Simulation {
             })
             .map_err(|e| SimError::Solver(format!("cannot start the loop thread: {e}")))?;
         *sim.thread.lock().expect("thread lock") = Some(handle);
+        crate::progress::done(format_args!(
+            "scene {} loaded in {:.1} s",
+            sim.scene.name,
+            loading.elapsed().as_secs_f64()
+        ));
         Ok(sim)
     }
 
@@ -384,6 +398,11 @@ impl Simulation {
     /// The latest snapshot.
     pub fn snapshot(&self) -> Arc<Snapshot> {
         self.snapshot.read().expect("snapshot lock").clone()
+    }
+
+    /// The largest number of concurrent watchers ([`SimOptions::max_watchers`]).
+    pub fn max_watchers(&self) -> usize {
+        self.options.max_watchers
     }
 
     /// A receiver of frames, latest-wins. Fails when the watcher limit is reached.

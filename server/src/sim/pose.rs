@@ -40,8 +40,9 @@ pub enum PoseError {
     /// A NaN or infinite value.
     #[error("pose field `{field}` is not finite ({value})")]
     NonFinite { field: &'static str, value: f64 },
-    /// The quaternion is not unit length.
-    #[error("pose field `orientation` is not a unit quaternion (norm {norm})")]
+    /// The quaternion is not unit length (`norm` computed without underflow,
+    /// so a subnormal quaternion reports its tiny norm, not 0).
+    #[error("pose field `orientation` is not a unit quaternion (norm {})", show_norm(*norm))]
     NotUnit { norm: f64 },
     /// Sequence number not increasing.
     #[error("pose sequence {got} does not follow {last}")]
@@ -59,6 +60,26 @@ pub enum PoseError {
     /// The pose could not be answered.
     #[error("the pose was not answered: {0}")]
     NotAnswered(String),
+}
+
+/// A norm as a person reads it: plain between 1e-3 and 1e6, in exponent
+/// form beyond (a subnormal norm prints as `5e-324`, not as 0.000...).
+fn show_norm(norm: f64) -> String {
+    if norm == 0.0 || (1e-3..1e6).contains(&norm) {
+        format!("{norm}")
+    } else {
+        format!("{norm:e}")
+    }
+}
+
+/// The Euclidean norm of `v`, scaled by its largest component so that
+/// neither subnormal nor huge components underflow or overflow the squares.
+fn scaled_norm(v: &[f64; 4]) -> f64 {
+    let scale = v.iter().fold(0.0f64, |m, c| m.max(c.abs()));
+    if scale == 0.0 {
+        return 0.0;
+    }
+    scale * v.iter().map(|c| (c / scale).powi(2)).sum::<f64>().sqrt()
 }
 
 /// Checks one pose against the previous accepted one (if any) and converts it.
@@ -80,7 +101,7 @@ pub fn validate(raw: &RawPose, last: Option<&TimedPose>) -> Result<TimedPose, Po
     }
     let [w, x, y, z] = raw.orientation;
     let q = Quaternion::new(w, x, y, z);
-    let norm = q.norm();
+    let norm = scaled_norm(&raw.orientation);
     if (norm - 1.0).abs() > UNIT_QUATERNION_TOLERANCE {
         return Err(PoseError::NotUnit { norm });
     }
@@ -159,5 +180,49 @@ mod tests {
             validate(&r, Some(&a)),
             Err(PoseError::NonFinite { field: "t_s", .. })
         ));
+    }
+}
+
+#[cfg(test)]
+mod norm_tests {
+    use super::*;
+
+    /// A quaternion whose components are subnormal is reported with its own
+    /// tiny norm (the smallest subnormal, 4.9e-324), not with "norm 0"; the
+    /// zero quaternion with norm 0; huge components do not overflow to inf.
+    #[test]
+    fn the_reported_norm_does_not_underflow() {
+        let pose = |q: [f64; 4]| RawPose {
+            t_s: 0.0,
+            sequence: 1,
+            position_m: [0.0; 3],
+            orientation: q,
+        };
+        let tiny = f64::from_bits(1);
+        match validate(&pose([tiny, 0.0, 0.0, 0.0]), None) {
+            Err(PoseError::NotUnit { norm }) => assert_eq!(norm, tiny),
+            other => panic!("{other:?}"),
+        }
+        let e = validate(&pose([tiny, 0.0, 0.0, 0.0]), None).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "pose field `orientation` is not a unit quaternion (norm 5e-324)"
+        );
+        match validate(&pose([3e-310, 4e-310, 0.0, 0.0]), None) {
+            Err(PoseError::NotUnit { norm }) => assert!((norm / 5e-310 - 1.0).abs() < 1e-12),
+            other => panic!("{other:?}"),
+        }
+        match validate(&pose([0.0; 4]), None) {
+            Err(PoseError::NotUnit { norm }) => assert_eq!(norm, 0.0),
+            other => panic!("{other:?}"),
+        }
+        match validate(&pose([1e300, 1e300, 0.0, 0.0]), None) {
+            Err(PoseError::NotUnit { norm }) => {
+                assert!((norm / (1e300 * 2f64.sqrt()) - 1.0).abs() < 1e-12)
+            }
+            other => panic!("{other:?}"),
+        }
+        // A unit quaternion given as 0.6, 0.8 is accepted.
+        assert!(validate(&pose([0.6, 0.8, 0.0, 0.0]), None).is_ok());
     }
 }

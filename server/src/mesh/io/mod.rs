@@ -307,6 +307,59 @@ pub fn read_volume(path: impl AsRef<Path>) -> Result<TetMesh, IoError> {
     read_volume_report(path.as_ref()).map(|r| r.mesh)
 }
 
+/// Errors of reading the model of a scene ([`read_model`]); each names the
+/// file.
+#[derive(Debug, thiserror::Error)]
+pub enum ModelFileError {
+    /// The file could not be read as a volume mesh.
+    #[error(transparent)]
+    Io(#[from] IoError),
+    /// The model is too large to be in metres.
+    #[error(
+        "{}: {source}: use `scale = {}` in the scene's [model] (the factor from the file's unit to metres)",
+        path.display(),
+        source.scale
+    )]
+    Units {
+        path: PathBuf,
+        #[source]
+        source: super::units::ImplausibleSize,
+    },
+    /// Its boundary is not a closed manifold.
+    #[error("{}: {source}", path.display())]
+    Boundary {
+        path: PathBuf,
+        #[source]
+        source: super::manifold::BoundaryError,
+    },
+}
+
+/// Reads the volume mesh of a scene's model: [`read_volume`], positions
+/// multiplied by `scale` (the file's unit to m), then refused when it is
+/// wider than [`super::units::MAX_MODEL_EXTENT_M`] (probably millimetres) or
+/// its boundary is not a closed manifold
+/// ([`super::manifold::check_closed_manifold`]).
+pub fn read_model(path: &Path, scale: f64) -> Result<TetMesh, ModelFileError> {
+    crate::progress::stage(format_args!("reading the model {}", path.display()));
+    let mut mesh = read_volume(path)?;
+    super::units::scale_points(&mut mesh.nodes, scale);
+    super::units::check_extent(&mesh.nodes, super::units::MAX_MODEL_EXTENT_M).map_err(
+        |source| ModelFileError::Units {
+            path: path.to_path_buf(),
+            source,
+        },
+    )?;
+    crate::progress::stage(format_args!(
+        "checking the boundary of {} tetrahedra",
+        mesh.tets.len()
+    ));
+    super::manifold::check_closed_manifold(&mesh).map_err(|source| ModelFileError::Boundary {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    Ok(mesh)
+}
+
 /// Orients every tetrahedron positively and drops unused nodes, then checks
 /// the mesh with [`TetMesh::new`] (a degenerate tetrahedron is an error).
 pub fn finish_volume(raw: RawVolume) -> Result<VolumeRead, MeshError> {

@@ -1,0 +1,140 @@
+//! `fissure watch` against an in-process server: the files are completed
+//! when the server shuts down, and a watcher slower than a fast stepped
+//! replay stays current and counts the frames it skipped.
+
+mod reliability_common;
+
+use fissure_cli::watch::{WatchArgs, WatchEnd, run};
+use fissure_server::service::ServeOptions;
+use fissure_server::sim::SimOptions;
+use fissure_tests::{Haptic, TestServer, pose};
+use reliability_common::{FLAT_DOWN, HANDLE_Y, LEFT_X, TOUCH_Z};
+use std::path::Path;
+use std::time::Duration;
+
+fn args(server: &str, out: &Path) -> WatchArgs {
+    WatchArgs {
+        server: server.to_owned(),
+        out: out.to_owned(),
+        every: 1,
+        max_frames: None,
+        duration_s: None,
+        width: 320,
+        height: 240,
+        png_all: false,
+        gif_frames: 20,
+        no_vtu: false,
+        range_mm: None,
+        azimuth_deg: None,
+        elevation_deg: None,
+    }
+}
+
+/// Presses `left` into the cube over `n` poses, 1 ms apart in time.
+async fn press(haptic: &mut Haptic, n: u64, pace: Option<Duration>) -> anyhow::Result<()> {
+    for k in 0..n {
+        let z = TOUCH_Z + 0.0005 - 0.0025 * (k as f64 / n as f64);
+        haptic
+            .send(pose(
+                k as f64 * 1e-3,
+                k + 1,
+                [LEFT_X, HANDLE_Y, z],
+                FLAT_DOWN,
+            ))
+            .await?;
+        if let Some(p) = pace {
+            tokio::time::sleep(p).await;
+        }
+    }
+    Ok(())
+}
+
+/// The server shuts down while `fissure watch` runs (the stream ends with
+/// UNAVAILABLE, "the server is shutting down"): the watch returns normally,
+/// says so, and has written the `.pvd` index of every VTU it wrote, the
+/// first and the last PNG and the GIF.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn watch_completes_its_files_when_the_server_shuts_down() -> anyhow::Result<()> {
+    let server = TestServer::start("cube", SimOptions::default(), ServeOptions::default()).await?;
+    let dir = tempfile::tempdir()?;
+    let a = args(&server.url, dir.path());
+    let watch = tokio::spawn(async move { run(&a).await });
+    let mut client = server.client().await?;
+    let mut haptic = Haptic::open(&mut client, "left", None).await?;
+    press(&mut haptic, 400, Some(Duration::from_millis(1))).await?;
+    haptic.close().await;
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    server.stop().await?;
+    let report = tokio::time::timeout(Duration::from_secs(30), watch).await???;
+    assert_eq!(report.ended, WatchEnd::ServerShutDown);
+    assert!(report.kept >= 3, "{report:?}");
+    let names: Vec<String> = report
+        .files
+        .iter()
+        .map(|f| f.file_name().unwrap().to_string_lossy().into_owned())
+        .collect();
+    let (first, last) = report.frames.expect("frames");
+    for want in [
+        format!("frame-{first:06}.png"),
+        format!("frame-{last:06}.png"),
+        "surface.pvd".into(),
+        "session.gif".into(),
+    ] {
+        assert!(names.contains(&want), "{want} not in {names:?}");
+        assert!(dir.path().join(&want).is_file(), "{want}");
+    }
+    let pvd = std::fs::read_to_string(dir.path().join("surface.pvd"))?;
+    let listed: Vec<&str> = pvd
+        .lines()
+        .filter_map(|l| l.split("file=\"").nth(1))
+        .map(|rest| rest.trim_end_matches("\"/>"))
+        .collect();
+    assert_eq!(listed.len(), report.kept, "{pvd}");
+    assert!(listed.iter().all(|f| dir.path().join(f).is_file()));
+    Ok(())
+}
+
+/// A fast stepped replay (poses sent as fast as answered) makes frames
+/// faster than a watcher that writes a full-size PNG of every frame can
+/// draw: the watcher skips frames, counts them (frame numbers never
+/// received between its first and last), and still ends on the replay's
+/// final frame.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_slow_watcher_stays_current_and_counts_the_frames_it_skipped() -> anyhow::Result<()> {
+    let server = TestServer::start(
+        "cube",
+        SimOptions {
+            stepped: Some(true),
+            ..Default::default()
+        },
+        ServeOptions::default(),
+    )
+    .await?;
+    let dir = tempfile::tempdir()?;
+    let mut a = args(&server.url, dir.path());
+    a.png_all = true;
+    a.width = 1280;
+    a.height = 960;
+    let watch = tokio::spawn(async move { run(&a).await });
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let mut client = server.client().await?;
+    let mut haptic = Haptic::open(&mut client, "left", None).await?;
+    press(&mut haptic, 3_000, None).await?;
+    let final_frame = server.sim.snapshot().frame;
+    haptic.close().await;
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    server.stop().await?;
+    let report = tokio::time::timeout(Duration::from_secs(60), watch).await???;
+    let (first, last) = report.frames.expect("frames");
+    assert!(
+        last >= final_frame,
+        "last {last}, replay ended at {final_frame}"
+    );
+    assert!(report.skipped > 0, "{report:?}");
+    assert_eq!(
+        report.received as u64 + report.skipped,
+        last - first + 1,
+        "{report:?}"
+    );
+    Ok(())
+}
