@@ -122,6 +122,19 @@ pub fn surface(model: &Model) -> pb::SurfaceMesh {
     }
 }
 
+/// The status code of a rejected pose: `OUT_OF_RANGE` for a stepped pose
+/// behind the session's clock (the client may resend it later in time),
+/// `UNAVAILABLE` when the server could not answer (shutting down),
+/// `INVALID_ARGUMENT` for a malformed pose.
+pub fn pose_error_code(e: &crate::sim::pose::PoseError) -> tonic::Code {
+    use crate::sim::pose::PoseError;
+    match e {
+        PoseError::BehindClock { .. } => tonic::Code::OutOfRange,
+        PoseError::NotAnswered(_) => tonic::Code::Unavailable,
+        _ => tonic::Code::InvalidArgument,
+    }
+}
+
 /// A pose message to the engine's raw pose; a missing field is an error naming it.
 pub fn raw_pose(p: &pb::PoseSample) -> Result<RawPose, crate::sim::pose::PoseError> {
     let pos = p

@@ -416,7 +416,7 @@ impl Fissure for FissureService {
                         }
                         Err(e) => {
                             tracing::debug!(instrument = %name, error = %e, "pose rejected");
-                            convert::rejection(&msg, tonic::Code::InvalidArgument, e.to_string())
+                            convert::rejection(&msg, convert::pose_error_code(&e), e.to_string())
                         }
                     };
                     if !answer(&tx, reply, &name) {
