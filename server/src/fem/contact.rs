@@ -305,12 +305,21 @@ pub fn solve_by_active_set<S: DeformationSolver + ?Sized>(
             let b = nalgebra::DVector::from_fn(m, |i, _| {
                 -(rows[points[i]].gap_free_m + rows[points[i]].normal_motion(&u0))
             });
-            let x = a
-                .clone()
-                .cholesky()
-                .map(|c| c.solve(&b))
-                .or_else(|| a.lu().solve(&b))
-                .ok_or_else(|| SolveError::Factorization("point rows are dependent".into()))?;
+            // Point rows may be dependent (two corners of one polygon on
+            // one triangle, or a triangle whose vertices the node rows
+            // already hold): the least-norm solution, singular values
+            // below 1e-10 of the largest taken as zero, gives such a row
+            // no load beyond what the others need.
+            let x = match a.clone().cholesky() {
+                Some(c) => c.solve(&b),
+                None => {
+                    let svd = a.svd(true, true);
+                    let eps = 1e-10 * svd.singular_values.max();
+                    svd.solve(&b, eps).map_err(|e| {
+                        SolveError::Factorization(format!("point rows of a contact solve: {e}"))
+                    })?
+                }
+            };
             mu.extend(x.iter().copied());
             loads.clear();
             for (k, &p) in points.iter().enumerate() {

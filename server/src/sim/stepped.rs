@@ -257,6 +257,13 @@ impl SteppedRunner {
         self.advance(t, on_step);
         self.clock = Some(t);
         let snap = self.snapshot.clone();
+        // Until the session's first step the rest frame stands for its
+        // origin (a reset publishes it at the last session's time).
+        let frame_time = if self.k == 0 {
+            self.origin.unwrap_or(snap.sim_time_s)
+        } else {
+            snap.sim_time_s
+        };
         let model = self.model.clone();
         let mut spent = vec![0.0; poses.len()];
         self.queried.fill(false);
@@ -282,7 +289,7 @@ impl SteppedRunner {
                 instrument: *i,
                 force,
                 frame: snap.frame,
-                model_age_s: t - snap.sim_time_s,
+                model_age_s: t - frame_time,
                 solver_failed: snap.solver_error.is_some(),
                 compute_us: spent[j],
             });
