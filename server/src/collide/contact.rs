@@ -395,6 +395,9 @@ pub struct Workspace {
     pub(crate) keep: Vec<bool>,
     pub(crate) covered: Vec<u32>,
     pub(crate) covered_stamp: u32,
+    /// Per surface triangle, the `covered_stamp` at which faces A and B
+    /// clipped it.
+    pub(crate) clipped: Vec<[u32; 2]>,
 }
 
 /// Vertex neighbours and vertex triangles of a surface.

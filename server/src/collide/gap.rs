@@ -107,7 +107,11 @@ pub(crate) fn candidates(
                     }
                 }
             };
-            for p in out.pairs.iter().filter(|p| p.instrument as usize == k) {
+            for pi in 0..out.pairs.len() {
+            let p = out.pairs[pi];
+            if p.instrument as usize != k {
+                continue;
+            }
                 if FaceId::of(inst.nodes[p.node as usize].kind) == face {
                     seed(ws, p.triangle);
                 }
@@ -228,29 +232,37 @@ fn edges(
     out: &mut ContactOutput,
 ) {
     let nv = query.positions.len();
-    if ws.covered.len() != nv {
+    let nt = query.triangles.len();
+    if ws.covered.len() != nv || ws.clipped.len() != nt {
         ws.covered.clear();
         ws.covered.resize(nv, 0);
+        ws.clipped.clear();
+        ws.clipped.resize(nt, [0; 2]);
         ws.covered_stamp = 0;
     }
     let mut c = 0;
     for (k, tool) in tools.iter().enumerate() {
         if ws.covered_stamp == u32::MAX {
             ws.covered.fill(0);
+            ws.clipped.fill([0; 2]);
             ws.covered_stamp = 0;
         }
         ws.covered_stamp += 1;
         let stamp = ws.covered_stamp;
+        let first_candidate = c;
         while c < out.candidates.len() && out.candidates[c].instrument as usize == k {
             ws.covered[out.candidates[c].surface_vertex as usize] = stamp;
             c += 1;
         }
         let inst = tool.instrument;
         let flat = inst.plate.bend_radius.is_none();
-        let inv = tool.pose.inverse();
         let first_edge = out.edges.len();
         let first = ws.offsets[k];
-        for p in out.pairs.iter().filter(|p| p.instrument as usize == k) {
+        for pi in 0..out.pairs.len() {
+            let p = out.pairs[pi];
+            if p.instrument as usize != k {
+                continue;
+            }
             let tri = query.triangles[p.triangle as usize];
             if tri.iter().all(|&v| ws.covered[v as usize] == stamp) {
                 continue;
@@ -258,27 +270,26 @@ fn edges(
             let face = FaceId::of(inst.nodes[p.node as usize].kind);
             let polygon = flat && matches!(face, FaceId::A | FaceId::B);
             if polygon {
-                if out.edges[first_edge..]
-                    .iter()
-                    .any(|o| o.triangle == p.triangle && o.face == face)
-                {
-                    continue;
+                // The pierced triangle and those around it: no node's ray
+                // need pierce a triangle the outline crosses (a sliver
+                // beside the outline, or tissue already on the face), and
+                // the tissue under the outline there stays a candidate for
+                // as long as it is within the band.
+                let topo = ws.topology.as_ref().expect("built by candidates");
+                let sign = if face == FaceId::A { 1.0 } else { -1.0 };
+                let normal = tool.pose.rotation * (Vector3::x() * sign);
+                clip_triangle(query, tool, k, face, p.triangle, band, &mut ws.clipped, stamp, out);
+                for v in tri {
+                    for &t in topo.triangles.row(v as usize) {
+                        if facing(query, t, &normal)
+                            && !query.triangles[t as usize]
+                                .iter()
+                                .all(|&v| ws.covered[v as usize] == stamp)
+                        {
+                            clip_triangle(query, tool, k, face, t, band, &mut ws.clipped, stamp, out);
+                        }
+                    }
                 }
-                let local = tri.map(|v| inv * query.positions[v as usize]);
-                let nodes = tri.map(|v| query.to_volume[v as usize]);
-                clip_points(&inst.plate, face, &local, band, |feature, w, gap, at| {
-                    out.edges.push(EdgeCandidate {
-                        instrument: k as u16,
-                        face,
-                        feature,
-                        triangle: p.triangle,
-                        nodes,
-                        weights: w,
-                        normal: tool.pose.rotation * at.1,
-                        point: tool.pose * at.0,
-                        gap_now_m: gap,
-                    });
-                });
                 continue;
             }
             let g = first + p.node as usize;
@@ -304,6 +315,26 @@ fn edges(
                     }
                 }
                 None => out.edges.push(e),
+            }
+        }
+        // The boundary of a flat face's covered patch: triangles of its
+        // candidates that it does not cover whole, facing the face.
+        if flat {
+            let topo = ws.topology.as_ref().expect("built by candidates");
+            for ci in first_candidate..c {
+                let cand = out.candidates[ci];
+                if !matches!(cand.face, FaceId::A | FaceId::B) {
+                    continue;
+                }
+                for &t in topo.triangles.row(cand.surface_vertex as usize) {
+                    let tri = query.triangles[t as usize];
+                    if tri.iter().all(|&v| ws.covered[v as usize] == stamp)
+                        || !facing(query, t, &cand.normal)
+                    {
+                        continue;
+                    }
+                    clip_triangle(query, tool, k, cand.face, t, band, &mut ws.clipped, stamp, out);
+                }
             }
         }
         // Triangles without every vertex covered that the faces see in
@@ -332,6 +363,52 @@ fn edges(
             }
         }
     }
+}
+
+/// Whether surface triangle `t` faces a face of outward normal `normal`
+/// (scene frame): the tissue's outward normal opposes it.
+fn facing(query: &ContactQuery<'_>, t: u32, normal: &Vector3<f64>) -> bool {
+    let [a, b, c] = query.triangles[t as usize].map(|v| query.positions[v as usize]);
+    normal.dot(&(b - a).cross(&(c - a))) < 0.0
+}
+
+/// The polygon points of `triangle` on flat face `face` (A or B) of tool
+/// `k`, once per triangle and face for the tool (`clipped` marked with
+/// `stamp`).
+#[allow(clippy::too_many_arguments)]
+fn clip_triangle(
+    query: &ContactQuery<'_>,
+    tool: &Tool<'_>,
+    k: usize,
+    face: FaceId,
+    triangle: u32,
+    band: f64,
+    clipped: &mut [[u32; 2]],
+    stamp: u32,
+    out: &mut ContactOutput,
+) {
+    let slot = &mut clipped[triangle as usize][usize::from(face == FaceId::B)];
+    if *slot == stamp {
+        return;
+    }
+    *slot = stamp;
+    let tri = query.triangles[triangle as usize];
+    let inv = tool.pose.inverse();
+    let local = tri.map(|v| inv * query.positions[v as usize]);
+    let nodes = tri.map(|v| query.to_volume[v as usize]);
+    clip_points(&tool.instrument.plate, face, &local, band, |feature, w, gap, at| {
+        out.edges.push(EdgeCandidate {
+            instrument: k as u16,
+            face,
+            feature,
+            triangle,
+            nodes,
+            weights: w,
+            normal: tool.pose.rotation * at.1,
+            point: tool.pose * at.0,
+            gap_now_m: gap,
+        });
+    });
 }
 
 /// One corner of a clipped polygon: position in the face's plane

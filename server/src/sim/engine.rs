@@ -553,6 +553,9 @@ impl ContactQuery {
         for c in &mut self.out.candidates {
             c.instrument = k;
         }
+        for e in &mut self.out.edges {
+            e.instrument = k;
+        }
         &self.out
     }
 
@@ -960,12 +963,14 @@ impl std::fmt::Debug for StepEngine {
 /// Most solves of one step while the skull finds new nodes leaving it.
 const SKULL_ROUNDS: u32 = 8;
 
-/// Most contact searches on a step's solved shape.
-const CONTACT_SEARCHES: u32 = 3;
+/// Most contact searches on a step's solved shape (rounds of the contact
+/// geometry's fixed point).
+const CONTACT_SEARCHES: u32 = 8;
 
-/// A row's gap below this (m) on the solved shape is a violation the
-/// contact search adds.
-const SEARCH_TOLERANCE_M: f64 = 1e-9;
+/// The contact geometry has converged when a search on the solved shape
+/// finds the problem's rows with point weights (barycentric, 1) within
+/// this of the problem's.
+const GEOMETRY_TOLERANCE: f64 = 1e-6;
 
 impl StepEngine {
     /// The step of `scene` over `model` (factorizes the solver). `columns`
@@ -1099,7 +1104,7 @@ impl StepEngine {
             &mut self.rows,
         );
         let last = prev.force_model.clone();
-        let n_instrument_rows = self.rows.len();
+        let mut n_instrument_rows = self.rows.len();
         // What the snapshot needs of the collision output.
         let counts: Vec<(u32, u32)> = (0..model.instruments.len())
             .map(|k| {
@@ -1155,9 +1160,7 @@ impl StepEngine {
             // the plate now pierces elsewhere) join the problem.
             if searches < CONTACT_SEARCHES {
                 searches += 1;
-                if self.search_solved(&model, poses, &after) > 0 {
-                    self.warm = self.deformer.answer().multipliers.clone();
-                    self.warm.resize(self.rows.len(), 0.0);
+                if self.search_solved(&model, poses, &after, &mut n_instrument_rows) {
                     continue;
                 }
             }
@@ -1299,16 +1302,23 @@ impl StepEngine {
         (snap, Some(report))
     }
 
-    /// The contact search of [`Self::step`]: queries the solved shape at
-    /// `poses` (with copies of the histories after the step's query) and
-    /// adds the rows it finds that are not in the problem and whose gap the
-    /// solution violates. Returns how many rows it added.
+    /// The contact geometry's fixed point, one round of [`Self::step`]:
+    /// queries the solved shape at `poses` (with copies of the histories
+    /// after the step's query) and, unless its instrument rows are the
+    /// problem's (same keys, point weights within
+    /// [`GEOMETRY_TOLERANCE`]), makes them the problem's, each point row
+    /// half-way to the problem's row of its key ([`rows::midway`]: a
+    /// corner's tissue point moves with the shape it pushes, and the plain
+    /// iteration can swing between two shapes); the skull's rows follow.
+    /// Returns whether the rows changed; `n_instrument_rows` counts the
+    /// instrument rows at the front.
     fn search_solved(
         &mut self,
         model: &Model,
         poses: &[Isometry3<f64>],
         histories: &[History],
-    ) -> usize {
+        n_instrument_rows: &mut usize,
+    ) -> bool {
         let u = self.deformer.displacements();
         let surface: Vec<Point3<f64>> = model
             .surface
@@ -1322,38 +1332,53 @@ impl StepEngine {
         let found = self
             .search
             .query_all_on(model, &surface, None, poses, &mut h);
+        let free = FreePositions::Rest(&model.mesh.nodes);
         let mut post = Vec::new();
-        self.rule.rows(
-            model,
-            found,
-            &FreePositions::Rest(&model.mesh.nodes),
-            &self.anchors,
-            poses,
-            &mut post,
-        );
-        let have: std::collections::HashMap<u64, usize> = self
+        self.rule
+            .rows(model, found, &free, &self.anchors, poses, &mut post);
+        let old = &self.rows[..*n_instrument_rows];
+        let by_key: std::collections::HashMap<u64, usize> =
+            old.iter().enumerate().map(|(i, r)| (r.key, i)).collect();
+        let mut same = post.len() == old.len();
+        for r in post.iter_mut() {
+            match by_key.get(&r.key) {
+                Some(&i) => {
+                    let o = &old[i];
+                    if r.row.is_point() || o.row.is_point() {
+                        let dw = (0..3)
+                            .map(|k| (r.triangle.1[k] - o.triangle.1[k]).abs())
+                            .fold(0.0, f64::max);
+                        if dw > GEOMETRY_TOLERANCE {
+                            same = false;
+                            *r = rows::midway(o, r, &free, &model.fixed_mask);
+                        }
+                    }
+                }
+                None => same = false,
+            }
+        }
+        if same {
+            return false;
+        }
+        let multipliers = &self.deformer.answer().multipliers;
+        let old_lambda: std::collections::HashMap<u64, f64> = self
             .rows
             .iter()
-            .enumerate()
-            .map(|(i, r)| (r.key, i))
+            .zip(multipliers)
+            .map(|(r, &l)| (r.key, l))
             .collect();
-        let mut added = 0;
-        let mut i = 0;
-        while i < post.len() {
-            // A normal row with the tangent rows that follow it.
-            let mut j = i + 1;
-            while j < post.len() && matches!(post[j].row.kind, RowKind::Tangent { .. }) {
-                j += 1;
-            }
-            let r = &post[i];
-            let g = r.row.gap_free_m + r.row.normal_motion(u);
-            if !have.contains_key(&r.key) && g < -SEARCH_TOLERANCE_M {
-                rows::append(&mut self.rows, &post[i..j]);
-                added += 1;
-            }
-            i = j;
-        }
-        added
+        let skull: Vec<Row> = self.rows[*n_instrument_rows..].to_vec();
+        self.rows.clear();
+        rows::append(&mut self.rows, &post);
+        *n_instrument_rows = self.rows.len();
+        rows::append(&mut self.rows, &skull);
+        self.warm.clear();
+        self.warm.extend(
+            self.rows
+                .iter()
+                .map(|r| old_lambda.get(&r.key).copied().unwrap_or(0.0)),
+        );
+        true
     }
 
     /// Friction: a contact that slipped sticks where it ended; one that

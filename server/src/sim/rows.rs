@@ -251,6 +251,36 @@ pub fn from_edges(
     }
 }
 
+/// The point row half-way between `a` and `b`, two shapes' rows of one
+/// polygon corner (same key): weights and face point averaged, the gap
+/// recomputed at the free positions (fixed nodes left out as in
+/// [`from_edges`]). The step relaxes its contact geometry's fixed point
+/// with it (a corner's tissue point depends on the shape it pushes).
+pub fn midway(a: &Row, b: &Row, free: &FreePositions<'_>, fixed: &[bool]) -> Row {
+    let (tri, wa) = a.triangle;
+    let wb = b.triangle.1;
+    let w = [0.0, 1.0, 2.0].map(|k: f64| 0.5 * (wa[k as usize] + wb[k as usize]));
+    let point = Point3::from(0.5 * (a.point.coords + b.point.coords));
+    let mut x = Vector3::zeros();
+    let mut nodes = [u32::MAX; 3];
+    let mut weights = [0.0; 3];
+    for k in 0..3 {
+        x += free.of(tri[k]).coords * w[k];
+        if !fixed.get(tri[k] as usize).copied().unwrap_or(true) {
+            nodes[k] = tri[k];
+            weights[k] = w[k];
+        }
+    }
+    let dir = b.row.dir;
+    Row {
+        key: b.key,
+        owner: b.owner,
+        row: ContactRow::at_point(nodes, weights, dir, dir.dot(&(x - point.coords)), b.row.kind),
+        point,
+        triangle: (tri, w),
+    }
+}
+
 /// The face index of a row's key (0-4 the plate's faces, 6 the paper's
 /// rule, 7 the skull).
 pub fn face_of_key(key: u64) -> u8 {
