@@ -116,6 +116,13 @@ pub(crate) fn candidates(
                     seed(ws, p.triangle);
                 }
             }
+            // Tissue the last contact solve found this face pushing.
+            for v in tool.history.seeds_of(face.index() as u8) {
+                if (v as usize) < nv && ws.visit[v as usize] != stamp {
+                    ws.visit[v as usize] = stamp;
+                    ws.queue.push(v);
+                }
+            }
             // Tissue seen in front beyond the band, within `ahead`.
             for (i, node) in inst.nodes.iter().enumerate() {
                 if FaceId::of(node.kind) != face {
@@ -149,23 +156,15 @@ pub(crate) fn candidates(
                     continue;
                 }
                 // The face itself, or else a rim face (the plate's edges
-                // push what lies beyond the face's outline). A vertex the
-                // face held after the last solve stays covered within the
-                // band of the outline.
-                let node = query.to_volume[v as usize];
-                let tol_of = |f: FaceId| {
-                    if tool.history.is_held(node, f.index() as u8) {
-                        tol.max(band)
-                    } else {
-                        tol
-                    }
-                };
+                // push what lies beyond the face's outline; tissue under
+                // the outline between covered vertices is pushed at the
+                // polygon points of [`edges`]).
                 let mut covered =
-                    (fp.outside_m <= tol_of(face) && fp.gap_m <= band).then_some((face, fp));
+                    (fp.outside_m <= tol && fp.gap_m <= band).then_some((face, fp));
                 if covered.is_none() {
                     covered = RIM.iter().filter(|&&r| r != face).find_map(|&r| {
                         let rp = inst.plate.project(r, &x);
-                        (rp.outside_m <= tol_of(r)
+                        (rp.outside_m <= tol
                             && rp.gap_m <= band
                             && rp.gap_m >= -rim_reach[r.index()])
                         .then_some((r, rp))
@@ -318,9 +317,28 @@ fn edges(
             }
         }
         // The boundary of a flat face's covered patch: triangles of its
-        // candidates that it does not cover whole, facing the face.
+        // candidates that it does not cover whole, facing the face; and
+        // the triangles around the tissue the last solve found it pushing.
         if flat {
             let topo = ws.topology.as_ref().expect("built by candidates");
+            for face in [FaceId::A, FaceId::B] {
+                let sign = if face == FaceId::A { 1.0 } else { -1.0 };
+                let normal = tool.pose.rotation * (Vector3::x() * sign);
+                for v in tool.history.seeds_of(face.index() as u8) {
+                    if v as usize >= nv {
+                        continue;
+                    }
+                    for &t in topo.triangles.row(v as usize) {
+                        let tri = query.triangles[t as usize];
+                        if tri.iter().all(|&v| ws.covered[v as usize] == stamp)
+                            || !facing(query, t, &normal)
+                        {
+                            continue;
+                        }
+                        clip_triangle(query, tool, k, face, t, band, &mut ws.clipped, stamp, out);
+                    }
+                }
+            }
             for ci in first_candidate..c {
                 let cand = out.candidates[ci];
                 if !matches!(cand.face, FaceId::A | FaceId::B) {

@@ -50,12 +50,11 @@ pub struct History {
     /// The renewal mode.
     pub mode: HistoryMode,
     flags: Vec<bool>,
-    /// Vertices held by a face after the last contact solve: (volume node,
-    /// face index), sorted. The Signorini rule keeps such a vertex covered
-    /// by its face while it lies within the band of the face's outline (a
-    /// vertex pushed at the very edge slides a little beyond it, and would
-    /// otherwise leave and re-enter contact from one step to the next).
-    held: Vec<(u32, u8)>,
+    /// (face index, surface vertex) of the tissue the last contact solve
+    /// found pushed, sorted: the gap stage looks there first, so a contact
+    /// the solve closed is found again on the shape it made (the plate's
+    /// node rays need not see tissue that lies on an edge of the plate).
+    seeds: Vec<(u8, u32)>,
 }
 
 impl History {
@@ -64,7 +63,7 @@ impl History {
         Self {
             mode,
             flags: vec![false; instrument.len()],
-            held: Vec::new(),
+            seeds: Vec::new(),
         }
     }
 
@@ -89,7 +88,7 @@ impl History {
     /// Turns every flag off (e.g. when the spatula is withdrawn or the scene resets).
     pub fn clear(&mut self) {
         self.flags.fill(false);
-        self.held.clear();
+        self.seeds.clear();
     }
 
     /// Copies `other` into `self` without allocating once sizes match.
@@ -97,21 +96,25 @@ impl History {
         self.mode = other.mode;
         self.flags.clear();
         self.flags.extend_from_slice(&other.flags);
-        self.held.clear();
-        self.held.extend_from_slice(&other.held);
+        self.seeds.clear();
+        self.seeds.extend_from_slice(&other.seeds);
     }
 
-    /// Sets the vertices held by a face ((volume node, face index)).
-    pub fn set_held(&mut self, held: impl Iterator<Item = (u32, u8)>) {
-        self.held.clear();
-        self.held.extend(held);
-        self.held.sort_unstable();
-        self.held.dedup();
+    /// Sets the seeds ((face index, surface vertex)).
+    pub fn set_seeds(&mut self, seeds: impl Iterator<Item = (u8, u32)>) {
+        self.seeds.clear();
+        self.seeds.extend(seeds);
+        self.seeds.sort_unstable();
+        self.seeds.dedup();
     }
 
-    /// Whether volume node `node` is held by face `face` (its index).
-    pub fn is_held(&self, node: u32, face: u8) -> bool {
-        self.held.binary_search(&(node, face)).is_ok()
+    /// The surface vertices seeded for face index `face`.
+    pub fn seeds_of(&self, face: u8) -> impl Iterator<Item = u32> + '_ {
+        let from = self.seeds.partition_point(|s| s.0 < face);
+        self.seeds[from..]
+            .iter()
+            .take_while(move |s| s.0 == face)
+            .map(|s| s.1)
     }
 
     /// Renews the flags from the surviving pairs of this instrument when the

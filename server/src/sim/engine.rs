@@ -56,6 +56,8 @@ pub struct Model {
     /// With a region of interest: each node's index in the uncropped model,
     /// and that model's node count.
     pub to_full: Option<(Vec<u32>, usize)>,
+    /// Per volume node: its surface vertex, `u32::MAX` inside.
+    pub from_volume: Vec<u32>,
     history_mode: CollideHistoryMode,
 }
 
@@ -203,7 +205,12 @@ impl Model {
             .zip(&edge_count)
             .map(|(&s, &c)| if c > 0 { e * s / c as f64 } else { 0.0 })
             .collect();
+        let mut from_volume = vec![u32::MAX; mesh.nodes.len()];
+        for (s, &v) in surface.to_volume.iter().enumerate() {
+            from_volume[v as usize] = s as u32;
+        }
         Ok(Self {
+            from_volume,
             mesh,
             surface,
             rest_surface,
@@ -1202,7 +1209,13 @@ impl StepEngine {
         self.lambda.extend_from_slice(&answer.multipliers);
         for (k, h) in self.paper_history.iter_mut().enumerate() {
             if own[k] {
-                h.set_held(rows::held_by(&self.rows, &self.lambda, k as u16));
+                h.set_seeds(rows::seeds_of(
+                    &self.rows,
+                    &self.lambda,
+                    k as u16,
+                    &model.surface.triangles,
+                    &model.from_volume,
+                ));
             }
         }
         // Rows whose node has no compliance yet: a penalty at the tissue's
@@ -1329,6 +1342,16 @@ impl StepEngine {
             .collect();
         let surface = Arc::new(surface);
         let mut h = histories.to_vec();
+        let multipliers = &self.deformer.answer().multipliers;
+        for (k, hk) in h.iter_mut().enumerate() {
+            hk.set_seeds(rows::seeds_of(
+                &self.rows,
+                multipliers,
+                k as u16,
+                &model.surface.triangles,
+                &model.from_volume,
+            ));
+        }
         let found = self
             .search
             .query_all_on(model, &surface, None, poses, &mut h);

@@ -231,8 +231,13 @@ impl ForceLoop {
         self.touching.sort_unstable();
         self.touching.dedup();
         self.contact_count = self.touching.len() as u32;
-        self.history
-            .set_held(rows::held_by(&self.all, &self.answer.lambda, me));
+        self.history.set_seeds(rows::seeds_of(
+            &self.all,
+            &self.answer.lambda,
+            me,
+            &model.surface.triangles,
+            &model.from_volume,
+        ));
         SampleForce {
             force_n,
             torque_nm,

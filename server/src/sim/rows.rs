@@ -327,23 +327,43 @@ fn face_code(face: FaceId) -> u8 {
     face.index() as u8
 }
 
-/// The vertices `owner`'s face rows hold (a positive multiplier), as
-/// (volume node, face index) for [`crate::collide::History::set_held`].
-pub fn held_by<'a>(
+/// The tissue `owner`'s face rows push (a positive multiplier), as
+/// (face index, surface vertex) for [`crate::collide::History::set_seeds`]:
+/// a node row's vertex, a point row's triangle's vertices (`triangles` the
+/// surface's, `from_volume` volume node to surface vertex).
+pub fn seeds_of<'a>(
     rows: &'a [Row],
     lambda: &'a [f64],
     owner: u16,
-) -> impl Iterator<Item = (u32, u8)> + 'a {
+    triangles: &'a [[u32; 3]],
+    from_volume: &'a [u32],
+) -> impl Iterator<Item = (u8, u32)> + 'a {
     rows.iter()
         .zip(lambda)
         .filter(move |(r, l)| {
             r.owner == owner
                 && **l > 0.0
                 && r.row.kind == RowKind::Unilateral
-                && !is_point_key(r.key)
                 && face_of_key(r.key) < 5
         })
-        .map(|(r, _)| (r.row.node, face_of_key(r.key)))
+        .flat_map(move |(r, _)| {
+            let face = face_of_key(r.key);
+            let vs: [u32; 3] = if is_point_key(r.key) {
+                triangles
+                    .get((r.key >> 32) as usize)
+                    .copied()
+                    .unwrap_or([u32::MAX; 3])
+            } else {
+                [
+                    from_volume.get(r.row.node as usize).copied().unwrap_or(u32::MAX),
+                    u32::MAX,
+                    u32::MAX,
+                ]
+            };
+            vs.into_iter()
+                .filter(|&v| v != u32::MAX)
+                .map(move |v| (face, v))
+        })
 }
 
 /// Appends `src` to `dst`, shifting tangent rows' normal indices.

@@ -1,0 +1,337 @@
+//! Contact mechanics through the whole pipeline (collision stages, rows,
+//! the step's contact solve, the force loop), on the stepped runner the
+//! server and the study use. Each test states the law it checks:
+//!
+//! * frictionless quasi-static contact retraces on unloading what it did
+//!   on loading, and lets go exactly where the plate leaves the rest
+//!   surface;
+//! * a plate larger than a block's top, bottom fixed, `nu = 0`: `E A d / L`;
+//! * frictionless means no tangential force on a symmetric indentation;
+//! * the tissue never pulls the plate (every multiplier >= 0);
+//! * a force sample equals a full solve at that sample's poses, with two
+//!   instruments moving in opposite directions;
+//! * a plate held still settles (the contact set does not flip from one
+//!   step to the next);
+//! * only tissue the plate covers carries force.
+
+use fissure_server::fem::compliance::ColumnPolicy;
+use fissure_server::scene::Scene;
+use fissure_server::sim::engine::{Model, StepEngine};
+use fissure_server::sim::stepped::{SteppedRunner, home_pose};
+use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
+use std::sync::Arc;
+
+/// Face A down, tip towards +y (cube.toml).
+fn flat(x: f64, y: f64, z: f64) -> Isometry3<f64> {
+    Isometry3::from_parts(
+        Translation3::new(x, y, z),
+        UnitQuaternion::new_normalize(Quaternion::new(0.5, -0.5, 0.5, 0.5)),
+    )
+}
+
+/// Handle height at which face A touches the cube's top (z = 40 mm), m.
+const TOUCH_Z: f64 = 0.04 + 0.00075;
+
+fn cube(replacements: &[(&str, &str)]) -> Scene {
+    let mut text = include_str!("../scenes/cube.toml").to_owned();
+    for (from, to) in replacements {
+        assert!(text.contains(from), "cube.toml has no {from:?}");
+        text = text.replacen(from, to, 1);
+    }
+    Scene::parse(&text, "cube (test variant)").expect("the variant parses")
+}
+
+/// A session's answers: per sample, time and each posed instrument's force
+/// (N), and with `reference` the full solve's force at that sample.
+#[derive(Debug, Default)]
+struct Run {
+    t: Vec<f64>,
+    force: Vec<Vec<Vector3<f64>>>,
+    full: Vec<Vec<Vector3<f64>>>,
+    flags: Vec<u32>,
+    /// Per deformation step: the force on each instrument and the row keys
+    /// with a non-zero multiplier.
+    steps: Vec<(Vec<Vector3<f64>>, Vec<u64>)>,
+}
+
+/// Runs `tracks[i]` (instrument `i`'s poses at the shared times `times`)
+/// through a stepped runner; with `reference`, also a full solve at every
+/// sample (a second engine stepped at each sample's time and poses).
+fn run(
+    scene: &Scene,
+    times: &[f64],
+    tracks: &[Vec<Isometry3<f64>>],
+    reference: bool,
+) -> Run {
+    let model = Arc::new(Model::build(scene).expect("the model builds"));
+    let mut runner = SteppedRunner::for_scene(scene, model.clone(), ColumnPolicy::Compute)
+        .expect("the runner starts");
+    let mut full = reference.then(|| {
+        let mut e = StepEngine::new(scene, model.clone(), ColumnPolicy::Compute, None, None)
+            .expect("the reference engine starts");
+        let rest = e.rest(0.0);
+        (e, rest)
+    });
+    let n = scene.instruments.len();
+    let mut out = Run::default();
+    let mut answers = Vec::new();
+    for (j, &t) in times.iter().enumerate() {
+        let poses: Vec<(usize, Isometry3<f64>)> =
+            tracks.iter().enumerate().map(|(i, tr)| (i, tr[j])).collect();
+        answers.clear();
+        runner.tick(
+            t,
+            &poses,
+            &mut |d| {
+                let fm = &d.snapshot.force_model;
+                let mut keys: Vec<u64> = fm
+                    .step_rows
+                    .iter()
+                    .zip(&fm.step_lambda)
+                    .filter(|(_, l)| **l != 0.0)
+                    .map(|(r, _)| r.key)
+                    .collect();
+                keys.sort_unstable();
+                out.steps.push((
+                    d.snapshot
+                        .frame_summary
+                        .instruments
+                        .iter()
+                        .map(|r| r.force_n)
+                        .collect(),
+                    keys,
+                ));
+            },
+            &mut answers,
+        );
+        out.t.push(t);
+        out.force.push(answers.iter().map(|a| a.force.force_n).collect());
+        out.flags
+            .push(answers.iter().fold(0, |f, a| f | a.force.flags));
+        if let Some((engine, snap)) = full.as_mut() {
+            let all: Vec<Isometry3<f64>> = (0..n)
+                .map(|i| tracks.get(i).map_or(home_pose(scene, i), |tr| tr[j]))
+                .collect();
+            let (next, report) = engine.step(snap, t, &all, vec![None; n]);
+            assert!(report.is_some(), "the full solve at t = {t} s failed");
+            *snap = next;
+            out.full.push(
+                (0..tracks.len())
+                    .map(|i| snap.frame_summary.instruments[i].force_n)
+                    .collect(),
+            );
+        }
+    }
+    out
+}
+
+/// Sample times `0, dt, ...` up to `end_s`.
+fn times(end_s: f64, dt_s: f64) -> Vec<f64> {
+    (0..=((end_s / dt_s).round() as usize))
+        .map(|k| k as f64 * dt_s)
+        .collect()
+}
+
+/// Smooth 0 -> 1 (cosine ramp) on `[a, b]`.
+fn ramp(t: f64, a: f64, b: f64) -> f64 {
+    let s = ((t - a) / (b - a)).clamp(0.0, 1.0);
+    0.5 - 0.5 * (std::f64::consts::PI * s).cos()
+}
+
+/// Depth of face A below the cube's top at `t` for a press to `depth_m`
+/// over `[0.05, 0.3]` s, held to 0.4 s, lifted over `[0.4, 0.65]` s; it
+/// starts and ends 0.5 mm above the top.
+fn press_depth(t: f64, depth_m: f64) -> f64 {
+    let lift = 0.0005;
+    -lift + (depth_m + lift) * (ramp(t, 0.05, 0.3) - ramp(t, 0.4, 0.65))
+}
+
+/// Frictionless press and retraction of one plate on the cube: the force at
+/// a depth on the way out equals the force at that depth on the way in
+/// (within 1% of the peak), it is non-zero at every depth below the rest
+/// top, and exactly zero once the plate is above it.
+#[test]
+fn frictionless_retraction_retraces_pressing_and_lets_go_at_the_rest_surface() {
+    let scene = cube(&[]);
+    let ts = times(0.7, 0.002);
+    let depth: Vec<f64> = ts.iter().map(|&t| press_depth(t, 0.003)).collect();
+    let track: Vec<Isometry3<f64>> = depth
+        .iter()
+        .map(|d| flat(0.011, 0.005, TOUCH_Z - d))
+        .collect();
+    let r = run(&scene, &ts, &[track], false);
+    let f: Vec<f64> = r.force.iter().map(|v| v[0].z).collect();
+    let peak = f.iter().copied().fold(0.0, f64::max);
+    assert!(peak > 0.05, "a 3 mm press pushes back: peak {peak} N");
+    for (k, (&d, fk)) in depth.iter().zip(&r.force).enumerate() {
+        let fk = fk[0];
+        assert!(
+            fk.x.abs() + fk.y.abs() <= 1e-9 * peak,
+            "t = {}: tangential force {fk:?}",
+            r.t[k]
+        );
+        if d < 0.0 {
+            assert_eq!(fk.z, 0.0, "t = {}: {d} m above the top, force {}", r.t[k], fk.z);
+        } else if d > 2e-5 {
+            assert!(fk.z > 0.0, "t = {}: {d} m deep, force {}", r.t[k], fk.z);
+        }
+    }
+    // The press branch (t < 0.3 s), increasing in depth, interpolated at
+    // the retraction's depths.
+    let press: Vec<(f64, f64)> = (0..ts.len())
+        .filter(|&k| ts[k] > 0.05 && ts[k] <= 0.3)
+        .map(|k| (depth[k], f[k]))
+        .collect();
+    let at = |d: f64| -> f64 {
+        let i = press.partition_point(|p| p.0 < d).clamp(1, press.len() - 1);
+        let (a, b) = (press[i - 1], press[i]);
+        a.1 + (b.1 - a.1) * (d - a.0) / (b.0 - a.0)
+    };
+    let mut worst = 0.0f64;
+    for k in (0..ts.len()).filter(|&k| ts[k] > 0.4 && ts[k] < 0.65 && depth[k] > 2.5e-4) {
+        worst = worst.max((f[k] - at(depth[k])).abs() / peak);
+    }
+    assert!(worst <= 0.01, "retraction differs from pressing by {worst} of the peak");
+}
+
+/// A plate larger than the cube's top, the bottom fixed, `nu = 0`: uniaxial
+/// strain, exact for linear tetrahedra, so the force is `E A d / L` and has
+/// no tangential part.
+#[test]
+fn plate_larger_than_the_block_with_nu_zero_gives_e_a_d_over_l() {
+    let scene = cube(&[
+        ("poisson_ratio = 0.45", "poisson_ratio = 0.0"),
+        ("width_m = 0.010", "width_m = 0.060"),
+        ("length_m = 0.030", "length_m = 0.060"),
+        ("nodes_per_face = 150", "nodes_per_face = 600"),
+    ]);
+    let d = 0.001;
+    let ts = times(0.1, 0.002);
+    let track: Vec<Isometry3<f64>> = ts
+        .iter()
+        .map(|&t| flat(0.02, -0.01, TOUCH_Z + 0.0005 - (d + 0.0005) * ramp(t, 0.0, 0.05)))
+        .collect();
+    let r = run(&scene, &ts, &[track], false);
+    let f = r.force.last().expect("samples")[0];
+    let expected = 3000.0 * 0.04 * 0.04 * d / 0.04;
+    assert!(
+        (f.z - expected).abs() <= 1e-6 * expected,
+        "F_z = {} N, E A d / L = {expected} N",
+        f.z
+    );
+    assert!(f.x.hypot(f.y) <= 1e-9 * expected, "tangential {f:?}");
+}
+
+/// A plate centred on the cube's top pressed 2 mm: by symmetry and without
+/// friction the tangential force is below 1% of the normal.
+#[test]
+fn symmetric_frictionless_indentation_has_no_tangential_force() {
+    let scene = cube(&[]);
+    let ts = times(0.35, 0.002);
+    let track: Vec<Isometry3<f64>> = ts
+        .iter()
+        .map(|&t| flat(0.02, 0.005, TOUCH_Z + 0.0005 - 0.0025 * ramp(t, 0.0, 0.3)))
+        .collect();
+    let r = run(&scene, &ts, &[track], false);
+    let f = r.force.last().expect("samples")[0];
+    assert!(f.z > 0.01, "pushes back: {f:?}");
+    assert!(f.x.hypot(f.y) < 0.01 * f.z, "tangential {f:?}");
+}
+
+/// Two plates on the cube, one pressing in while the other lifts out (the
+/// cross term of the two contacts is what a force loop holding the other
+/// hand still would miss): every sample equals a full solve at that
+/// sample's poses, and no sample is flagged.
+#[test]
+fn two_instruments_moving_in_opposite_directions_each_sample_equals_a_full_solve() {
+    let scene = cube(&[]);
+    let ts = times(0.3, 0.002);
+    let (mut left, mut right) = (Vec::new(), Vec::new());
+    for &t in &ts {
+        let s = ramp(t, 0.1, 0.3);
+        let into = ramp(t, 0.0, 0.1);
+        left.push(flat(0.011, 0.005, TOUCH_Z + 0.0005 - (0.0015 + 0.0015 * s) * into - 0.0005 * into));
+        right.push(flat(0.029, 0.005, TOUCH_Z + 0.0005 - (0.003 - 0.0015 * s) * into - 0.0005 * into));
+    }
+    let r = run(&scene, &ts, &[left, right], true);
+    let peak = r
+        .full
+        .iter()
+        .flatten()
+        .map(|f| f.norm())
+        .fold(0.0, f64::max);
+    assert!(peak > 0.05, "peak {peak} N");
+    let mut worst = (0.0, 0.0);
+    for (k, (s, f)) in r.force.iter().zip(&r.full).enumerate() {
+        for i in 0..2 {
+            let e = (s[i] - f[i]).norm() / peak;
+            if e > worst.0 {
+                worst = (e, r.t[k]);
+            }
+        }
+        assert_eq!(r.flags[k], 0, "t = {}: flags {}", r.t[k], r.flags[k]);
+    }
+    assert!(
+        worst.0 <= 1e-6,
+        "a sample differs from the full solve by {} of the peak (t = {} s)",
+        worst.0,
+        worst.1
+    );
+}
+
+/// The paper's V-shaped block, the plate inserted and then held still at one
+/// pose (the bundled `v-valley-insert-left`): over the hold every
+/// deformation step has the same contact set and the force varies by less
+/// than 1% (the force loop's samples and the steps alike).
+#[test]
+fn a_plate_held_still_in_the_v_valley_settles() {
+    let (scene, _) = Scene::load("v-valley").expect("bundled scene");
+    let text = include_str!("../../client-cli/trajectories/v-valley-insert-left.csv");
+    let mut ts = Vec::new();
+    let mut track = Vec::new();
+    for line in text.lines().skip(1) {
+        let v: Vec<f64> = line.split(',').map(|x| x.parse().expect("a number")).collect();
+        ts.push(v[0]);
+        track.push(Isometry3::from_parts(
+            Translation3::new(v[1], v[2], v[3]),
+            UnitQuaternion::new_normalize(Quaternion::new(v[4], v[5], v[6], v[7])),
+        ));
+    }
+    // The hold: the last stretch with the pose unchanged.
+    let last = *track.last().expect("poses");
+    let hold_from = ts[track
+        .iter()
+        .rposition(|p| (p.translation.vector - last.translation.vector).norm() > 1e-12
+            || p.rotation.angle_to(&last.rotation) > 1e-12)
+        .map_or(0, |k| k + 1)];
+    let end = *ts.last().expect("times");
+    assert!(end - hold_from >= 0.2, "hold of {} s", end - hold_from);
+    let r = run(&scene, &ts, &[track], false);
+    // Skip the first 100 ms of the hold (the tissue's own settling).
+    let settle = hold_from + 0.1;
+    let held: Vec<f64> = r
+        .t
+        .iter()
+        .zip(&r.force)
+        .filter(|(t, _)| **t >= settle)
+        .map(|(_, f)| f[0].norm())
+        .collect();
+    let mean = held.iter().sum::<f64>() / held.len() as f64;
+    assert!(mean > 1e-3, "the held plate is in contact: {mean} N");
+    let spread = held.iter().fold(0.0f64, |m, f| m.max((f - mean).abs())) / mean;
+    assert!(spread < 0.01, "held force varies by {spread} of its mean");
+    let dt = scene.loops.deformation_interval_s;
+    let steps_in_hold: Vec<&(Vec<Vector3<f64>>, Vec<u64>)> = r
+        .steps
+        .iter()
+        .enumerate()
+        .filter(|(k, _)| (*k as f64 + 1.0) * dt >= settle)
+        .map(|(_, s)| s)
+        .collect();
+    assert!(steps_in_hold.len() >= 5, "{} steps in the hold", steps_in_hold.len());
+    for w in steps_in_hold.windows(2) {
+        assert_eq!(w[0].1, w[1].1, "the contact set changed during the hold");
+        let (a, b) = (w[0].0[0].norm(), w[1].0[0].norm());
+        assert!((a - b).abs() <= 0.01 * mean, "step forces {a} and {b} N");
+    }
+}
