@@ -50,9 +50,18 @@ fn quick_study_is_stable_and_consistent() {
     assert!(e.abs() < 5.0, "10 mm/s: force error {e}%");
 
     // `compliance` is exact linear elasticity: it matches the `direct`
-    // reference to rounding, whatever the ray backend.
+    // reference to rounding, whatever the ray backend. The paper's rule is
+    // another contact law: it differs from the frictionless reference.
     for r in &res.grid {
         let e = r.errors.expect("grid rows have errors");
+        if r.config.sweep == "contact" {
+            assert!(
+                e.rms_mm > 1e-3 && e.rms_mm.is_finite(),
+                "{}: the paper's rule equals frictionless contact: {e:?}",
+                r.config.label
+            );
+            continue;
+        }
         assert!(
             e.points > 10,
             "{}: {} region points",

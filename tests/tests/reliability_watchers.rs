@@ -60,11 +60,13 @@ async fn watchers_that_never_read_do_not_grow_memory() -> anyhow::Result<()> {
     let sim = server.sim.clone();
     assert!(eventually(Duration::from_secs(2), || sim.stats().watchers == 17).await);
     let mut haptic_client = own_connection(&server.url).await?;
-    // Warm-up: the first second of pushing fills the buffers once.
+    // Warm-up: the whole push once fills the buffers and the engine's
+    // caches (the compliance columns of every node the press reaches and
+    // of the band ahead of it, computed in the background).
     let warm = pipelined(
         &mut haptic_client,
         "left",
-        1000,
+        4000,
         1000.0,
         1,
         |i| {

@@ -4,7 +4,7 @@
 //! of the stability sweep.
 
 use fissure_server::fem::Strategy;
-use fissure_server::scene::{CollisionMethod, Scene, SceneError};
+use fissure_server::scene::{CollisionMethod, ContactLaw, Scene, SceneError};
 use serde::Serialize;
 
 /// Where and how rays are cast.
@@ -59,6 +59,13 @@ pub struct Config {
     pub nu: f64,
     /// Time scale of the trajectory (`> 1` slower).
     pub time_scale: f64,
+    /// The contact law (the reference's is frictionless).
+    #[serde(serialize_with = "ser_law")]
+    pub contact_law: ContactLaw,
+}
+
+fn ser_law<S: serde::Serializer>(l: &ContactLaw, ser: S) -> Result<S::Ok, S::Error> {
+    ser.serialize_str(l.name())
 }
 
 fn ser_strategy<S: serde::Serializer>(s: &Strategy, ser: S) -> Result<S::Ok, S::Error> {
@@ -87,6 +94,7 @@ impl Config {
             youngs_pa: 3000.0,
             nu: 0.45,
             time_scale: 1.0,
+            contact_law: ContactLaw::Frictionless,
         }
         .labelled()
     }
@@ -125,6 +133,9 @@ impl Config {
         if self.nu != 0.45 {
             l.push_str(&format!("/nu{}", self.nu));
         }
+        if self.contact_law != ContactLaw::Frictionless {
+            l.push_str(&format!("/{}", self.contact_law.name()));
+        }
         if self.time_scale != 1.0 {
             l.push_str(&format!("/x{:.3}", self.time_scale));
         }
@@ -143,6 +154,7 @@ impl Config {
         scene.material.poisson_ratio = self.nu;
         scene.solver.strategy = self.strategy;
         scene.solver.tolerance = self.tolerance;
+        scene.contact.law = self.contact_law;
         scene.collision.method = match self.backend {
             Backend::CpuBrute => CollisionMethod::Brute,
             _ => CollisionMethod::Bvh,

@@ -6,9 +6,10 @@
 //!   `compliance`, 150 source nodes a face, whole brain, CPU BVH, 2 threads)
 //!   and one-dimension-at-a-time sweeps around it: mesh preset, strategy
 //!   (`corotational`, `neo-hookean`), solver tolerance, nodes a face, region
-//!   of interest, ray backend, threads. Every run is compared with the
-//!   **reference**, the finest preset with `neo-hookean` at a tight tolerance
-//!   ([`compare`]).
+//!   of interest, ray backend, threads, and the contact law (the paper's
+//!   projection beside the frictionless default). Every run is compared with
+//!   the **reference**, the finest preset with `neo-hookean` at a tight
+//!   tolerance and frictionless contact ([`compare`]).
 //! * **Stability**: Poisson's ratio, Young's modulus and spatula speed swept
 //!   to their extremes ([`stability`]); each run reports whether it stayed
 //!   finite, the worst element volume ratio `min det F`, the solver
@@ -31,6 +32,7 @@ use compare::Errors;
 use config::{Backend, Config};
 use driver::{ModelCache, RunResult};
 use fissure_server::fem::Strategy;
+use fissure_server::scene::ContactLaw;
 use indicatif::{ProgressBar, ProgressStyle};
 use scenario::Scenario;
 use serde::Serialize;
@@ -192,6 +194,7 @@ impl Plan {
                 grid: vec![
                     v(&|_| {}, "baseline"),
                     v(&|c| c.backend = Backend::CpuBrute, "backend"),
+                    v(&|c| c.contact_law = ContactLaw::Paper, "contact"),
                 ],
                 window_s: 1.4,
                 rate_hz: 50.0,
@@ -239,6 +242,7 @@ impl Plan {
                     },
                     "tolerance",
                 ),
+                v(&|c| c.contact_law = ContactLaw::Paper, "contact"),
                 v(&|c| c.nodes_per_face = 30, "nodes-per-face"),
                 v(&|c| c.nodes_per_face = 500, "nodes-per-face"),
                 v(&|c| c.roi_m = Some(0.03), "roi"),
