@@ -128,7 +128,8 @@ async fn recording_round_trip_report_and_replay() -> anyhow::Result<()> {
             assert_eq!(s.model_frame, r.model_frame);
         }
     }
-    // One frame per deformation interval of pose time, numbered 1, 2, ...
+    // The rest frame 0 the server starts from, then one frame per
+    // deformation interval of pose time, numbered 1, 2, ...
     let dt = scene.loops.as_ref().expect("loops").deformation_interval_s;
     let duration = plans[0].1.points.last().expect("points").t_s;
     assert!(
@@ -137,7 +138,7 @@ async fn recording_round_trip_report_and_replay() -> anyhow::Result<()> {
         frames.len()
     );
     for (i, f) in frames.iter().enumerate() {
-        assert_eq!(f.frame, i as u64 + 1);
+        assert_eq!(f.frame, i as u64);
         assert!(f.positions_m.is_empty(), "frames are recorded as summaries");
         assert_eq!(f.instruments.len(), 2);
     }

@@ -59,11 +59,16 @@ async fn pushed_face_force_matches_direct_solve() -> anyhow::Result<()> {
     assert!(!fm.step_rows.is_empty(), "no contact in the last step");
     let model = server.sim.model();
     let rows: Vec<fem::ContactRow> = fm.step_rows.iter().map(|r| r.row).collect();
-    // The vertices the plate holds sit exactly on its face: u_z = -depth.
+    // The tissue the plate holds sits exactly on its face: a held vertex
+    // has u_z = -depth, a held polygon point a zero gap.
     for (r, &l) in fm.step_rows.iter().zip(&fm.step_lambda) {
         if l > 0.0 {
-            let u = snap.displacements[r.row.node as usize];
-            assert!((u.z + depth).abs() < 1e-9, "node {}: {u:?}", r.row.node);
+            let gap = r.row.gap_free_m + r.row.normal_motion(&snap.displacements);
+            assert!(gap.abs() < 1e-9, "row {:x}: gap {gap} m", r.key);
+            if !r.row.is_point() {
+                let u = snap.displacements[r.row.node as usize];
+                assert!((u.z + depth).abs() < 1e-9, "node {}: {u:?}", r.row.node);
+            }
         }
     }
     let material = fem::Material {

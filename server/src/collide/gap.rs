@@ -44,6 +44,10 @@ use nalgebra::Vector3;
 /// The rim faces.
 const RIM: [FaceId; 3] = [FaceId::SidePlusY, FaceId::SideMinusY, FaceId::Tip];
 
+/// How far behind both large faces (a share of the plate's thickness) a
+/// vertex must lie to be a rim face's candidate.
+const RIM_MARGIN: f64 = 0.05;
+
 /// `cos(5 degrees)`: candidates of one vertex with normals closer than this
 /// to parallel or opposed are one claim too many.
 const PARALLEL_COS: f64 = 0.996_194_698_091_745_5;
@@ -161,7 +165,18 @@ pub(crate) fn candidates(
                 // polygon points of [`edges`]).
                 let mut covered =
                     (fp.outside_m <= tol && fp.gap_m <= band).then_some((face, fp));
-                if covered.is_none() {
+                // A rim face takes tissue beside the plate's body only:
+                // behind both large faces by a margin. Tissue at the level
+                // of face A or B beyond the outline is that face's, at the
+                // polygon points of the triangles the outline crosses (at
+                // the corner where both could claim it, the choice must
+                // not flip with a micrometre of the tissue's shape).
+                let beside = || {
+                    let margin = RIM_MARGIN * inst.plate.thickness;
+                    inst.plate.project(FaceId::A, &x).gap_m <= -margin
+                        && inst.plate.project(FaceId::B, &x).gap_m <= -margin
+                };
+                if covered.is_none() && beside() {
                     covered = RIM.iter().filter(|&&r| r != face).find_map(|&r| {
                         let rp = inst.plate.project(r, &x);
                         (rp.outside_m <= tol
