@@ -31,23 +31,14 @@ fn main() {
     let mut r = SteppedRunner::for_scene(&scene, model.clone(), ColumnPolicy::Compute).unwrap();
     let mut answers = Vec::new();
     let n = trajs[0].len();
-    let stop: usize = std::env::var("AT")
-        .ok()
-        .and_then(|v| v.parse::<usize>().ok())
-        .map(|a| a + 1)
-        .unwrap_or(n);
+    let stop: usize = std::env::var("AT").ok().and_then(|v| v.parse::<usize>().ok()).map(|a| a + 1).unwrap_or(n);
     for j in 0..stop {
         let t = trajs[0][j].0;
         let poses: Vec<(usize, Isometry3<f64>)> = trajs
             .iter()
             .enumerate()
             .map(|(i, tr)| (i, tr[j.min(tr.len() - 1)].1))
-            .filter(|(i, _)| {
-                std::env::var("SKIP")
-                    .ok()
-                    .and_then(|v| v.parse::<usize>().ok())
-                    != Some(*i)
-            })
+            .filter(|(i, _)| std::env::var("SKIP").ok().and_then(|v| v.parse::<usize>().ok()) != Some(*i))
             .collect();
         answers.clear();
         r.tick(
@@ -127,69 +118,27 @@ fn main() {
         }
     }
     let snap = r.snapshot().clone();
-    let inst: usize = std::env::var("INST")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(0);
-    let at: usize = std::env::var("AT")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(n - 1);
+    let inst: usize = std::env::var("INST").ok().and_then(|v| v.parse().ok()).unwrap_or(0);
+    let at: usize = std::env::var("AT").ok().and_then(|v| v.parse().ok()).unwrap_or(n - 1);
     let mut fl = fissure_server::sim::force_loop::ForceLoop::new(&scene, &model, inst, None);
     let pose = trajs[inst][at].1;
     fl.query(&model, &snap, &pose);
     let f = fl.solve(&model, &snap, &|_| None, &pose.translation.vector);
     println!("fresh loop force {:?}", f.force_n);
-    let mut fr: Vec<_> = fl
-        .rows()
-        .iter()
-        .map(|r| (r.key, r.row.gap_free_m, r.triangle.1))
-        .collect();
+    let mut fr: Vec<_> = fl.rows().iter().map(|r| (r.key, r.row.gap_free_m, r.triangle.1)).collect();
     fr.sort_by_key(|x| x.0);
-    let mut sr: Vec<_> = snap
-        .force_model
-        .step_rows
-        .iter()
-        .zip(&snap.force_model.step_lambda)
-        .map(|(r, l)| (r.key, r.row.gap_free_m, r.triangle.1, *l))
-        .collect();
+    let mut sr: Vec<_> = snap.force_model.step_rows.iter().zip(&snap.force_model.step_lambda).map(|(r, l)| (r.key, r.row.gap_free_m, r.triangle.1, *l)).collect();
     sr.sort_by_key(|x| x.0);
     let mut cq = fissure_server::sim::engine::ContactQuery::new(&scene, faer::Par::Seq);
     let mut h = fl.history().clone();
     let out = cq.query(&model, &snap, inst, &pose, &mut h);
-    let tri: u32 = std::env::var("TRI")
-        .ok()
-        .and_then(|v| u32::from_str_radix(&v, 16).ok())
-        .unwrap_or(0x38e);
-    println!(
-        "tri {:?} vol nodes {:?}",
-        model.surface.triangles[tri as usize],
-        model.surface.triangles[tri as usize].map(|v| model.surface.to_volume[v as usize])
-    );
-    for p in out.pairs.iter().filter(|p| p.triangle == tri) {
-        println!("pair {p:?}");
-    }
-    for p in out.cancelled.iter().filter(|p| p.triangle == tri) {
-        println!("cancelled {p:?}");
-    }
-    for e in out.edges.iter().filter(|p| p.triangle == tri) {
-        println!("edge {e:?}");
-    }
-    for c in out.candidates.iter() {
-        println!(
-            "cand v{} vol{} face {:?} gap {:.6}",
-            c.surface_vertex, c.volume_node, c.face, c.gap_now_m
-        );
-    }
-    println!(
-        "pairs {} cancelled {}",
-        out.pairs.len(),
-        out.cancelled.len()
-    );
-    for x in &fr {
-        println!("loop {:x} gap {:.6} w {:.4?}", x.0, x.1, x.2);
-    }
-    for x in &sr {
-        println!("step {:x} gap {:.6} w {:.4?} l {:.4}", x.0, x.1, x.2, x.3);
-    }
+    let tri: u32 = std::env::var("TRI").ok().and_then(|v| u32::from_str_radix(&v, 16).ok()).unwrap_or(0x38e);
+    println!("tri {:?} vol nodes {:?}", model.surface.triangles[tri as usize], model.surface.triangles[tri as usize].map(|v| model.surface.to_volume[v as usize]));
+    for p in out.pairs.iter().filter(|p| p.triangle == tri) { println!("pair {p:?}"); }
+    for p in out.cancelled.iter().filter(|p| p.triangle == tri) { println!("cancelled {p:?}"); }
+    for e in out.edges.iter().filter(|p| p.triangle == tri) { println!("edge {e:?}"); }
+    for c in out.candidates.iter() { println!("cand v{} vol{} face {:?} gap {:.6}", c.surface_vertex, c.volume_node, c.face, c.gap_now_m); }
+    println!("pairs {} cancelled {}", out.pairs.len(), out.cancelled.len());
+    for x in &fr { println!("loop {:x} gap {:.6} w {:.4?}", x.0, x.1, x.2); }
+    for x in &sr { println!("step {:x} gap {:.6} w {:.4?} l {:.4}", x.0, x.1, x.2, x.3); }
 }

@@ -58,8 +58,6 @@ pub struct Model {
     pub to_full: Option<(Vec<u32>, usize)>,
     /// Per volume node: its surface vertex, `u32::MAX` inside.
     pub from_volume: Vec<u32>,
-    /// Per surface vertex: its neighbours along surface edges.
-    pub surface_neighbours: crate::mesh::adjacency::Csr,
     history_mode: CollideHistoryMode,
 }
 
@@ -211,13 +209,8 @@ impl Model {
         for (s, &v) in surface.to_volume.iter().enumerate() {
             from_volume[v as usize] = s as u32;
         }
-        let surface_neighbours = crate::mesh::adjacency::surface_vertex_neighbours(
-            &surface.triangles,
-            surface.to_volume.len(),
-        );
         Ok(Self {
             from_volume,
-            surface_neighbours,
             mesh,
             surface,
             rest_surface,
@@ -524,22 +517,6 @@ impl ContactQuery {
         pose: &Isometry3<f64>,
         history: &mut History,
     ) -> &ContactOutput {
-        self.query_at(model, snap, &snap.surface, instrument, pose, history)
-    }
-
-    /// One instrument, the rays cast on the snapshot's surface and the
-    /// stages after the cast on `positions` (surface vertex positions, m: the
-    /// snapshot's with some vertices moved, e.g. where a force sample's
-    /// solve moved them).
-    pub fn query_at(
-        &mut self,
-        model: &Model,
-        snap: &Snapshot,
-        positions: &[Point3<f64>],
-        instrument: usize,
-        pose: &Isometry3<f64>,
-        history: &mut History,
-    ) -> &ContactOutput {
         let mut shared = None;
         let backend = Self::backend_for(
             &mut self.backend,
@@ -551,7 +528,7 @@ impl ContactQuery {
             Par::Seq,
             &mut shared,
         );
-        let q = model.contact_query(positions);
+        let q = model.contact_query(&snap.surface);
         if let Err(e) = contact::detect(
             backend,
             &q,
@@ -1296,17 +1273,6 @@ impl StepEngine {
                 ahead.push(n.volume_node);
             }
         }
-        // And one ring of surface neighbours: a polygon point on a
-        // triangle the outline comes to cross before the next step needs
-        // the triangle's far vertices too.
-        let ring: Vec<u32> = patch_nodes
-            .iter()
-            .filter_map(|&v| model.from_volume.get(v as usize).copied())
-            .filter(|&s| s != u32::MAX)
-            .flat_map(|s| model.surface_neighbours.row(s as usize).iter().copied())
-            .map(|s| model.surface.to_volume[s as usize])
-            .collect();
-        patch_nodes.extend(ring);
         patch_nodes.sort_unstable();
         patch_nodes.dedup();
         patch_nodes.retain(|&v| !model.fixed_mask[v as usize]);

@@ -11,19 +11,6 @@
 //! compliance patch hold the last step's force while the instrument is in
 //! contact.
 //!
-//!
-//! **The sample's contact geometry.** Which rows a pose has (covered
-//! vertices, polygon points) depends on the tissue's shape, which the
-//! sample's own solve changes. With a linear patch the loop keeps its own
-//! copy of the surface: at a new frame the published one, then after each
-//! solve the patch's vertices moved to where the solve puts them
-//! (`x_i = x_rest_i + sum_j C_ij f_j`, the contact loads `f` on the patch's
-//! nodes), and it queries again at the same pose: up to
-//! [`GEOMETRY_ROUNDS`] rounds, until the rows come back the same (point
-//! weights within 1e-6). The next sample starts from that shape. A sample
-//! is then the full solve at its poses (the rays still cast on the
-//! published tree; only the stages after the cast see the moved vertices).
-//!
 //! The same functions serve the free-running force loops (each on its own
 //! thread, reading the others' rows from shared slots) and the stepped
 //! runner ([`super::stepped`]), which queries every instrument of one time
@@ -36,14 +23,7 @@ use super::rows::{self, FreePositions, Row, SKULL_OWNER};
 use super::snapshot::Snapshot;
 use crate::scene::{HistoryMode, Scene};
 use faer::Par;
-use nalgebra::{Isometry3, Point3, Vector3};
-
-/// Most rounds of a sample's contact geometry (solves per sample).
-pub const GEOMETRY_ROUNDS: usize = 3;
-
-/// Point weights (barycentric, 1) within this of the last round's: the
-/// sample's contact geometry has converged.
-const GEOMETRY_TOLERANCE: f64 = 1e-6;
+use nalgebra::{Isometry3, Vector3};
 
 /// A sample's force on one instrument.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -73,16 +53,6 @@ pub struct ForceLoop {
     contact_count: u32,
     touching: Vec<u32>,
     last_good: (Vector3<f64>, Vector3<f64>),
-    /// The loop's copy of the surface (module documentation) and the frame
-    /// it was copied from.
-    surface: Vec<Point3<f64>>,
-    surface_frame: Option<u64>,
-    /// The pose of the last query.
-    pose: Isometry3<f64>,
-    /// Contact loads on the patch's nodes, N.
-    loads: Vec<Vector3<f64>>,
-    /// The rows of the last round.
-    last_rows: Vec<Row>,
 }
 
 impl std::fmt::Debug for ForceLoop {
@@ -120,11 +90,6 @@ impl ForceLoop {
             contact_count: 0,
             touching: Vec::new(),
             last_good: (Vector3::zeros(), Vector3::zeros()),
-            surface: Vec::new(),
-            surface_frame: None,
-            pose: Isometry3::identity(),
-            loads: Vec::new(),
-            last_rows: Vec::new(),
         }
     }
 
@@ -149,7 +114,6 @@ impl ForceLoop {
         self.rows.clear();
         self.solver = ForceSolver::new();
         self.last_good = (Vector3::zeros(), Vector3::zeros());
-        self.surface_frame = None;
     }
 
     /// The collision query for `pose` against `snap`, and the instrument's
@@ -159,25 +123,9 @@ impl ForceLoop {
         if self.paper_mode {
             self.history.copy_from(&snap.paper_history[self.index]);
         }
-        if self.surface_frame != Some(snap.frame) {
-            self.surface.clear();
-            self.surface.extend_from_slice(&snap.surface);
-            self.surface_frame = Some(snap.frame);
-        }
-        self.pose = *pose;
-        self.rows_at(model, snap, pose)
-    }
-
-    /// The query on the loop's surface and the rows of its answer.
-    fn rows_at(&mut self, model: &Model, snap: &Snapshot, pose: &Isometry3<f64>) -> u32 {
-        let out = self.query.query_at(
-            model,
-            snap,
-            &self.surface,
-            self.index,
-            pose,
-            &mut self.history,
-        );
+        let out = self
+            .query
+            .query(model, snap, self.index, pose, &mut self.history);
         let fm = &snap.force_model;
         let free = if fm.patch.linear || !fm.has_patch {
             FreePositions::Rest(&model.mesh.nodes)
@@ -241,65 +189,34 @@ impl ForceLoop {
                 flags: 0,
             };
         }
+        self.all.clear();
+        rows::append(&mut self.all, &self.rows);
+        for j in 0..model.instruments.len() {
+            if j == self.index {
+                continue;
+            }
+            match others(j) {
+                Some(r) => rows::append(&mut self.all, r),
+                None => rows::append_owner(&mut self.all, &fm.step_rows, j as u16),
+            }
+        }
+        rows::append_owner(&mut self.all, &fm.step_rows, SKULL_OWNER);
         let mut out_flags = 0;
-        for round in 0..GEOMETRY_ROUNDS {
-            self.all.clear();
-            rows::append(&mut self.all, &self.rows);
-            for j in 0..model.instruments.len() {
-                if j == self.index {
-                    continue;
-                }
-                match others(j) {
-                    Some(r) => rows::append(&mut self.all, r),
-                    None => rows::append_owner(&mut self.all, &fm.step_rows, j as u16),
-                }
-            }
-            rows::append_owner(&mut self.all, &fm.step_rows, SKULL_OWNER);
-            out_flags = 0;
-            if let Err(e) = self.solver.solve(fm, &self.all, &mut self.answer) {
-                tracing::debug!(instrument = self.index, error = %e, "force-loop contact solve failed");
-                return SampleForce {
-                    force_n: self.last_good.0,
-                    torque_nm: self.last_good.1,
-                    contact_count: self.contact_count,
-                    flags: flags::CONTACT_UNSOLVED,
-                };
-            }
-            for &p in &self.answer.pending {
-                let r = &self.all[p as usize];
-                let l = penalty(model, r, &snap.displacements);
-                self.answer.lambda[p as usize] = l;
-                if r.owner == me && l != 0.0 {
-                    out_flags |= flags::COLUMNS_PENDING;
-                }
-            }
-            if !fm.patch.linear || self.surface_frame != Some(snap.frame) {
-                break;
-            }
-            self.move_patch_vertices(model, snap);
-            if round + 1 == GEOMETRY_ROUNDS {
-                break;
-            }
-            self.last_rows.clear();
-            self.last_rows.extend_from_slice(&self.rows);
-            let pose = self.pose;
-            self.rows_at(model, snap, &pose);
-            // Rows the patch cannot answer (tissue the solve moved beyond
-            // the patch's band) would only be penalties: keep the round's
-            // answer instead.
-            let outside = self.rows.iter().any(|r| {
-                r.row.nodes().any(|(n, _)| {
-                    fm.patch_index
-                        .get(n as usize)
-                        .is_none_or(|&p| p == u32::MAX)
-                })
-            });
-            if outside {
-                std::mem::swap(&mut self.rows, &mut self.last_rows);
-                break;
-            }
-            if same_rows(&self.last_rows, &self.rows) {
-                break;
+        if let Err(e) = self.solver.solve(fm, &self.all, &mut self.answer) {
+            tracing::debug!(instrument = self.index, error = %e, "force-loop contact solve failed");
+            return SampleForce {
+                force_n: self.last_good.0,
+                torque_nm: self.last_good.1,
+                contact_count: self.contact_count,
+                flags: flags::CONTACT_UNSOLVED,
+            };
+        }
+        for &p in &self.answer.pending {
+            let r = &self.all[p as usize];
+            let l = penalty(model, r, &snap.displacements);
+            self.answer.lambda[p as usize] = l;
+            if r.owner == me && l != 0.0 {
+                out_flags |= flags::COLUMNS_PENDING;
             }
         }
         let (force_n, torque_nm) = rows::owner_force(&self.all, &self.answer.lambda, me, handle);
@@ -328,51 +245,4 @@ impl ForceLoop {
             flags: out_flags,
         }
     }
-}
-
-impl ForceLoop {
-    /// Moves the patch's surface vertices in the loop's surface copy to
-    /// where the last solve puts them: `x_i = x_rest_i + sum_j C_ij f_j`
-    /// (linear patch; `f_j` the contact loads on patch node `j`, N).
-    fn move_patch_vertices(&mut self, model: &Model, snap: &Snapshot) {
-        let fm = &snap.force_model;
-        let patch = &fm.patch;
-        let m = patch.nodes.len();
-        self.loads.clear();
-        self.loads.resize(m, Vector3::zeros());
-        for (r, &l) in self.all.iter().zip(&self.answer.lambda) {
-            if l == 0.0 {
-                continue;
-            }
-            for (n, w) in r.row.nodes() {
-                match fm.patch_index.get(n as usize) {
-                    Some(&p) if p != u32::MAX => self.loads[p as usize] += r.row.dir * (l * w),
-                    _ => {}
-                }
-            }
-        }
-        for i in 0..m {
-            let s = model.from_volume[patch.nodes[i] as usize];
-            if s == u32::MAX {
-                continue;
-            }
-            let mut u = Vector3::zeros();
-            for (j, f) in self.loads.iter().enumerate() {
-                if *f != Vector3::zeros() {
-                    u += patch.block(i, j) * f;
-                }
-            }
-            self.surface[s as usize] = patch.free_positions[i] + u;
-        }
-    }
-}
-
-/// Whether two rounds' rows are the same problem: the same keys in order,
-/// point weights within [`GEOMETRY_TOLERANCE`].
-fn same_rows(a: &[Row], b: &[Row]) -> bool {
-    a.len() == b.len()
-        && a.iter().zip(b).all(|(x, y)| {
-            x.key == y.key
-                && (0..3).all(|k| (x.triangle.1[k] - y.triangle.1[k]).abs() <= GEOMETRY_TOLERANCE)
-        })
 }
