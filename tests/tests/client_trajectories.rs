@@ -68,7 +68,12 @@ async fn v_valley_frictionless_walls_push_along_the_plate_normals_only() -> anyh
     assert!(norm > 1e-3 && end.contact_count > 0, "no push: {end:?}");
     assert!(f[1].abs() <= 1e-9 * norm, "force along the width: {f:?}");
     for r in &rows[0] {
-        assert!(r.force_n[2] >= -1e-12, "pulled deeper at t = {}: {:?}", r.t_s, r.force_n);
+        assert!(
+            r.force_n[2] >= -1e-12,
+            "pulled deeper at t = {}: {:?}",
+            r.t_s,
+            r.force_n
+        );
     }
     Ok(())
 }

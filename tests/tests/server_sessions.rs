@@ -40,8 +40,7 @@ async fn press_session(
 /// exactly as the first did: the same deformation steps, the same force on
 /// every sample to the bit, frames numbered after the reset's.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn reset_restarts_the_stepped_clock_and_a_pose_behind_it_is_refused() -> anyhow::Result<()>
-{
+async fn reset_restarts_the_stepped_clock_and_a_pose_behind_it_is_refused() -> anyhow::Result<()> {
     let options = SimOptions {
         stepped: Some(true),
         stepped_clients: 1,
@@ -64,7 +63,9 @@ async fn reset_restarts_the_stepped_clock_and_a_pose_behind_it_is_refused() -> a
     let mut h = Haptic::open(&mut client, "left", None).await?;
     let refused = h.send(pose(0.0, 0, press(0), FLAT_DOWN)).await?;
     h.close().await;
-    let why = refused.rejection.expect("a pose behind the clock is refused");
+    let why = refused
+        .rejection
+        .expect("a pose behind the clock is refused");
     assert_eq!(why.code, tonic::Code::OutOfRange as i32, "{}", why.message);
     assert!(
         why.message.contains("behind the stepped clock"),
@@ -115,7 +116,12 @@ async fn frame_numbers_increase_for_the_life_of_the_server() -> anyhow::Result<(
         let mut h = Haptic::open(&mut client, "left", None).await?;
         for i in 0..200 {
             let s = h
-                .send(pose(round as f64 + i as f64 * 1e-3, i as u64, press(i), FLAT_DOWN))
+                .send(pose(
+                    round as f64 + i as f64 * 1e-3,
+                    i as u64,
+                    press(i),
+                    FLAT_DOWN,
+                ))
                 .await?;
             assert!(s.rejection.is_none(), "{s:?}");
             seen.push(s.model_frame);
