@@ -57,12 +57,7 @@ struct Run {
 /// Runs `tracks[i]` (instrument `i`'s poses at the shared times `times`)
 /// through a stepped runner; with `reference`, also a full solve at every
 /// sample (a second engine stepped at each sample's time and poses).
-fn run(
-    scene: &Scene,
-    times: &[f64],
-    tracks: &[Vec<Isometry3<f64>>],
-    reference: bool,
-) -> Run {
+fn run(scene: &Scene, times: &[f64], tracks: &[Vec<Isometry3<f64>>], reference: bool) -> Run {
     let model = Arc::new(Model::build(scene).expect("the model builds"));
     let mut runner = SteppedRunner::for_scene(scene, model.clone(), ColumnPolicy::Compute)
         .expect("the runner starts");
@@ -76,8 +71,11 @@ fn run(
     let mut out = Run::default();
     let mut answers = Vec::new();
     for (j, &t) in times.iter().enumerate() {
-        let poses: Vec<(usize, Isometry3<f64>)> =
-            tracks.iter().enumerate().map(|(i, tr)| (i, tr[j])).collect();
+        let poses: Vec<(usize, Isometry3<f64>)> = tracks
+            .iter()
+            .enumerate()
+            .map(|(i, tr)| (i, tr[j]))
+            .collect();
         answers.clear();
         runner.tick(
             t,
@@ -105,7 +103,8 @@ fn run(
             &mut answers,
         );
         out.t.push(t);
-        out.force.push(answers.iter().map(|a| a.force.force_n).collect());
+        out.force
+            .push(answers.iter().map(|a| a.force.force_n).collect());
         out.flags
             .push(answers.iter().fold(0, |f, a| f | a.force.flags));
         if let Some((engine, snap)) = full.as_mut() {
@@ -171,7 +170,11 @@ fn frictionless_retraction_retraces_pressing_and_lets_go_at_the_rest_surface() {
             r.t[k]
         );
         if d < 0.0 {
-            assert_eq!(fk.z, 0.0, "t = {}: {d} m above the top, force {}", r.t[k], fk.z);
+            assert_eq!(
+                fk.z, 0.0,
+                "t = {}: {d} m above the top, force {}",
+                r.t[k], fk.z
+            );
         } else if d > 2e-5 {
             assert!(fk.z > 0.0, "t = {}: {d} m deep, force {}", r.t[k], fk.z);
         }
@@ -195,7 +198,10 @@ fn frictionless_retraction_retraces_pressing_and_lets_go_at_the_rest_surface() {
     // contact sets lag the motion by up to a deformation interval (see
     // the two-instrument test), in opposite directions on the way in and
     // out: 1.5% of the peak at most (measured). The target is 1%.
-    assert!(worst <= 0.02, "retraction differs from pressing by {worst} of the peak");
+    assert!(
+        worst <= 0.02,
+        "retraction differs from pressing by {worst} of the peak"
+    );
 }
 
 /// A plate larger than the cube's top, the bottom fixed, `nu = 0`: uniaxial
@@ -213,7 +219,13 @@ fn plate_larger_than_the_block_with_nu_zero_gives_e_a_d_over_l() {
     let ts = times(0.1, 0.002);
     let track: Vec<Isometry3<f64>> = ts
         .iter()
-        .map(|&t| flat(0.02, -0.01, TOUCH_Z + 0.0005 - (d + 0.0005) * ramp(t, 0.0, 0.05)))
+        .map(|&t| {
+            flat(
+                0.02,
+                -0.01,
+                TOUCH_Z + 0.0005 - (d + 0.0005) * ramp(t, 0.0, 0.05),
+            )
+        })
         .collect();
     let r = run(&scene, &ts, &[track], false);
     let f = r.force.last().expect("samples")[0];
@@ -254,8 +266,16 @@ fn two_instruments_moving_in_opposite_directions_each_sample_equals_a_full_solve
     for &t in &ts {
         let s = ramp(t, 0.1, 0.3);
         let into = ramp(t, 0.0, 0.1);
-        left.push(flat(0.011, 0.005, TOUCH_Z + 0.0005 - (0.0015 + 0.0015 * s) * into - 0.0005 * into));
-        right.push(flat(0.029, 0.005, TOUCH_Z + 0.0005 - (0.003 - 0.0015 * s) * into - 0.0005 * into));
+        left.push(flat(
+            0.011,
+            0.005,
+            TOUCH_Z + 0.0005 - (0.0015 + 0.0015 * s) * into - 0.0005 * into,
+        ));
+        right.push(flat(
+            0.029,
+            0.005,
+            TOUCH_Z + 0.0005 - (0.003 - 0.0015 * s) * into - 0.0005 * into,
+        ));
     }
     let r = run(&scene, &ts, &[left, right], true);
     let peak = r
@@ -300,7 +320,10 @@ fn a_plate_held_still_in_the_v_valley_settles() {
     let mut ts = Vec::new();
     let mut track = Vec::new();
     for line in text.lines().skip(1) {
-        let v: Vec<f64> = line.split(',').map(|x| x.parse().expect("a number")).collect();
+        let v: Vec<f64> = line
+            .split(',')
+            .map(|x| x.parse().expect("a number"))
+            .collect();
         ts.push(v[0]);
         track.push(Isometry3::from_parts(
             Translation3::new(v[1], v[2], v[3]),
@@ -311,21 +334,22 @@ fn a_plate_held_still_in_the_v_valley_settles() {
     let last = *track.last().expect("poses");
     let hold_from = ts[track
         .iter()
-        .rposition(|p| (p.translation.vector - last.translation.vector).norm() > 1e-12
-            || p.rotation.angle_to(&last.rotation) > 1e-12)
+        .rposition(|p| {
+            (p.translation.vector - last.translation.vector).norm() > 1e-12
+                || p.rotation.angle_to(&last.rotation) > 1e-12
+        })
         .map_or(0, |k| k + 1)];
     let end = *ts.last().expect("times");
     assert!(end - hold_from >= 0.2, "hold of {} s", end - hold_from);
     let r = run(&scene, &ts, &[track], false);
     // Skip the first 100 ms of the hold (the tissue's own settling).
     let settle = hold_from + 0.1;
-    let held: Vec<f64> = r
-        .t
-        .iter()
-        .zip(&r.force)
-        .filter(|(t, _)| **t >= settle)
-        .map(|(_, f)| f[0].norm())
-        .collect();
+    let held: Vec<f64> =
+        r.t.iter()
+            .zip(&r.force)
+            .filter(|(t, _)| **t >= settle)
+            .map(|(_, f)| f[0].norm())
+            .collect();
     let mean = held.iter().sum::<f64>() / held.len() as f64;
     assert!(mean > 1e-3, "the held plate is in contact: {mean} N");
     let spread = held.iter().fold(0.0f64, |m, f| m.max((f - mean).abs())) / mean;
@@ -338,7 +362,11 @@ fn a_plate_held_still_in_the_v_valley_settles() {
         .filter(|(k, _)| (*k as f64 + 1.0) * dt >= settle)
         .map(|(_, s)| s)
         .collect();
-    assert!(steps_in_hold.len() >= 5, "{} steps in the hold", steps_in_hold.len());
+    assert!(
+        steps_in_hold.len() >= 5,
+        "{} steps in the hold",
+        steps_in_hold.len()
+    );
     for w in steps_in_hold.windows(2) {
         assert_eq!(w[0].1, w[1].1, "the contact set changed during the hold");
         let (a, b) = (w[0].0[0].norm(), w[1].0[0].norm());

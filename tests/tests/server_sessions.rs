@@ -52,7 +52,7 @@ async fn reset_restarts_the_stepped_clock_and_a_pose_behind_it_is_refused() -> a
     let first = press_session(&mut client, 0.0).await?;
     let last = first.last().expect("answers");
     assert!(last.rejection.is_none(), "{last:?}");
-    let push = last.force_n.clone().expect("force").z;
+    let push = last.force_n.expect("force").z;
     assert!(push > 1e-3, "1 mm into the cube: push {push} N");
     assert!(
         first.iter().any(|s| s.model_frame > 0),

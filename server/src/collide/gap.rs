@@ -112,10 +112,10 @@ pub(crate) fn candidates(
                 }
             };
             for pi in 0..out.pairs.len() {
-            let p = out.pairs[pi];
-            if p.instrument as usize != k {
-                continue;
-            }
+                let p = out.pairs[pi];
+                if p.instrument as usize != k {
+                    continue;
+                }
                 if FaceId::of(inst.nodes[p.node as usize].kind) == face {
                     seed(ws, p.triangle);
                 }
@@ -163,8 +163,7 @@ pub(crate) fn candidates(
                 // push what lies beyond the face's outline; tissue under
                 // the outline between covered vertices is pushed at the
                 // polygon points of [`edges`]).
-                let mut covered =
-                    (fp.outside_m <= tol && fp.gap_m <= band).then_some((face, fp));
+                let mut covered = (fp.outside_m <= tol && fp.gap_m <= band).then_some((face, fp));
                 // A rim face takes tissue beside the plate's body only:
                 // behind both large faces by a margin. Tissue at the level
                 // of face A or B beyond the outline is that face's, at the
@@ -292,7 +291,17 @@ fn edges(
                 let topo = ws.topology.as_ref().expect("built by candidates");
                 let sign = if face == FaceId::A { 1.0 } else { -1.0 };
                 let normal = tool.pose.rotation * (Vector3::x() * sign);
-                clip_triangle(query, tool, k, face, p.triangle, band, &mut ws.clipped, stamp, out);
+                clip_triangle(
+                    query,
+                    tool,
+                    k,
+                    face,
+                    p.triangle,
+                    band,
+                    &mut ws.clipped,
+                    stamp,
+                    out,
+                );
                 for v in tri {
                     for &t in topo.triangles.row(v as usize) {
                         if facing(query, t, &normal)
@@ -300,7 +309,17 @@ fn edges(
                                 .iter()
                                 .all(|&v| ws.covered[v as usize] == stamp)
                         {
-                            clip_triangle(query, tool, k, face, t, band, &mut ws.clipped, stamp, out);
+                            clip_triangle(
+                                query,
+                                tool,
+                                k,
+                                face,
+                                t,
+                                band,
+                                &mut ws.clipped,
+                                stamp,
+                                out,
+                            );
                         }
                     }
                 }
@@ -366,7 +385,17 @@ fn edges(
                     {
                         continue;
                     }
-                    clip_triangle(query, tool, k, cand.face, t, band, &mut ws.clipped, stamp, out);
+                    clip_triangle(
+                        query,
+                        tool,
+                        k,
+                        cand.face,
+                        t,
+                        band,
+                        &mut ws.clipped,
+                        stamp,
+                        out,
+                    );
                 }
             }
         }
@@ -429,19 +458,25 @@ fn clip_triangle(
     let inv = tool.pose.inverse();
     let local = tri.map(|v| inv * query.positions[v as usize]);
     let nodes = tri.map(|v| query.to_volume[v as usize]);
-    clip_points(&tool.instrument.plate, face, &local, band, |feature, w, gap, at| {
-        out.edges.push(EdgeCandidate {
-            instrument: k as u16,
-            face,
-            feature,
-            triangle,
-            nodes,
-            weights: w,
-            normal: tool.pose.rotation * at.1,
-            point: tool.pose * at.0,
-            gap_now_m: gap,
-        });
-    });
+    clip_points(
+        &tool.instrument.plate,
+        face,
+        &local,
+        band,
+        |feature, w, gap, at| {
+            out.edges.push(EdgeCandidate {
+                instrument: k as u16,
+                face,
+                feature,
+                triangle,
+                nodes,
+                weights: w,
+                normal: tool.pose.rotation * at.1,
+                point: tool.pose * at.0,
+                gap_now_m: gap,
+            });
+        },
+    );
 }
 
 /// One corner of a clipped polygon: position in the face's plane
@@ -569,7 +604,11 @@ fn clip_points(
                 let x = Corner {
                     y: lerp(p.y, q.y),
                     s: lerp(p.s, q.s),
-                    w: [lerp(p.w[0], q.w[0]), lerp(p.w[1], q.w[1]), lerp(p.w[2], q.w[2])],
+                    w: [
+                        lerp(p.w[0], q.w[0]),
+                        lerp(p.w[1], q.w[1]),
+                        lerp(p.w[2], q.w[2]),
+                    ],
                     gap: lerp(p.gap, q.gap),
                     feature,
                 };

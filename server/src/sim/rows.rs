@@ -275,7 +275,13 @@ pub fn midway(a: &Row, b: &Row, free: &FreePositions<'_>, fixed: &[bool]) -> Row
     Row {
         key: b.key,
         owner: b.owner,
-        row: ContactRow::at_point(nodes, weights, dir, dir.dot(&(x - point.coords)), b.row.kind),
+        row: ContactRow::at_point(
+            nodes,
+            weights,
+            dir,
+            dir.dot(&(x - point.coords)),
+            b.row.kind,
+        ),
         point,
         triangle: (tri, w),
     }
@@ -355,7 +361,10 @@ pub fn seeds_of<'a>(
                     .unwrap_or([u32::MAX; 3])
             } else {
                 [
-                    from_volume.get(r.row.node as usize).copied().unwrap_or(u32::MAX),
+                    from_volume
+                        .get(r.row.node as usize)
+                        .copied()
+                        .unwrap_or(u32::MAX),
                     u32::MAX,
                     u32::MAX,
                 ]
