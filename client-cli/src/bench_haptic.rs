@@ -20,7 +20,9 @@
 //! the full solve of the contact problem at that sample's poses, whose force
 //! on instrument `i` is `F_full`. For linear elasticity the force loop
 //! solves the same problem on the same compliance, so `F_sample = F_full`
-//! to the contact solver's tolerance.
+//! to the contact solver's tolerance. (The full solve finds its contact
+//! rows on its own previous shape, 1 ms old; `hold_variation_full_rel`
+//! shows whether it settles at a held pose.)
 //!
 //! # Measures (per run; N, s)
 //! `P` is the run's peak `|F_full|` over all instruments and samples. A
@@ -50,14 +52,16 @@
 //! * `hysteresis_rel` (runs on the `cube`, whose top face is flat, that
 //!   drive one plate: with another moving, the force at a depth depends on
 //!   its depth too; null elsewhere): the depth `d` of a plate is how far
-//!   its lowest corner lies
-//!   below the block's rest top surface. The press branch is an
-//!   instrument's samples up to its first at the deepest depth, the retract
-//!   branch those from its last there. At every press sample deeper than
-//!   `--hysteresis-min-depth-m`, `|F_out(d) - F_in(d)|` with `F_out`
-//!   interpolated linearly in depth between the retract samples around
-//!   `d`; the largest over `P`. Frictionless contact on linear elasticity
-//!   has one force per depth: 0 up to the solver's tolerance.
+//!   its lowest corner lies below the block's rest top surface. The press
+//!   branch is an instrument's samples up to its first at the deepest
+//!   depth, the retract branch those from its last there. At every press
+//!   sample deeper than `--hysteresis-min-depth-m`, `|F_out(d) - F_in(d)|`
+//!   with `F_out` interpolated linearly in depth between the retract
+//!   samples around `d`; the largest over `P`. Frictionless contact on
+//!   linear elasticity has one force per depth: 0 up to the solver's
+//!   tolerance. The default depth 0 takes every depth in contact: the
+//!   difference is over `P`, so shallow depths cannot inflate it (and the
+//!   cube's mesh spacing, 5 mm, is deeper than its 3 mm press).
 //!   `hysteresis_full_rel`: the same of `F_full`.
 //! * `min_normal_force_n`: the least normal force of one face of a plate.
 //!   At a sample where the full solve's rows of the instrument push on one
@@ -93,6 +97,7 @@
 
 use crate::trajectory::{BUNDLED, Trajectory, Waypoint};
 use anyhow::{Context, bail};
+use fissure_server::collide::FaceId;
 use fissure_server::fem::RowKind;
 use fissure_server::fem::compliance::ColumnPolicy;
 use fissure_server::scene::{EMBEDDED, ModelSpec, Scene};
@@ -379,17 +384,19 @@ fn one_face_normal(
         if r.owner as usize != i || r.row.kind != RowKind::Unilateral || l <= 0.0 {
             continue;
         }
-        match face_of_key(r.key) {
-            0 => a += l,
-            1 => b += l,
-            _ => {}
+        let face = face_of_key(r.key) as usize;
+        if face == FaceId::A.index() {
+            a += l;
+        } else if face == FaceId::B.index() {
+            b += l;
         }
     }
     let plate = &model.instruments[i].plate;
     let n_a = pose.rotation * plate.frame_at(0.5 * plate.length, 0.0).1;
+    // (+ 0.0: a zero force reads 0, not -0.)
     match (a > 0.0, b > 0.0) {
-        (true, false) => Some(-force.dot(&n_a)),
-        (false, true) => Some(force.dot(&n_a)),
+        (true, false) => Some(-force.dot(&n_a) + 0.0),
+        (false, true) => Some(force.dot(&n_a) + 0.0),
         _ => None,
     }
 }
