@@ -4,6 +4,7 @@
 
 pub mod bench_collision;
 pub mod bench_fem;
+pub mod bench_haptic;
 pub mod bench_loop;
 pub mod bridge;
 pub mod demo;

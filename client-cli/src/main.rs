@@ -94,6 +94,11 @@ enum Bench {
     /// rows side by side, with two spatulas in the left Sylvian fissure of a
     /// phantom preset (or on a box of the paper's size): ms per query, speedup.
     Collision(fissure_cli::bench_collision::CollisionArgs),
+    /// Force samples against a full solve at every sample, on every scene
+    /// with bundled trajectories (stepped, 1 kHz): error, ripple at frame
+    /// changes, onset, press/retract hysteresis, normal force, settling of
+    /// held poses, model age and cost, beside their targets.
+    Haptic(fissure_cli::bench_haptic::HapticArgs),
 }
 
 const REPLAY_HELP: &str = "\
@@ -285,6 +290,7 @@ fn main() -> anyhow::Result<()> {
             }
             Bench::Loop(args) => rt.block_on(fissure_cli::bench_loop::main(&args))?,
             Bench::Collision(args) => fissure_cli::bench_collision::run(&args)?,
+            Bench::Haptic(args) => fissure_cli::bench_haptic::main(&args)?,
         },
         Command::Report {
             file,

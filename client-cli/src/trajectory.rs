@@ -111,6 +111,15 @@ pub const BUNDLED: &[(&str, &str, &str, &str)] = &[
         "right",
         include_str!("../trajectories/cube-press-right.csv"),
     ),
+    // Press the left plate 3 mm into the block over 0.5 s, hold 0.5 s, lift
+    // over 1 s back home (2 mm above the top): the retraction retraces the
+    // press for frictionless contact.
+    (
+        "cube-press-hold-retract-left",
+        "cube",
+        "left",
+        include_str!("../trajectories/cube-press-hold-retract-left.csv"),
+    ),
     // Insert 20 mm into the inter-hemispheric fissure, then push the +x wall
     // 3 mm sideways with face A.
     (

@@ -129,3 +129,23 @@ def u_rotate(t):
 
 
 write("u-valley-rotate-left", 4.0, u_rotate)
+
+
+# Cube: the 40 mm block's top face is at z = 40 mm. The left plate lies flat,
+# face A down (orientation (0.5, -0.5, 0.5, 0.5)), 1.5 mm thick: face A is at
+# the handle's z - 0.75 mm; at home (0.011, 0.005, 0.04275) it is 2 mm above
+# the top. Press face A 3 mm into the block over 0.5 s (handle z = 37.75 mm),
+# hold 0.5 s, lift over 1 s back home: a frictionless elastic block pushes
+# back at the same force at every depth on the way out as on the way in,
+# until the plate leaves the rest surface (0.564 s into the lift).
+CUBE_FLAT = (0.5, -0.5, 0.5, 0.5)
+CUBE_HOME_Z = 0.04275
+CUBE_PRESSED_Z = 0.04 + 0.00075 - 0.003
+
+
+def cube_press_hold_retract(t):
+    z = segments(t, [(0.0, CUBE_HOME_Z), (0.5, CUBE_PRESSED_Z), (1.0, CUBE_PRESSED_Z), (2.0, CUBE_HOME_Z)])
+    return (0.011, 0.005, z), CUBE_FLAT
+
+
+write("cube-press-hold-retract-left", 2.0, cube_press_hold_retract)

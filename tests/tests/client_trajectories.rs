@@ -113,12 +113,15 @@ async fn u_valley_rotation_contacts_each_face() -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Both cube presses together: each plate touches, and at its largest force
-/// the tissue pushes it up (+z).
+/// Both cube presses together (the first bundled trajectory of each
+/// plate): each plate touches, and at its largest force the tissue pushes
+/// it up (+z).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn cube_presses_both_plates() -> anyhow::Result<()> {
-    let plans = bundled_for("cube");
-    assert_eq!(plans.len(), 2);
+    let plans = vec![("cube-press-left", "left"), ("cube-press-right", "right")];
+    for p in &plans {
+        assert!(bundled_for("cube").contains(p), "{p:?} is not bundled");
+    }
     let rows = run("cube", &plans).await?;
     for r in &rows {
         let peak = r
