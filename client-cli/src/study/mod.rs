@@ -322,6 +322,39 @@ fn progress(total: u64, hidden: bool) -> ProgressBar {
     pb
 }
 
+/// One line per run on stderr when it is not a terminal (a log, CI), where
+/// the progress bar draws nothing: which run starts, and the time so far.
+struct RunLog {
+    on: bool,
+    started: Instant,
+    runs: usize,
+    done: usize,
+}
+
+impl RunLog {
+    fn new(hidden: bool, runs: usize, started: Instant) -> Self {
+        use std::io::IsTerminal;
+        Self {
+            on: !hidden && !std::io::stderr().is_terminal(),
+            started,
+            runs,
+            done: 0,
+        }
+    }
+
+    fn begin(&mut self, label: &str) {
+        self.done += 1;
+        if self.on {
+            eprintln!(
+                "study: run {}/{}: {label} (at {:.0} s)",
+                self.done,
+                self.runs,
+                self.started.elapsed().as_secs_f64()
+            );
+        }
+    }
+}
+
 /// Runs the study (without writing anything).
 pub fn run_study(args: &StudyArgs) -> Result<StudyResult, StudyError> {
     let started = Instant::now();
@@ -348,6 +381,12 @@ pub fn run_study(args: &StudyArgs) -> Result<StudyResult, StudyError> {
         (grid_steps + stab_steps) as u64,
         args.no_progress || args.json,
     );
+    let grid_runs = if args.no_grid { 0 } else { plan.grid.len() + 1 };
+    let mut log = RunLog::new(
+        args.no_progress || args.json,
+        grid_runs + stab_runs.len(),
+        started,
+    );
     let tick = || pb.inc(1);
     let mut models = ModelCache::default();
 
@@ -356,6 +395,7 @@ pub fn run_study(args: &StudyArgs) -> Result<StudyResult, StudyError> {
     let mut plots = Vec::new();
     if !args.no_grid {
         pb.set_message(format!("reference {}", plan.reference.label));
+        log.begin(&format!("reference {}", plan.reference.label));
         let reference = driver::run(&plan.reference, &scenario, &mut models, true, &tick)?;
         let region = compare::region_vertices(&reference);
         reference_row = Some(Row::of(
@@ -366,6 +406,7 @@ pub fn run_study(args: &StudyArgs) -> Result<StudyResult, StudyError> {
         plots.push((plan.reference.label.clone(), reference.forces_for_plot()));
         for c in &plan.grid {
             pb.set_message(c.label.clone());
+            log.begin(&c.label);
             let run = driver::run(c, &scenario, &mut models, true, &tick)?;
             let errors = compare::compare(&reference, &region, &run);
             grid.push((
@@ -378,6 +419,7 @@ pub fn run_study(args: &StudyArgs) -> Result<StudyResult, StudyError> {
     if !args.no_stability {
         for (c, s) in &stab_runs {
             pb.set_message(c.label.clone());
+            log.begin(&c.label);
             let run = driver::run(c, s, &mut models, false, &tick)?;
             stab.push((Row::of(&run, s, None), run));
         }
