@@ -3,7 +3,9 @@
 //! The `.proto` source in `proto/fissure/v1/` is the reference: every message and
 //! field is documented there with its units. This crate re-exports the types that
 //! prost and tonic generate from it, plus the encoded file descriptor set used to
-//! serve gRPC reflection.
+//! serve gRPC reflection, and the reader of session recordings ([`recording`]).
+
+pub mod recording;
 
 /// Generated types of package `fissure.v1`.
 #[allow(missing_docs, clippy::all, clippy::pedantic, rust_2018_idioms)]
