@@ -136,6 +136,9 @@ pub enum SimError {
         path: PathBuf,
         source: std::io::Error,
     },
+    /// The loop thread could not be started.
+    #[error("cannot start the loop thread: {0}")]
+    Thread(#[source] std::io::Error),
 }
 
 /// Why an instrument cannot be claimed.
@@ -372,7 +375,7 @@ impl Simulation {
                     None => run(),
                 }
             })
-            .map_err(|e| SimError::Solver(format!("cannot start the loop thread: {e}")))?;
+            .map_err(SimError::Thread)?;
         *sim.thread.lock().expect("thread lock") = Some(handle);
         crate::progress::done(format_args!(
             "scene {} loaded in {:.1} s",
