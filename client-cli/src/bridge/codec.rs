@@ -344,19 +344,7 @@ fn write_json_str(out: &mut Vec<u8>, s: &str) -> std::io::Result<()> {
 
 /// The pose message of a parsed datagram.
 pub(super) fn pose_sample(d: &PoseDatagram<'_>) -> pb::PoseSample {
-    let [x, y, z] = d.position_m;
-    let [w, qx, qy, qz] = d.orientation;
-    pb::PoseSample {
-        t_s: d.t_s,
-        sequence: d.sequence,
-        position_m: Some(pb::Vec3 { x, y, z }),
-        orientation: Some(pb::Quaternion {
-            w,
-            x: qx,
-            y: qy,
-            z: qz,
-        }),
-    }
+    pb::PoseSample::new(d.t_s, d.sequence, d.position_m, d.orientation)
 }
 
 #[cfg(test)]

@@ -78,7 +78,6 @@ pub use lanes::{Answers, Lanes, QUEUE};
 use crate::replay::connect;
 use anyhow::{Context, bail};
 use fissure_proto::v1 as pb;
-use std::future::Future;
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -365,39 +364,31 @@ impl UdpAnswers {
 }
 
 impl Answers<Pending> for UdpAnswers {
-    fn answer(
-        &mut self,
-        index: usize,
-        name: &str,
-        to: Pending,
-        sample: pb::ForceSample,
-    ) -> impl Future<Output = ()> + Send {
-        async move {
-            let v = |v: &Option<pb::Vec3>| v.as_ref().map_or([0.0; 3], |v| [v.x, v.y, v.z]);
-            let rejected = sample.rejection.is_some();
-            if rejected {
-                self.counters.rejected.fetch_add(1, Ordering::Relaxed);
-            }
-            let f = ForceDatagram {
-                instrument: index as u8,
-                status: if rejected {
-                    Status::Rejected as u16
-                } else {
-                    Status::Ok as u16
-                },
-                sequence: sample.sequence,
-                t_s: sample.t_s,
-                force_n: v(&sample.force_n),
-                torque_nm: v(&sample.torque_nm),
-                contact_count: sample.contact_count,
-                safety_flags: sample.safety_flags,
-                model_frame: sample.model_frame,
-                model_age_s: sample.model_age_s,
-                server_compute_us: sample.server_compute_us,
-            };
-            let message = sample.rejection.as_ref().map(|r| r.message.as_str());
-            self.send(to, &f, name, message).await;
+    async fn answer(&mut self, index: usize, name: &str, to: Pending, sample: pb::ForceSample) {
+        let v = |v: &Option<pb::Vec3>| v.as_ref().map_or([0.0; 3], |v| [v.x, v.y, v.z]);
+        let rejected = sample.rejection.is_some();
+        if rejected {
+            self.counters.rejected.fetch_add(1, Ordering::Relaxed);
         }
+        let f = ForceDatagram {
+            instrument: index as u8,
+            status: if rejected {
+                Status::Rejected as u16
+            } else {
+                Status::Ok as u16
+            },
+            sequence: sample.sequence,
+            t_s: sample.t_s,
+            force_n: v(&sample.force_n),
+            torque_nm: v(&sample.torque_nm),
+            contact_count: sample.contact_count,
+            safety_flags: sample.safety_flags,
+            model_frame: sample.model_frame,
+            model_age_s: sample.model_age_s,
+            server_compute_us: sample.server_compute_us,
+        };
+        let message = sample.rejection.as_ref().map(|r| r.message.as_str());
+        self.send(to, &f, name, message).await;
     }
 }
 

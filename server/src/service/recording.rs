@@ -473,21 +473,9 @@ impl Journal for Recorder {
     /// The pose as the client sent it (a pose is accepted only with both
     /// its position and its orientation), then its force sample.
     fn sample(&self, instrument: &str, pose: &RawPose, answer: &ForceOut) {
-        let [x, y, z] = pose.position_m;
-        let [qw, qx, qy, qz] = pose.orientation;
         self.pose(
             instrument,
-            pb::PoseSample {
-                t_s: pose.t_s,
-                sequence: pose.sequence,
-                position_m: Some(pb::Vec3 { x, y, z }),
-                orientation: Some(pb::Quaternion {
-                    w: qw,
-                    x: qx,
-                    y: qy,
-                    z: qz,
-                }),
-            },
+            pb::PoseSample::new(pose.t_s, pose.sequence, pose.position_m, pose.orientation),
         );
         self.force(instrument, super::convert::force_sample(answer));
     }
@@ -538,19 +526,9 @@ impl Drop for Recorder {
 mod tests {
     use super::*;
 
-    fn scene() -> pb::SceneDescription {
-        pb::SceneDescription {
-            name: "cube".into(),
-            ..Default::default()
-        }
-    }
-
+    /// Pose `seq` of a 1 kHz stream, at the origin.
     fn pose(seq: u64) -> pb::PoseSample {
-        pb::PoseSample {
-            t_s: seq as f64 * 1e-3,
-            sequence: seq,
-            ..Default::default()
-        }
+        pb::PoseSample::new(seq as f64 * 1e-3, seq, [0.0; 3], [1.0, 0.0, 0.0, 0.0])
     }
 
     /// Accepts the header, then fails every write.
@@ -580,7 +558,7 @@ mod tests {
             FailAfterHeader {
                 header_written: false,
             },
-            &scene(),
+            &pb::SceneDescription::default(),
             16,
         )
         .unwrap();
