@@ -256,15 +256,4 @@ mod tests {
             assert!(r.ms_per_step.is_finite() && r.ms_per_step >= 0.0);
         }
     }
-
-    /// The 48k-tet measurement (release): `cargo test --release -p fissure-cli
-    /// --lib bench_fem::tests::cuboid_48k -- --ignored --nocapture`.
-    #[test]
-    #[ignore = "timing run, release build"]
-    fn cuboid_48k() {
-        let mesh = cuboid([0.08, 0.08, 0.05], [20, 20, 20]);
-        let rows = run_fem_bench(&mesh, "cuboid-48k", &FemBenchOptions::default());
-        print(&rows, false);
-        print(&rows, true);
-    }
 }

@@ -19,6 +19,7 @@ use crate::trajectory::{BUNDLED, Trajectory};
 use anyhow::{Context, bail};
 use fissure_proto::v1 as pb;
 use fissure_server::scene::Scene;
+use fissure_server::service::recording::ToFile;
 use fissure_server::service::{ServeOptions, serve};
 use fissure_server::sim::stats::percentile;
 use fissure_server::sim::{SimOptions, Simulation};
@@ -168,7 +169,7 @@ pub async fn run(args: &DemoArgs) -> anyhow::Result<DemoReport> {
     let options = SimOptions {
         stepped: Some(true),
         stepped_clients: plans.len(),
-        recording: Some(recording.clone()),
+        recording: Some(ToFile::open_at(&recording)),
         max_watchers: 4,
         ..SimOptions::default()
     };

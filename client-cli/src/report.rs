@@ -2,8 +2,8 @@
 //! holds (for `fissure replay --recording`).
 
 use crate::trajectory::{Trajectory, Waypoint};
+use fissure_proto::recording;
 use fissure_proto::v1 as pb;
-use fissure_server::sim::recording;
 use std::collections::BTreeMap;
 use std::path::Path;
 
@@ -262,7 +262,7 @@ pub fn table(r: &Report) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use fissure_server::sim::recording::RecordingGap;
+    use fissure_proto::recording::RecordingGap;
     use pb::recording_entry::Entry;
     use prost::Message;
 

@@ -73,21 +73,7 @@ impl TestServer {
 
 /// A pose message.
 pub fn pose(t_s: f64, sequence: u64, position: [f64; 3], q: [f64; 4]) -> pb::PoseSample {
-    pb::PoseSample {
-        t_s,
-        sequence,
-        position_m: Some(pb::Vec3 {
-            x: position[0],
-            y: position[1],
-            z: position[2],
-        }),
-        orientation: Some(pb::Quaternion {
-            w: q[0],
-            x: q[1],
-            y: q[2],
-            z: q[3],
-        }),
-    }
+    pb::PoseSample::new(t_s, sequence, position, q)
 }
 
 /// A bidirectional haptic session for tests: send a pose, read its answer.

@@ -292,7 +292,7 @@ async fn sigterm_mid_session_completes_the_recording() -> anyhow::Result<()> {
         tokio::time::sleep(Duration::from_millis(20)).await;
     };
     assert!(exit.success(), "fissure-server exited with {exit}");
-    let (entries, truncated) = fissure_server::sim::recording::read(&recording)?;
+    let (entries, truncated) = fissure_proto::recording::read(&recording)?;
     assert!(!truncated, "the recording ends with a truncated entry");
     use pb::recording_entry::Entry;
     let poses: Vec<u64> = entries

@@ -5,10 +5,9 @@
 //! file run one at a time.
 
 use fissure_cli::report::{LostEntries, report};
+use fissure_proto::recording::{RecordingGap, RecordingGapExt, read_recording};
 use fissure_proto::v1 as pb;
-use fissure_server::sim::recording::{
-    QUEUE_CAPACITY, Recorder, RecordingGap, RecordingGapExt, read_recording,
-};
+use fissure_server::service::recording::{QUEUE_CAPACITY, Recorder};
 use fissure_server::sim::snapshot::{Frame, InstrumentReaction, StepTimings};
 use nalgebra::Vector3;
 use std::io::Write;

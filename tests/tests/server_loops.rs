@@ -4,10 +4,11 @@
 
 use fissure_cli::replay::{ForceRow, Pacing, connect, replay};
 use fissure_cli::trajectory::Trajectory;
+use fissure_proto::recording;
 use fissure_proto::v1 as pb;
 use fissure_server::scene::{ModelSpec, Scene, Strategy};
 use fissure_server::service::ServeOptions;
-use fissure_server::sim::recording;
+use fissure_server::service::recording::ToFile;
 use fissure_server::sim::{SimOptions, flags};
 use fissure_tests::{Haptic, TestServer, pose};
 use std::collections::BTreeMap;
@@ -326,7 +327,7 @@ async fn stepped_session(
     let options = SimOptions {
         stepped: Some(true),
         stepped_clients: trajectories.len(),
-        recording: Some(path.to_owned()),
+        recording: Some(ToFile::open_at(path)),
         ..SimOptions::default()
     };
     let server = TestServer::start("cube", options, ServeOptions::default()).await?;

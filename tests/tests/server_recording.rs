@@ -5,9 +5,11 @@
 
 use fissure_cli::replay::{ForceRow, Pacing, connect, replay};
 use fissure_cli::trajectory::Trajectory;
+use fissure_proto::recording;
 use fissure_proto::v1 as pb;
 use fissure_server::service::ServeOptions;
-use fissure_server::sim::{SimOptions, recording};
+use fissure_server::service::recording::ToFile;
+use fissure_server::sim::SimOptions;
 use fissure_tests::TestServer;
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -16,7 +18,7 @@ fn stepped(clients: usize, recording: Option<&Path>) -> SimOptions {
     SimOptions {
         stepped: Some(true),
         stepped_clients: clients,
-        recording: recording.map(Path::to_owned),
+        recording: recording.map(ToFile::open_at),
         ..SimOptions::default()
     }
 }

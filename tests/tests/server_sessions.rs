@@ -5,9 +5,11 @@
 
 mod reliability_common;
 
+use fissure_proto::recording;
 use fissure_proto::v1 as pb;
 use fissure_server::service::ServeOptions;
-use fissure_server::sim::{SimOptions, recording};
+use fissure_server::service::recording::ToFile;
+use fissure_server::sim::SimOptions;
 use fissure_tests::{Haptic, TestServer, pose};
 use reliability_common::{FLAT_DOWN, HANDLE_Y, LEFT_X, TOUCH_Z};
 
@@ -105,7 +107,7 @@ async fn frame_numbers_increase_for_the_life_of_the_server() -> anyhow::Result<(
     let path = dir.path().join("frames.fsrec");
     let options = SimOptions {
         stepped: Some(false),
-        recording: Some(path.clone()),
+        recording: Some(ToFile::open_at(&path)),
         ..SimOptions::default()
     };
     let server = TestServer::start("cube", options, ServeOptions::default()).await?;

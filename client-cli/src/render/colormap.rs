@@ -46,11 +46,6 @@ impl Colormap {
     pub fn map(self, v: f64, lo: f64, hi: f64) -> Rgb {
         self.sample(normalise(v, lo, hi))
     }
-
-    /// Whether the map is diverging (its middle is neutral).
-    pub fn is_diverging(self) -> bool {
-        matches!(self, Colormap::BlueRed)
-    }
 }
 
 /// `(v - lo) / (hi - lo)`; 0.5 for an empty range; NaN for a non-finite `v`.

@@ -5,9 +5,9 @@
 //!
 //! Everything draws into an [`Image`] (8-bit sRGB, row-major, top-left origin,
 //! `x` to the right and `y` down, in pixels). Nothing needs a GPU, a display or
-//! system fonts: the triangle rasteriser is written here (a few hundred lines
-//! for a z-buffer with supersampling is smaller than any 3-D stack, and the GPU
-//! is reserved for the solver), text uses the `ab_glyph` rasteriser with the
+//! system fonts: the triangle rasteriser is written here (about a thousand
+//! lines for a z-buffer with supersampling, smaller than any 3-D stack, and the
+//! GPU is reserved for the solver), text uses the `ab_glyph` rasteriser with the
 //! DejaVu Sans fonts embedded in the binary (licence in
 //! `render/fonts/LICENSE-DejaVu.txt`), and the plots are drawn with the same
 //! primitives so that all pictures share one look.

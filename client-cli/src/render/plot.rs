@@ -108,15 +108,6 @@ impl Series {
         }
     }
 
-    /// The series from separate x and y samples (the shorter length wins).
-    pub fn from_xy(label: impl Into<String>, x: &[f64], y: &[f64], colour: Rgb) -> Self {
-        Self::new(
-            label,
-            x.iter().zip(y).map(|(&a, &b)| [a, b]).collect(),
-            colour,
-        )
-    }
-
     /// The same series with another width, px.
     pub fn width(mut self, width: f64) -> Self {
         self.width = width;

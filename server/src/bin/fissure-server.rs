@@ -3,6 +3,7 @@
 use anyhow::{Context, bail};
 use clap::Parser;
 use fissure_server::scene::{DEFAULT_SCENE, Scene};
+use fissure_server::service::recording::ToFile;
 use fissure_server::service::{ServeOptions, Transport};
 use fissure_server::sim::{SimOptions, Simulation};
 use std::net::SocketAddr;
@@ -120,7 +121,7 @@ async fn run(args: Args, transport: &Transport) -> anyhow::Result<()> {
     let options = SimOptions {
         stepped: args.stepped.then_some(true),
         stepped_clients: args.stepped_clients,
-        recording: args.record.clone(),
+        recording: args.record.clone().map(ToFile::open_at),
         max_watchers: args.max_watchers,
         deformation_nice: args.deformation_nice,
         force_loop_rt_priority: args.force_loop_rt_priority,

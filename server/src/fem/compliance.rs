@@ -438,11 +438,6 @@ impl Compliance {
         }
     }
 
-    /// The column policy.
-    pub fn column_policy(&self) -> ColumnPolicy {
-        self.policy
-    }
-
     /// Takes the columns the background worker finished into the cache.
     fn receive_columns(&mut self) {
         let Some(worker) = self.worker.as_ref() else {

@@ -63,7 +63,7 @@ use super::constraint::Constraint;
 use super::element::polar_rotation_fast;
 use super::model::Model;
 use super::par::{NodeGather, Par, for_each_chunk, try_for_each_chunk_pair};
-use super::{DeformationSolver, LocalModel, Prescribed, Solution, SolveError};
+use super::{Solution, SolveError};
 use nalgebra::{Matrix3, Vector3};
 
 /// Tolerances of the iterative strategies (`corotational`, `neo-hookean`).
@@ -566,35 +566,7 @@ fn write_forces(g: &super::element::TetGeometry, p: &Matrix3<f64>, o: &mut [f64]
     }
 }
 
-impl DeformationSolver for Corotational {
-    fn name(&self) -> &'static str {
-        "corotational"
-    }
-
-    fn solve(&mut self, prescribed: &[Prescribed]) -> Result<&Solution, SolveError> {
-        self.step(prescribed)
-    }
-
-    fn solve_constraints(&mut self, constraints: &[Constraint]) -> Result<&Solution, SolveError> {
-        self.step(constraints)
-    }
-
-    fn local_model(&self) -> Option<&LocalModel> {
-        None
-    }
-
-    fn support_reactions(&self) -> &[Vector3<f64>] {
-        &self.support_reactions
-    }
-
-    fn node_count(&self) -> usize {
-        self.lin.model().n_nodes()
-    }
-
-    fn last_solution(&self) -> Option<&Solution> {
-        Some(&self.solution)
-    }
-}
+stepping_solver!(Corotational, "corotational", [lin.model()]);
 
 #[cfg(test)]
 mod tests {

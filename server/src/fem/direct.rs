@@ -12,7 +12,7 @@ use super::assembly::element_matvec;
 use super::constraint::{Constraint, Frame, StepRows};
 use super::factor::SparseLlt;
 use super::model::Model;
-use super::{DeformationSolver, LocalModel, Prescribed, Solution, SolveError};
+use super::{Solution, SolveError};
 use nalgebra::Vector3;
 
 /// The `direct` strategy.
@@ -155,23 +155,10 @@ impl Direct {
     }
 }
 
-impl DeformationSolver for Direct {
-    fn name(&self) -> &'static str {
-        "direct"
-    }
-
-    fn solve(&mut self, prescribed: &[Prescribed]) -> Result<&Solution, SolveError> {
-        self.step(prescribed)
-    }
-
-    fn solve_constraints(&mut self, constraints: &[Constraint]) -> Result<&Solution, SolveError> {
-        self.step(constraints)
-    }
-
-    fn local_model(&self) -> Option<&LocalModel> {
-        None
-    }
-
+stepping_solver!(
+    Direct,
+    "direct",
+    [model]
     fn takes_loads(&self) -> bool {
         true
     }
@@ -208,16 +195,4 @@ impl DeformationSolver for Direct {
         self.solution.reactions = kept;
         true
     }
-
-    fn support_reactions(&self) -> &[Vector3<f64>] {
-        &self.support_reactions
-    }
-
-    fn node_count(&self) -> usize {
-        self.model.n_nodes()
-    }
-
-    fn last_solution(&self) -> Option<&Solution> {
-        Some(&self.solution)
-    }
-}
+);

@@ -254,17 +254,6 @@ pub fn neo_hookean_density(f: &Matrix3<f64>, lambda: f64, mu: f64) -> Option<f64
     Some(0.5 * mu * (f.norm_squared() - 3.0) - mu * lj + 0.5 * lambda * lj * lj)
 }
 
-/// First Piola-Kirchhoff stress of the neo-Hookean model (Pa):
-/// `P = mu (F - F^-T) + lambda ln J F^-T`. `None` when `J <= 0`.
-pub fn neo_hookean_stress(f: &Matrix3<f64>, lambda: f64, mu: f64) -> Option<Matrix3<f64>> {
-    let j = f.determinant();
-    if !(j > 0.0) {
-        return None;
-    }
-    let f_inv_t = f.try_inverse()?.transpose();
-    Some(mu * (f - f_inv_t) + lambda * j.ln() * f_inv_t)
-}
-
 /// Neo-Hookean element internal forces (N, `f_a = V P g_a`) from the
 /// displacement gradient `H` (`F = I + H`, `ln J` from [`det_minus_one`]).
 /// `None` when `J <= 0`.

@@ -7,6 +7,54 @@
 //! DOFs for linear elasticity. The force of the tissue on an instrument is minus
 //! the sum of the reactions at the nodes it displaces.
 
+/// Implements [`DeformationSolver`] for a strategy that answers full and
+/// general constraints alike by one inherent `step` (generic over
+/// `Into<Constraint>`), keeps its last `solution` and its
+/// `support_reactions`, and has no local model: `$name` is its scene-file
+/// name, `[$($model)+]` the path from `self` to its [`model::Model`] (what
+/// answers `n_nodes()`); the strategy's other trait items follow.
+macro_rules! stepping_solver {
+    ($ty:ty, $name:literal, [$($model:tt)+] $($extra:tt)*) => {
+        impl $crate::fem::DeformationSolver for $ty {
+            fn name(&self) -> &'static str {
+                $name
+            }
+
+            fn solve(
+                &mut self,
+                prescribed: &[$crate::fem::Prescribed],
+            ) -> Result<&$crate::fem::Solution, $crate::fem::SolveError> {
+                self.step(prescribed)
+            }
+
+            fn solve_constraints(
+                &mut self,
+                constraints: &[$crate::fem::Constraint],
+            ) -> Result<&$crate::fem::Solution, $crate::fem::SolveError> {
+                self.step(constraints)
+            }
+
+            fn local_model(&self) -> Option<&$crate::fem::LocalModel> {
+                None
+            }
+
+            fn support_reactions(&self) -> &[nalgebra::Vector3<f64>] {
+                &self.support_reactions
+            }
+
+            fn node_count(&self) -> usize {
+                self.$($model)+.n_nodes()
+            }
+
+            fn last_solution(&self) -> Option<&$crate::fem::Solution> {
+                Some(&self.solution)
+            }
+
+            $($extra)*
+        }
+    };
+}
+
 pub mod assembly;
 pub mod compliance;
 pub mod constraint;

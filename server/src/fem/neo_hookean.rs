@@ -35,7 +35,7 @@ use super::corotational::IterativeOptions;
 use super::element::{neo_hookean_element_h, neo_hookean_energy, neo_hookean_forces};
 use super::factor::SparseLlt;
 use super::model::Model;
-use super::{DeformationSolver, LocalModel, Prescribed, Solution, SolveError};
+use super::{Solution, SolveError};
 use nalgebra::{SVector, Vector3};
 
 /// The `neo-hookean` strategy.
@@ -359,32 +359,4 @@ fn inverted(element: usize, h: &nalgebra::Matrix3<f64>) -> SolveError {
     }
 }
 
-impl DeformationSolver for NeoHookean {
-    fn name(&self) -> &'static str {
-        "neo-hookean"
-    }
-
-    fn solve(&mut self, prescribed: &[Prescribed]) -> Result<&Solution, SolveError> {
-        self.step(prescribed)
-    }
-
-    fn solve_constraints(&mut self, constraints: &[Constraint]) -> Result<&Solution, SolveError> {
-        self.step(constraints)
-    }
-
-    fn local_model(&self) -> Option<&LocalModel> {
-        None
-    }
-
-    fn support_reactions(&self) -> &[Vector3<f64>] {
-        &self.support_reactions
-    }
-
-    fn node_count(&self) -> usize {
-        self.model.n_nodes()
-    }
-
-    fn last_solution(&self) -> Option<&Solution> {
-        Some(&self.solution)
-    }
-}
+stepping_solver!(NeoHookean, "neo-hookean", [model]);

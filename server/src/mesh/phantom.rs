@@ -25,7 +25,7 @@
 //! its centre; the finest spacing must satisfy `w > 2 alpha_long h` (about
 //! `h < 2 w`, so that warping does not snap the centre row onto a wall), which
 //! [`generate_with`] checks. The presets' meshes have no tetrahedron inside
-//! a gap (measured by the `preset_counts_and_times` test).
+//! a gap (measured by the `mesh_generation` bench).
 //!
 //! The mesh is graded: spacing `h` within `band` of the surface, growing by
 //! `rate` per metre of depth, to `h 2^levels` inside.

@@ -1,9 +1,11 @@
 //! Conversions between engine values and `fissure.v1` messages.
 
-use crate::scene::Scene;
+use crate::scene::{
+    CollisionBackend, CollisionMethod, ContactLaw, HistoryMode, Scene, ShapeKind, Strategy,
+};
 use crate::sim::ForceOut;
 use crate::sim::engine::Model;
-use crate::sim::pose::RawPose;
+use crate::sim::pose::{PoseError, RawPose};
 use crate::sim::snapshot::{Frame, InstrumentReaction};
 use crate::sim::stats::{LatencySummary, StatsSummary};
 use fissure_proto::v1 as pb;
@@ -35,6 +37,25 @@ fn quat(q: [f64; 4]) -> pb::Quaternion {
     }
 }
 
+/// The constitutive model a strategy solves (`Material.model`): the linear
+/// strategies share one, each nonlinear one names its own.
+fn material_model(strategy: Strategy) -> &'static str {
+    match strategy {
+        Strategy::Direct | Strategy::Compliance => "linear",
+        Strategy::Corotational => "corotational",
+        Strategy::NeoHookean => "neo-hookean",
+    }
+}
+
+/// A spatula shape's name (`InstrumentDescription.shape`), as in scene files.
+fn shape_name(shape: ShapeKind) -> &'static str {
+    match shape {
+        ShapeKind::Flat => "flat",
+        ShapeKind::Trapezoid => "trapezoid",
+        ShapeKind::Curved => "curved",
+    }
+}
+
 /// The description of a loaded scene.
 pub fn scene_description(scene: &Scene, model: &Model) -> pb::SceneDescription {
     let (lo, hi) = model.mesh.bounds();
@@ -43,12 +64,7 @@ pub fn scene_description(scene: &Scene, model: &Model) -> pb::SceneDescription {
         description: scene.description.clone(),
         units: "SI".into(),
         material: Some(pb::Material {
-            model: match scene.solver.strategy {
-                crate::scene::Strategy::Corotational => "corotational",
-                crate::scene::Strategy::NeoHookean => "neo-hookean",
-                _ => "linear",
-            }
-            .into(),
+            model: material_model(scene.solver.strategy).into(),
             youngs_modulus_pa: scene.material.youngs_modulus_pa,
             poisson_ratio: scene.material.poisson_ratio,
         }),
@@ -58,7 +74,7 @@ pub fn scene_description(scene: &Scene, model: &Model) -> pb::SceneDescription {
             .enumerate()
             .map(|(i, ins)| pb::InstrumentDescription {
                 name: ins.name.clone(),
-                shape: format!("{:?}", ins.shape).to_lowercase(),
+                shape: shape_name(ins.shape).into(),
                 thickness_m: ins.thickness_m,
                 width_m: ins.width_m,
                 length_m: ins.length_m,
@@ -88,24 +104,24 @@ pub fn scene_description(scene: &Scene, model: &Model) -> pb::SceneDescription {
         }),
         solver: scene.solver.strategy.name().into(),
         collision_method: match scene.collision.method {
-            crate::scene::CollisionMethod::Brute => "brute",
-            crate::scene::CollisionMethod::Bvh => "bvh",
+            CollisionMethod::Brute => "brute",
+            CollisionMethod::Bvh => "bvh",
         }
         .into(),
         collision_backend: match scene.collision.backend {
-            crate::scene::CollisionBackend::Cpu => "cpu",
-            crate::scene::CollisionBackend::Gpu => "gpu",
+            CollisionBackend::Cpu => "cpu",
+            CollisionBackend::Gpu => "gpu",
         }
         .into(),
         history_mode: match scene.collision.history {
-            crate::scene::HistoryMode::ForceRate => "force-rate",
-            crate::scene::HistoryMode::Paper => "paper",
+            HistoryMode::ForceRate => "force-rate",
+            HistoryMode::Paper => "paper",
         }
         .into(),
         contact_law: scene.contact.law.name().into(),
         friction_coefficient: match scene.contact.law {
-            crate::scene::ContactLaw::Coulomb => scene.contact.friction_coefficient.unwrap_or(0.0),
-            _ => 0.0,
+            ContactLaw::Coulomb => scene.contact.friction_coefficient.unwrap_or(0.0),
+            ContactLaw::Frictionless | ContactLaw::Paper => 0.0,
         },
     }
 }
@@ -126,25 +142,28 @@ pub fn surface(model: &Model) -> pb::SurfaceMesh {
 /// behind the session's clock (the client may resend it later in time),
 /// `UNAVAILABLE` when the server could not answer (shutting down),
 /// `INVALID_ARGUMENT` for a malformed pose.
-pub fn pose_error_code(e: &crate::sim::pose::PoseError) -> tonic::Code {
-    use crate::sim::pose::PoseError;
+pub fn pose_error_code(e: &PoseError) -> tonic::Code {
     match e {
         PoseError::BehindClock { .. } => tonic::Code::OutOfRange,
         PoseError::NotAnswered(_) => tonic::Code::Unavailable,
-        _ => tonic::Code::InvalidArgument,
+        PoseError::Missing(_)
+        | PoseError::NonFinite { .. }
+        | PoseError::NotUnit { .. }
+        | PoseError::SequenceBack { .. }
+        | PoseError::TimeBack { .. } => tonic::Code::InvalidArgument,
     }
 }
 
 /// A pose message to the engine's raw pose; a missing field is an error naming it.
-pub fn raw_pose(p: &pb::PoseSample) -> Result<RawPose, crate::sim::pose::PoseError> {
+pub fn raw_pose(p: &pb::PoseSample) -> Result<RawPose, PoseError> {
     let pos = p
         .position_m
         .as_ref()
-        .ok_or(crate::sim::pose::PoseError::Missing("position_m"))?;
+        .ok_or(PoseError::Missing("position_m"))?;
     let q = p
         .orientation
         .as_ref()
-        .ok_or(crate::sim::pose::PoseError::Missing("orientation"))?;
+        .ok_or(PoseError::Missing("orientation"))?;
     Ok(RawPose {
         t_s: p.t_s,
         sequence: p.sequence,
@@ -277,5 +296,29 @@ mod tests {
             (2.5, 40, 2_000, 3, 1, 2, 12)
         );
         assert_eq!(m.claimed, ["left"]);
+    }
+
+    /// `Material.model` names the constitutive law a strategy solves: the
+    /// two linear-elastic strategies share `linear`, each nonlinear one
+    /// carries its scene-file name.
+    #[test]
+    fn material_models_name_the_law_of_each_strategy() {
+        for s in Strategy::ALL {
+            let expected = match s {
+                Strategy::Direct | Strategy::Compliance => "linear",
+                Strategy::Corotational | Strategy::NeoHookean => s.name(),
+            };
+            assert_eq!(material_model(s), expected, "{s:?}");
+        }
+    }
+
+    /// `InstrumentDescription.shape` is the shape's scene-file name: it reads
+    /// back as the same shape.
+    #[test]
+    fn shape_names_are_the_scene_file_names() {
+        for k in [ShapeKind::Flat, ShapeKind::Trapezoid, ShapeKind::Curved] {
+            let back: ShapeKind = serde_json::from_str(&format!("\"{}\"", shape_name(k))).unwrap();
+            assert_eq!(back, k);
+        }
     }
 }

@@ -6,7 +6,9 @@
 //! ([`ServeOptions::token`]), the calls that change the simulation (`Haptic`,
 //! `Reset`) need it; the calls that only read (`GetScene`, `GetSurface`,
 //! `Watch`, `GetStats`), health and reflection are open. Each haptic stream gets its own
-//! OS thread for its force loop: a 1 kHz loop should not share a scheduler
+//! OS thread for its force loop ([`crate::sim::haptic_stream`], with its pose
+//! budget and the session's recording; this module converts messages and
+//! forwards them): a 1 kHz loop should not share a scheduler
 //! with watchers' serialisation work. The stream itself is read by a task on
 //! the runtime, which hands decoded poses to the force loop through a
 //! channel: the force loop's thread never polls the HTTP/2 connection itself
@@ -33,12 +35,15 @@
 
 pub mod convert;
 pub mod monitor;
+pub mod recording;
 pub mod reflection;
 pub mod transport;
 
 pub use transport::Transport;
 
-use crate::sim::{ClaimError, Simulation};
+use crate::sim::haptic_stream::{self, Rejection};
+use crate::sim::pose::{PoseError, RawPose};
+use crate::sim::{ClaimError, ForceOut, Simulation};
 use fissure_proto::v1 as pb;
 use fissure_proto::v1::fissure_server::{Fissure, FissureServer};
 use fissure_proto::{AUTHORIZATION_METADATA_KEY, INSTRUMENT_METADATA_KEY};
@@ -78,58 +83,7 @@ pub const STREAM_RECEIVE_WINDOW_BYTES: u32 = 64 * 1024;
 /// shutdown before they are dropped.
 pub const SHUTDOWN_GRACE: Duration = Duration::from_secs(5);
 
-/// Sustained pose rate a haptic stream is served at in free-running mode, as
-/// a multiple of the scene's `loops.haptic_rate_hz` (2 kHz for a 1 kHz scene).
-/// Poses above it are answered at once with a `RESOURCE_EXHAUSTED` rejection
-/// (nothing computed, nothing applied), so a flooding client cannot take more
-/// than its share of the CPU from the other client and the deformation loop.
-/// Stepped mode has no limit: its force loop waits for the deformation loop.
-pub const MAX_POSE_RATE_FACTOR: f64 = 2.0;
-
-/// Burst a haptic stream may send above the sustained rate, seconds of poses
-/// at that rate (2000 poses at 2 kHz): a 1 kHz client whose poses queued up
-/// during a stall of up to 2 s (network, scheduling) drains its backlog
-/// without a rejection.
-pub const POSE_BURST_S: f64 = 1.0;
-
-/// A token bucket over wall-clock time: `rate` poses a second sustained,
-/// `rate * POSE_BURST_S` at once.
-#[derive(Debug)]
-struct PoseBudget {
-    rate_hz: f64,
-    tokens: f64,
-    capacity: f64,
-    last: std::time::Instant,
-}
-
-impl PoseBudget {
-    fn new(rate_hz: f64) -> Self {
-        let capacity = (rate_hz * POSE_BURST_S).max(1.0);
-        Self {
-            rate_hz,
-            tokens: capacity,
-            capacity,
-            last: std::time::Instant::now(),
-        }
-    }
-
-    /// Takes one pose from the budget; false when the stream is over its rate.
-    fn take(&mut self) -> bool {
-        self.take_at(std::time::Instant::now())
-    }
-
-    fn take_at(&mut self, now: std::time::Instant) -> bool {
-        let dt = now.duration_since(self.last).as_secs_f64();
-        self.last = now;
-        self.tokens = (self.tokens + dt * self.rate_hz).min(self.capacity);
-        if self.tokens >= 1.0 {
-            self.tokens -= 1.0;
-            true
-        } else {
-            false
-        }
-    }
-}
+pub use crate::sim::budget::{MAX_POSE_RATE_FACTOR, POSE_BURST_S};
 
 /// How clients must authenticate and where the server listens.
 #[derive(Debug, Clone, Default)]
@@ -326,7 +280,7 @@ impl Fissure for FissureService {
             return Err(shutting_down());
         }
         let name = instrument_name(req.metadata())?;
-        let mut claim = sim.claim(&name).map_err(|e| match e {
+        let claim = sim.claim(&name).map_err(|e| match e {
             ClaimError::Unknown { .. } => Status::not_found(e.to_string()),
             ClaimError::Taken(_) => Status::already_exists(e.to_string()),
             ClaimError::ShuttingDown => Status::unavailable(e.to_string()),
@@ -338,11 +292,9 @@ impl Fissure for FissureService {
             tokio::sync::mpsc::channel::<Result<pb::ForceSample, Status>>(MAX_UNREAD_ANSWERS + 1);
         let mut stopping = self.stopping.subscribe();
         let stopped = self.stopping.subscribe();
-        let mut budget = (!sim.is_stepped())
-            .then(|| PoseBudget::new(MAX_POSE_RATE_FACTOR * sim.scene().loops.haptic_rate_hz));
         // The stream is read on the runtime, by a task of its own: the force
         // loop's thread only takes decoded poses from a channel.
-        let (pose_tx, mut pose_rx) = tokio::sync::mpsc::channel::<Inbound>(64);
+        let (pose_tx, poses) = tokio::sync::mpsc::channel::<Inbound>(64);
         tokio::spawn(async move {
             loop {
                 let next = tokio::select! {
@@ -359,72 +311,13 @@ impl Fissure for FissureService {
                 }
             }
         });
-        std::thread::Builder::new()
-            .name(format!("force-loop-{name}"))
-            .spawn(move || {
-                // The claim lives on this thread and is released when it ends.
-                claim.enter_force_thread();
-                loop {
-                    let mut next = pose_rx.blocking_recv().unwrap_or(Inbound::Stopping);
-                    // Shutdown goes before poses already queued.
-                    if *stopped.borrow() {
-                        next = Inbound::Stopping;
-                    }
-                    let msg = match next {
-                        Inbound::Pose(m) => m,
-                        Inbound::End => break,
-                        Inbound::Failed(status) => {
-                            // E.g. a message over the size limit: the client
-                            // gets the status, the claim is released.
-                            tracing::debug!(instrument = %name, %status, "haptic stream ended with an error");
-                            let _ = tx.try_send(Err(status));
-                            break;
-                        }
-                        Inbound::Stopping => {
-                            let _ = tx.try_send(Err(shutting_down()));
-                            break;
-                        }
-                    };
-                    let over_rate = budget.as_mut().is_some_and(|b| !b.take());
-                    if let Some(b) = budget.as_ref().filter(|_| over_rate) {
-                        sim.record_rejection();
-                        let reply = convert::rejection(
-                            &msg,
-                            tonic::Code::ResourceExhausted,
-                            format!(
-                                "pose rate above {:.0} Hz: pose not applied",
-                                b.rate_hz
-                            ),
-                        );
-                        if !answer(&tx, reply, &name) {
-                            break;
-                        }
-                        continue;
-                    }
-                    let raw = convert::raw_pose(&msg);
-                    if raw.is_err() {
-                        sim.record_rejection();
-                    }
-                    let reply = match raw.and_then(|raw| claim.force_sample(&raw)) {
-                        Ok(out) => {
-                            let sample = convert::force_sample(&out);
-                            if let Some(rec) = sim.recorder() {
-                                rec.pose(&name, msg);
-                                rec.force(&name, sample.clone());
-                            }
-                            sample
-                        }
-                        Err(e) => {
-                            tracing::debug!(instrument = %name, error = %e, "pose rejected");
-                            convert::rejection(&msg, convert::pose_error_code(&e), e.to_string())
-                        }
-                    };
-                    if !answer(&tx, reply, &name) {
-                        break;
-                    }
-                }
-                drop(claim);
-            })
+        let port = StreamPort {
+            instrument: name,
+            poses,
+            stopped,
+            tx,
+        };
+        haptic_stream::spawn(claim, port)
             .map_err(|e| Status::internal(format!("cannot start the force loop: {e}")))?;
         Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
     }
@@ -580,47 +473,55 @@ pub async fn serve(addr: SocketAddr, options: ServeOptions) -> anyhow::Result<Ru
 }
 
 /// What the reader of a haptic stream hands its force loop.
-enum Inbound {
-    /// The next pose.
-    Pose(pb::PoseSample),
-    /// The client ended its stream.
-    End,
-    /// The stream failed (e.g. a message over the size limit).
-    Failed(Status),
-    /// The server is shutting down.
-    Stopping,
+type Inbound = haptic_stream::Inbound<pb::PoseSample, Status>;
+
+/// The service's end of a haptic stream: decoded poses in, force samples out.
+struct StreamPort {
+    instrument: String,
+    poses: tokio::sync::mpsc::Receiver<Inbound>,
+    /// Becomes true when the server shuts down.
+    stopped: tokio::sync::watch::Receiver<bool>,
+    tx: tokio::sync::mpsc::Sender<Result<pb::ForceSample, Status>>,
 }
 
-#[cfg(test)]
-mod tests {
-    use super::{POSE_BURST_S, PoseBudget};
-    use std::time::{Duration, Instant};
+impl haptic_stream::HapticPort for StreamPort {
+    type Pose = pb::PoseSample;
+    type Failure = Status;
 
-    /// A flood gets the burst, then the sustained rate; a stream at the rate
-    /// is never refused; a stall refills at most the burst.
-    #[test]
-    fn pose_budget_allows_the_rate_and_the_burst_only() {
-        let rate = 2000.0;
-        let burst = (rate * POSE_BURST_S) as usize;
-        let t0 = Instant::now();
-        let mut b = PoseBudget::new(rate);
-        b.last = t0;
-        // 10 kHz for 2 s: burst + 2 s at 2 kHz served (within one pose).
-        let served = (0..20_000)
-            .filter(|&i| b.take_at(t0 + Duration::from_micros(100 * i)))
-            .count();
-        let expected = burst + 2 * rate as usize;
-        assert!(served.abs_diff(expected) <= 1, "{served} vs {expected}");
-        // At 1 kHz after a 10 s pause: every pose served.
-        let t1 = t0 + Duration::from_secs(12);
-        assert!((0..5_000).all(|i| b.take_at(t1 + Duration::from_millis(i))));
-        // A 1.5 s stall at 1 kHz, then the 1500 queued poses at once: served.
-        let t2 = t1 + Duration::from_millis(5_000 + 1_500);
-        assert!((0..1_500).all(|_| b.take_at(t2)));
-        // The budget is then empty: the next pose at the same instant is not.
-        let mut empty = PoseBudget::new(rate);
-        empty.last = t0;
-        assert!((0..burst).all(|_| empty.take_at(t0)));
-        assert!(!empty.take_at(t0));
+    fn next(&mut self) -> Inbound {
+        let next = self.poses.blocking_recv().unwrap_or(Inbound::Stopping);
+        // Shutdown goes before poses already queued.
+        if *self.stopped.borrow() {
+            return Inbound::Stopping;
+        }
+        next
+    }
+
+    fn raw(&self, pose: &pb::PoseSample) -> Result<RawPose, PoseError> {
+        convert::raw_pose(pose)
+    }
+
+    fn answer(&mut self, pose: &pb::PoseSample, a: Result<&ForceOut, Rejection<'_>>) -> bool {
+        let reply = match a {
+            Ok(out) => convert::force_sample(out),
+            Err(Rejection::OverRate { rate_hz }) => convert::rejection(
+                pose,
+                tonic::Code::ResourceExhausted,
+                format!("pose rate above {rate_hz:.0} Hz: pose not applied"),
+            ),
+            Err(Rejection::Pose(e)) => {
+                convert::rejection(pose, convert::pose_error_code(e), e.to_string())
+            }
+        };
+        answer(&self.tx, reply, &self.instrument)
+    }
+
+    /// E.g. a message over the size limit: the client gets the status.
+    fn fail(&mut self, status: Status) {
+        let _ = self.tx.try_send(Err(status));
+    }
+
+    fn stopping(&mut self) {
+        let _ = self.tx.try_send(Err(shutting_down()));
     }
 }

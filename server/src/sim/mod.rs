@@ -29,12 +29,14 @@
 //!   of the compliance are computed when a step needs them (the answers do
 //!   not depend on timing). `fissure study` drives the same runner.
 
+pub mod budget;
 pub mod engine;
 pub mod force_loop;
+pub mod haptic_stream;
+pub mod journal;
 pub mod local_model;
 pub mod pose;
 pub mod priority;
-pub mod recording;
 pub mod rows;
 pub mod snapshot;
 pub mod stats;
@@ -88,8 +90,9 @@ pub struct SimOptions {
     /// before the first step runs (so that runs with several clients are
     /// reproducible whatever order they connect in).
     pub stepped_clients: usize,
-    /// Session recording file, if any.
-    pub recording: Option<PathBuf>,
+    /// Where the session is recorded, if anywhere: opened once the model is
+    /// built ([`journal`]).
+    pub recording: Option<Arc<dyn journal::OpenJournal>>,
     /// Largest number of concurrent watchers.
     pub max_watchers: usize,
     /// Nice value of the deformation thread and its rayon pool (Linux; 0
@@ -133,6 +136,9 @@ pub enum SimError {
         path: PathBuf,
         source: std::io::Error,
     },
+    /// The loop thread could not be started.
+    #[error("cannot start the loop thread: {0}")]
+    Thread(#[source] std::io::Error),
 }
 
 /// Why an instrument cannot be claimed.
@@ -243,7 +249,7 @@ pub struct Simulation {
     rejected: AtomicU64,
     failed_steps: AtomicU64,
     watchers: AtomicU64,
-    recorder: Option<recording::Recorder>,
+    recorder: Option<Arc<dyn journal::Journal>>,
     shared_rows: Vec<Mutex<SharedRows>>,
 }
 
@@ -290,16 +296,15 @@ impl Simulation {
         ));
         let mut engine = StepEngine::new(&scene, model.clone(), columns, Some(hook), None)?;
         let recorder = match &options.recording {
-            Some(path) => Some(
-                recording::Recorder::create(
-                    path,
-                    &crate::service::convert::scene_description(&scene, &model),
+            Some(open) => {
+                Some(
+                    open.open(&scene, &model)
+                        .map_err(|source| SimError::Recording {
+                            path: open.path().to_owned(),
+                            source,
+                        })?,
                 )
-                .map_err(|source| SimError::Recording {
-                    path: path.clone(),
-                    source,
-                })?,
-            ),
+            }
             None => None,
         };
         let n = scene.instruments.len();
@@ -370,7 +375,7 @@ impl Simulation {
                     None => run(),
                 }
             })
-            .map_err(|e| SimError::Solver(format!("cannot start the loop thread: {e}")))?;
+            .map_err(SimError::Thread)?;
         *sim.thread.lock().expect("thread lock") = Some(handle);
         crate::progress::done(format_args!(
             "scene {} loaded in {:.1} s",
@@ -493,7 +498,6 @@ impl Simulation {
 
     /// Counters and latency percentiles.
     pub fn stats(&self) -> StatsSummary {
-        use recording::RecordingGapExt as _;
         let claimed = {
             let inputs = self.inputs.lock().expect("inputs lock");
             self.scene
@@ -514,7 +518,7 @@ impl Simulation {
             force_compute: self.force_latency.summary(),
             deformation_step: self.step_latency.summary(),
             failed_steps: self.failed_steps.load(Ordering::Relaxed),
-            recording_lost: self.recorder().map_or(0, |r| r.stats().lost.total()),
+            recording_lost: self.recorder().map_or(0, |r| r.lost()),
         }
     }
 
@@ -551,9 +555,9 @@ impl Simulation {
         self.rejected.fetch_add(1, Ordering::Relaxed);
     }
 
-    /// The session recorder, if recording.
-    pub fn recorder(&self) -> Option<&recording::Recorder> {
-        self.recorder.as_ref()
+    /// The session's journal, if recording.
+    pub fn recorder(&self) -> Option<&dyn journal::Journal> {
+        self.recorder.as_deref()
     }
 
     fn publish(&self, snap: Arc<Snapshot>) {

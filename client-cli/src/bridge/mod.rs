@@ -1,0 +1,430 @@
+//! `fissure bridge`: a UDP bridge for haptic device programs that do not
+//! speak gRPC. It holds one haptic stream per instrument to the server,
+//! forwards each pose datagram it receives to the instrument's stream and
+//! sends the force sample that answers it back to the datagram's sender, in
+//! the sender's format (binary or JSON).
+//!
+//! # Datagram format
+//!
+//! One pose per datagram. All numbers little-endian; f64 is IEEE 754
+//! binary64. Units: s, m, N, N m.
+//!
+//! **Binary pose** (device -> bridge), [`POSE_LEN`] = 80 bytes:
+//!
+//! | offset | type      | field                                                  |
+//! |-------:|-----------|--------------------------------------------------------|
+//! | 0      | [u8; 4]   | magic `b"FSP1"`                                        |
+//! | 4      | u8        | version = 1                                            |
+//! | 5      | u8        | instrument index (order of `--instrument`, or the scene's) |
+//! | 6      | u16       | reserved, 0                                            |
+//! | 8      | u64       | sequence, strictly increasing per instrument           |
+//! | 16     | f64       | t_s, s, non-decreasing per instrument                  |
+//! | 24     | 3 x f64   | position of the handle point x, y, z, m (scene frame)  |
+//! | 48     | 4 x f64   | orientation quaternion w, x, y, z (unit within 1e-3)   |
+//!
+//! **Binary force** (bridge -> device), [`FORCE_LEN`] = 112 bytes:
+//!
+//! | offset | type      | field                                                  |
+//! |-------:|-----------|--------------------------------------------------------|
+//! | 0      | [u8; 4]   | magic `b"FSF1"`                                        |
+//! | 4      | u8        | version = 1                                            |
+//! | 5      | u8        | instrument index                                       |
+//! | 6      | u16       | status: 0 ok, 1 pose rejected by the server, 2 not forwarded (unknown instrument, stream down or full) |
+//! | 8      | u64       | sequence of the pose answered                          |
+//! | 16     | f64       | t_s of the pose answered, s                            |
+//! | 24     | 3 x f64   | force on the instrument, N (scene frame)               |
+//! | 48     | 3 x f64   | torque about the handle point, N m                     |
+//! | 72     | u32       | contact count (surface vertices)                       |
+//! | 76     | u32       | safety flags (`fissure.v1.SafetyFlag` bits)            |
+//! | 80     | u64       | model frame (deformation step used)                    |
+//! | 88     | f64       | model age, s                                           |
+//! | 96     | f64       | server compute time, us                                |
+//! | 104    | u64       | reserved, 0                                            |
+//!
+//! **JSON** (one object per datagram, a trailing newline allowed): a
+//! datagram whose first non-blank byte is `{` is read as
+//! `{"instrument": "left", "seq": 7, "t_s": 0.007, "p": [x, y, z],
+//! "q": [w, x, y, z]}` (`"instrument"` may instead be `"i": 0`, the index).
+//! The answer is one line:
+//! `{"instrument":"left","seq":7,"t_s":0.007,"status":"ok","f":[..],"torque":[..],"contacts":3,"flags":0,"model_frame":12,"model_age_s":0.004,"server_us":41.0}`
+//! with `"status"` `"ok"`, `"rejected"` (then `"message"` says why) or
+//! `"not-forwarded"`.
+//!
+//! Datagrams that do not parse, and any over [`MAX_DATAGRAM`] bytes, are
+//! dropped and counted ([`parse_datagram`] names what is wrong; it never
+//! panics). The parser is fuzzed (`server/fuzz`, target `bridge`).
+//!
+//! # Rate and allocation
+//!
+//! The bridge is sized for 1 kHz per instrument: the receive buffer, the
+//! reply buffers and the queues of pending replies are allocated once; a
+//! sample costs no allocation in the bridge (the gRPC transport below it
+//! manages its own buffers). A pose arriving while the instrument's stream
+//! has [`QUEUE`] poses in flight is answered `not forwarded` at once rather
+//! than queued, so a stalled server never delays the device's loop.
+//!
+//! # Layout
+//!
+//! [`codec`] reads and writes the datagrams; [`lanes`] holds the haptic
+//! streams and the answers owed, for this protocol and any other; this module
+//! is the UDP loop.
+
+pub mod codec;
+pub mod lanes;
+
+pub use codec::*;
+pub use lanes::{Answers, Lanes, QUEUE};
+
+use crate::replay::connect;
+use anyhow::{Context, bail};
+use fissure_proto::v1 as pb;
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use tokio::net::UdpSocket;
+
+/// Counters of a bridge.
+#[derive(Debug, Default)]
+pub struct Counters {
+    /// Datagrams received.
+    pub received: AtomicU64,
+    /// Datagrams that did not parse.
+    pub bad: AtomicU64,
+    /// Poses forwarded to the server.
+    pub forwarded: AtomicU64,
+    /// Poses answered `not forwarded`.
+    pub not_forwarded: AtomicU64,
+    /// Force answers sent back.
+    pub answered: AtomicU64,
+    /// Poses the server rejected.
+    pub rejected: AtomicU64,
+}
+
+/// A snapshot of [`Counters`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+pub struct BridgeStats {
+    /// Datagrams received.
+    pub received: u64,
+    /// Datagrams that did not parse.
+    pub bad: u64,
+    /// Poses forwarded to the server.
+    pub forwarded: u64,
+    /// Poses answered `not forwarded`.
+    pub not_forwarded: u64,
+    /// Force answers sent back.
+    pub answered: u64,
+    /// Poses the server rejected.
+    pub rejected: u64,
+}
+
+impl Counters {
+    fn snapshot(&self) -> BridgeStats {
+        let l = |a: &AtomicU64| a.load(Ordering::Relaxed);
+        BridgeStats {
+            received: l(&self.received),
+            bad: l(&self.bad),
+            forwarded: l(&self.forwarded),
+            not_forwarded: l(&self.not_forwarded),
+            answered: l(&self.answered),
+            rejected: l(&self.rejected),
+        }
+    }
+}
+
+/// Where the answer of a pose in flight goes.
+#[derive(Debug, Clone, Copy)]
+struct Pending {
+    to: SocketAddr,
+    format: Format,
+}
+
+/// A running bridge.
+pub struct Bridge {
+    /// The UDP address it listens on.
+    pub local_addr: SocketAddr,
+    /// Its counters.
+    pub counters: Arc<Counters>,
+    stop: tokio::sync::watch::Sender<bool>,
+    task: tokio::task::JoinHandle<anyhow::Result<()>>,
+}
+
+/// Options of `fissure bridge`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct BridgeArgs {
+    /// Server URL.
+    #[arg(long, default_value = "http://127.0.0.1:50051")]
+    pub server: String,
+    /// UDP address to listen on for pose datagrams.
+    #[arg(long, default_value = "127.0.0.1:50052")]
+    pub listen: SocketAddr,
+    /// Instrument(s) to claim, in index order (repeatable); default: every
+    /// instrument of the scene, in the scene's order.
+    #[arg(long)]
+    pub instrument: Vec<String>,
+    /// Bearer token for the claims (also FISSURE_TOKEN).
+    #[arg(long, env = "FISSURE_TOKEN", hide_env_values = true)]
+    pub token: Option<String>,
+    /// Stop after this long, s (default: until Ctrl-C).
+    #[arg(long)]
+    pub duration_s: Option<f64>,
+}
+
+impl Bridge {
+    /// Connects to `server`, claims `instruments` (every instrument of the
+    /// scene when empty) and listens on `listen`.
+    pub async fn start(
+        server: &str,
+        listen: SocketAddr,
+        instruments: &[String],
+        token: Option<&str>,
+    ) -> anyhow::Result<Self> {
+        let mut client = connect(server).await?;
+        let names: Vec<String> = if instruments.is_empty() {
+            client
+                .get_scene(pb::GetSceneRequest {})
+                .await
+                .context("GetScene")?
+                .into_inner()
+                .instruments
+                .into_iter()
+                .map(|i| i.name)
+                .collect()
+        } else {
+            instruments.to_vec()
+        };
+        if names.is_empty() {
+            bail!("the scene has no instrument to bridge");
+        }
+        if names.len() > 256 {
+            bail!("at most 256 instruments can be bridged (the index is one byte)");
+        }
+        let socket = Arc::new(
+            UdpSocket::bind(listen)
+                .await
+                .with_context(|| format!("binding UDP {listen}"))?,
+        );
+        let local_addr = socket.local_addr()?;
+        let counters = Arc::new(Counters::default());
+        let lanes = Lanes::open(&mut client, &names, token, || {
+            UdpAnswers::new(socket.clone(), counters.clone())
+        })
+        .await?;
+        let (stop, stopped) = tokio::sync::watch::channel(false);
+        let task = tokio::spawn(serve(lanes, socket, counters.clone(), stopped));
+        Ok(Self {
+            local_addr,
+            counters,
+            stop,
+            task,
+        })
+    }
+
+    /// The counters so far.
+    pub fn stats(&self) -> BridgeStats {
+        self.counters.snapshot()
+    }
+
+    /// Stops listening, closes the haptic streams (releasing the claims)
+    /// and returns the final counters.
+    pub async fn stop(self) -> anyhow::Result<BridgeStats> {
+        let _ = self.stop.send(true);
+        self.task.await.context("the bridge task panicked")??;
+        Ok(self.counters.snapshot())
+    }
+
+    /// Waits until the bridge ends by itself (a receive error).
+    pub async fn wait(&mut self) -> anyhow::Result<()> {
+        (&mut self.task).await.context("the bridge task panicked")?
+    }
+}
+
+/// The UDP loop: parses each datagram, forwards its pose on its
+/// instrument's lane, or answers `not forwarded` at once; then closes the
+/// lanes.
+async fn serve(
+    lanes: Lanes<Pending>,
+    socket: Arc<UdpSocket>,
+    counters: Arc<Counters>,
+    mut stopped: tokio::sync::watch::Receiver<bool>,
+) -> anyhow::Result<()> {
+    let mut buf = [0u8; MAX_DATAGRAM + 1];
+    let mut answers = UdpAnswers::new(socket.clone(), counters.clone());
+    loop {
+        let (n, from) = tokio::select! {
+            r = socket.recv_from(&mut buf) => match r {
+                Ok(x) => x,
+                // ICMP "port unreachable" of an earlier answer to a
+                // device that went away: not fatal.
+                Err(e) if e.kind() == std::io::ErrorKind::ConnectionReset => continue,
+                Err(e) => return Err(e).context("receiving a datagram"),
+            },
+            _ = stopped.changed() => break,
+        };
+        counters.received.fetch_add(1, Ordering::Relaxed);
+        // `buf` holds one byte more than the limit, so a longer datagram
+        // arrives cut to `MAX_DATAGRAM + 1` bytes and is refused as too long.
+        let d = match parse_datagram(&buf[..n]) {
+            Ok(d) => d,
+            Err(e) => {
+                let bad = counters.bad.fetch_add(1, Ordering::Relaxed);
+                if bad < 10 || bad.is_power_of_two() {
+                    tracing::warn!("datagram from {from} dropped: {e} ({} so far)", bad + 1);
+                }
+                continue;
+            }
+        };
+        let index = match d.instrument {
+            InstrumentRef::Index(i) => Some(i as usize).filter(|&i| i < lanes.len()),
+            InstrumentRef::Name(n) => lanes.index_of(n),
+        };
+        let to = Pending {
+            to: from,
+            format: d.format,
+        };
+        let forwarded = index.is_some_and(|i| lanes.forward(i, pose_sample(&d), to));
+        if forwarded {
+            counters.forwarded.fetch_add(1, Ordering::Relaxed);
+            continue;
+        }
+        counters.not_forwarded.fetch_add(1, Ordering::Relaxed);
+        let f = ForceDatagram {
+            instrument: match d.instrument {
+                InstrumentRef::Index(i) => i,
+                InstrumentRef::Name(_) => index.unwrap_or(255) as u8,
+            },
+            status: Status::NotForwarded as u16,
+            sequence: d.sequence,
+            t_s: d.t_s,
+            force_n: [0.0; 3],
+            torque_nm: [0.0; 3],
+            contact_count: 0,
+            safety_flags: 0,
+            model_frame: 0,
+            model_age_s: 0.0,
+            server_compute_us: 0.0,
+        };
+        let name = match (index, d.instrument) {
+            (Some(i), _) => lanes.name(i),
+            (None, InstrumentRef::Name(n)) => n,
+            (None, InstrumentRef::Index(_)) => "",
+        };
+        let msg = if index.is_none() {
+            "unknown instrument"
+        } else {
+            "the instrument's stream is full or closed"
+        };
+        answers.send(to, &f, name, Some(msg)).await;
+    }
+    // Close the streams (releases the claims) and let the readers answer
+    // what is still in flight.
+    lanes.close().await;
+    Ok(())
+}
+
+/// The UDP protocol's answers: a force datagram in the pose's format, back
+/// to the pose's sender (its buffers allocated once).
+struct UdpAnswers {
+    socket: Arc<UdpSocket>,
+    counters: Arc<Counters>,
+    bin: [u8; FORCE_LEN],
+    json: Vec<u8>,
+}
+
+impl UdpAnswers {
+    fn new(socket: Arc<UdpSocket>, counters: Arc<Counters>) -> Self {
+        Self {
+            socket,
+            counters,
+            bin: [0u8; FORCE_LEN],
+            json: Vec::with_capacity(512),
+        }
+    }
+
+    /// Sends `f` (and, in JSON, `name` and `message`) to `to`.
+    async fn send(&mut self, to: Pending, f: &ForceDatagram, name: &str, message: Option<&str>) {
+        let bytes: &[u8] = match to.format {
+            Format::Binary => {
+                encode_force(f, &mut self.bin);
+                &self.bin
+            }
+            Format::Json => {
+                if encode_force_json(f, name, message, &mut self.json).is_err() {
+                    return;
+                }
+                &self.json
+            }
+        };
+        match self.socket.send_to(bytes, to.to).await {
+            Ok(_) => {
+                self.counters.answered.fetch_add(1, Ordering::Relaxed);
+            }
+            Err(e) => tracing::warn!("answer to {}: {e}", to.to),
+        }
+    }
+}
+
+impl Answers<Pending> for UdpAnswers {
+    async fn answer(&mut self, index: usize, name: &str, to: Pending, sample: pb::ForceSample) {
+        let v = |v: &Option<pb::Vec3>| v.as_ref().map_or([0.0; 3], |v| [v.x, v.y, v.z]);
+        let rejected = sample.rejection.is_some();
+        if rejected {
+            self.counters.rejected.fetch_add(1, Ordering::Relaxed);
+        }
+        let f = ForceDatagram {
+            instrument: index as u8,
+            status: if rejected {
+                Status::Rejected as u16
+            } else {
+                Status::Ok as u16
+            },
+            sequence: sample.sequence,
+            t_s: sample.t_s,
+            force_n: v(&sample.force_n),
+            torque_nm: v(&sample.torque_nm),
+            contact_count: sample.contact_count,
+            safety_flags: sample.safety_flags,
+            model_frame: sample.model_frame,
+            model_age_s: sample.model_age_s,
+            server_compute_us: sample.server_compute_us,
+        };
+        let message = sample.rejection.as_ref().map(|r| r.message.as_str());
+        self.send(to, &f, name, message).await;
+    }
+}
+
+/// Runs `fissure bridge` until Ctrl-C or `--duration-s`.
+pub async fn run(args: &BridgeArgs) -> anyhow::Result<BridgeStats> {
+    let mut bridge = Bridge::start(
+        &args.server,
+        args.listen,
+        &args.instrument,
+        args.token.as_deref(),
+    )
+    .await?;
+    eprintln!(
+        "bridging UDP {} to {} (binary b\"FSP1\" or JSON poses; see `fissure bridge --help`)",
+        bridge.local_addr, args.server
+    );
+    let limit = async {
+        match args.duration_s {
+            Some(d) => tokio::time::sleep(std::time::Duration::from_secs_f64(d.max(0.0))).await,
+            None => std::future::pending().await,
+        }
+    };
+    tokio::select! {
+        r = bridge.wait() => { r?; bail!("the bridge stopped"); }
+        _ = tokio::signal::ctrl_c() => {}
+        _ = limit => {}
+    }
+    let stats = bridge.stop().await?;
+    eprintln!(
+        "datagrams received {}, bad {}, poses forwarded {}, not forwarded {}, rejected by the server {}, answers sent {}",
+        stats.received,
+        stats.bad,
+        stats.forwarded,
+        stats.not_forwarded,
+        stats.rejected,
+        stats.answered
+    );
+    Ok(stats)
+}
