@@ -696,7 +696,12 @@ impl Simulation {
             last_start = Instant::now();
             let _span = tracing::debug_span!("deformation_step").entered();
             let prev = self.snapshot();
-            let sim_time = self.started.elapsed().as_secs_f64();
+            // The step's time is the instant it was due, not a reading
+            // taken later: a thread preempted between the two would put
+            // two frames less than the interval apart.
+            let sim_time = last_start
+                .saturating_duration_since(self.started)
+                .as_secs_f64();
             let (snap, report) = engine.step(&prev, sim_time, &poses, histories);
             let step_us = last_start.elapsed().as_secs_f64() * 1e6;
             self.note_step(&StepDone {
