@@ -32,6 +32,7 @@
 pub mod engine;
 pub mod force_loop;
 pub mod local_model;
+pub mod motion;
 pub mod pose;
 pub mod priority;
 pub mod recording;
