@@ -34,6 +34,7 @@ use crate::render::{Image, RenderError, Rgb, anim, ticks};
 use crate::replay::connect;
 use anyhow::Context;
 use fissure_proto::v1 as pb;
+use fissure_server::sim::motion::RigidFit;
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -86,6 +87,41 @@ pub struct WatchArgs {
     /// Camera elevation above the xy plane, degrees (default: per scene).
     #[arg(long, allow_hyphen_values = true)]
     pub elevation_deg: Option<f64>,
+    /// What the surface colour shows: `non-rigid` (the displacement left
+    /// once the best-fit rigid motion of the surface is taken away) or
+    /// `displacement` (from rest).
+    #[arg(long, value_enum, default_value_t = ColourBy::NonRigid)]
+    pub colour_by: ColourBy,
+}
+
+/// What the surface colour of a picture shows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum ColourBy {
+    /// The displacement left once the best-fit rigid motion of the surface
+    /// is taken away ([`fissure_server::sim::motion`]).
+    #[default]
+    NonRigid,
+    /// The displacement from rest.
+    Displacement,
+}
+
+impl ColourBy {
+    /// The legend's label.
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::NonRigid => "non-rigid displ.",
+            Self::Displacement => "displacement",
+        }
+    }
+
+    /// The largest value this colouring shows in `frame`, mm (the non-rigid
+    /// one from the frame's rigid part; the total where the frame has none).
+    pub fn peak_mm(self, frame: &pb::DeformationFrame) -> f64 {
+        match (self, &frame.rigid) {
+            (Self::NonRigid, Some(r)) => r.max_non_rigid_near_m.max(r.max_non_rigid_far_m) * 1e3,
+            _ => frame.max_displacement_m * 1e3,
+        }
+    }
 }
 
 /// The tissue colour map: light pink at 0, salmon, orange-red, dark crimson
@@ -151,6 +187,8 @@ pub struct SessionView {
     pub instruments: Vec<pb::InstrumentDescription>,
     /// Camera.
     pub camera: CameraPreset,
+    /// What the surface colour shows.
+    pub colour_by: ColourBy,
 }
 
 /// The pose of an instrument's handle point from proto fields (identity
@@ -202,6 +240,7 @@ impl SessionView {
                 elevation_deg: 35.0,
                 frame_box: (Point3::origin(), Point3::new(1.0, 1.0, 1.0)),
             },
+            colour_by: ColourBy::default(),
         };
         v.camera = v.preset();
         v
@@ -373,12 +412,23 @@ impl FrameRenderer {
             1.0
         };
         self.colours.clear();
-        self.colours.extend(
-            positions
-                .iter()
-                .zip(&view.rest)
-                .map(|(p, r)| tissue_colour((p - r).norm() * 1e3 / range)),
-        );
+        match view.colour_by {
+            ColourBy::Displacement => self.colours.extend(
+                positions
+                    .iter()
+                    .zip(&view.rest)
+                    .map(|(p, r)| tissue_colour((p - r).norm() * 1e3 / range)),
+            ),
+            ColourBy::NonRigid => {
+                let fit = RigidFit::new(&view.rest, &positions);
+                self.colours.extend(
+                    positions
+                        .iter()
+                        .zip(&view.rest)
+                        .map(|(p, r)| tissue_colour(fit.non_rigid(r, p).norm() * 1e3 / range)),
+                );
+            }
+        }
         let states = view.instrument_states(frame);
         let plates: Vec<TriMesh> = view
             .instruments
@@ -471,6 +521,7 @@ impl FrameRenderer {
             TITLE_BAND as i64 + 34,
             ((self.height - TITLE_BAND) as i64 - 120).clamp(80, 360),
             range,
+            view.colour_by.label(),
         );
         // Force readouts bottom-left, names at the arrow tips.
         let st = TextStyle::new(14.0).align(HAlign::Left, VAlign::Bottom);
@@ -515,7 +566,7 @@ impl FrameRenderer {
 }
 
 /// The colour scale: [`TISSUE_MAP`] from 0 (bottom) to `range_mm` (top).
-fn draw_legend(img: &mut Image, x: i64, y: i64, bar_h: i64, range_mm: f64) {
+fn draw_legend(img: &mut Image, x: i64, y: i64, bar_h: i64, range_mm: f64, label: &str) {
     let (bar_w, ink) = (18, [40, 40, 40]);
     for j in 0..bar_h {
         let t = 1.0 - (j as f64 + 0.5) / bar_h as f64;
@@ -539,7 +590,7 @@ fn draw_legend(img: &mut Image, x: i64, y: i64, bar_h: i64, range_mm: f64) {
     let st = TextStyle::new(13.0)
         .colour(ink)
         .align(HAlign::Left, VAlign::Bottom);
-    draw_text(img, "displacement", (x - 6) as f32, (y - 22) as f32, &st);
+    draw_text(img, label, (x - 6) as f32, (y - 22) as f32, &st);
     draw_text(img, "(mm)", (x - 6) as f32, (y - 7) as f32, &st);
 }
 
@@ -780,6 +831,7 @@ pub async fn run(args: &WatchArgs) -> anyhow::Result<WatchReport> {
         .context("GetSurface")?
         .into_inner();
     let mut view = SessionView::new(&scene, &surface);
+    view.colour_by = args.colour_by;
     if let Some(a) = args.azimuth_deg {
         view.camera.azimuth_deg = a;
     }
@@ -845,7 +897,7 @@ pub async fn run(args: &WatchArgs) -> anyhow::Result<WatchReport> {
             continue;
         }
         report.kept += 1;
-        max_mm = max_mm.max(frame.max_displacement_m * 1e3);
+        max_mm = max_mm.max(args.colour_by.peak_mm(&frame));
         let range_mm = args.range_mm.unwrap_or(max_mm.max(0.1));
         let caption = caption_of(&scene.name, &frame, range_mm);
         if !args.no_vtu {
