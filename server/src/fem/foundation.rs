@@ -28,9 +28,6 @@
 //! from the stress, not from the element matrices; [`super::build_solver`]
 //! refuses a foundation with them rather than solve a different problem.
 
-// Negated comparisons are deliberate: NaN must fail the positivity checks.
-#![allow(clippy::neg_cmp_op_on_partial_ord)]
-
 use super::SolveError;
 use super::model::Model;
 use nalgebra::{Point3, SMatrix, Vector3};
@@ -128,10 +125,10 @@ pub fn fold_into(model: &mut Model, foundation: &Foundation) -> Result<(), Solve
         let local = f.map(|n| t.iter().position(|&m| m == n).expect("face of the tet"));
         let kf = face_matrix(f.map(|n| model.rest[n as usize]), k);
         let ke = &mut model.kel[e];
-        for a in 0..3 {
-            for b in 0..3 {
+        for (a, &la) in local.iter().enumerate() {
+            for (b, &lb) in local.iter().enumerate() {
                 let block = kf.fixed_view::<3, 3>(3 * a, 3 * b).into_owned();
-                let mut dst = ke.fixed_view_mut::<3, 3>(3 * local[a], 3 * local[b]);
+                let mut dst = ke.fixed_view_mut::<3, 3>(3 * la, 3 * lb);
                 dst += block;
             }
         }
@@ -224,8 +221,8 @@ mod tests {
         // reproduces and a lumped one would not.
         let w = [0.0, 1e-3, 2e-3];
         let mut ul = SMatrix::<f64, 9, 1>::zeros();
-        for a in 0..3 {
-            ul[3 * a + 2] = w[a];
+        for (a, wa) in w.iter().enumerate() {
+            ul[3 * a + 2] = *wa;
         }
         let exact = k * area / 6.0
             * (w.iter().map(|x| x * x).sum::<f64>() + w[0] * w[1] + w[1] * w[2] + w[0] * w[2]);

@@ -904,8 +904,8 @@ mod tests {
         let mut c = [0.0; 3];
         for &n in f {
             let p = model.mesh.nodes[n as usize];
-            for k in 0..3 {
-                c[k] += p[k] / 3.0;
+            for (ck, pk) in c.iter_mut().zip(p.iter()) {
+                *ck += pk / 3.0;
             }
         }
         c
