@@ -5,17 +5,22 @@
 //! * `forces-<instrument>.csv` and `forces-<instrument>.png` (force versus
 //!   time: |F| and its components, N);
 //! * `snapshot-1-before.png`, `snapshot-2-during.png`,
-//!   `snapshot-3-after.png`: the surface coloured by displacement (mm) with
+//!   `snapshot-3-after.png`: the surface coloured by its non-rigid
+//!   displacement (mm; `--colour-by displacement`: from rest) with
 //!   the spatulas and their force arrows (for `sylvian`, seen from the left
 //!   into the opened fissure); `session.gif`, the whole run;
 //! * `vtu/surface-NNNNNN.vtu` with `vtu/surface.pvd` (open in ParaView; point
 //!   data `displacement`, m), one per deformation frame received;
 //! * `surface-deepest.obj`, `surface-final.obj`; `session.fsrec` (the
 //!   recording, for `fissure report` and `fissure replay --recording`);
-//!   `summary.txt` (the table printed at the end).
+//!   `summary.txt` (the table printed at the end, with the rigid part of the
+//!   frame of largest displacement: best-fit rotation and translation, and
+//!   the largest non-rigid displacement near the instruments' tips and
+//!   beyond 40 mm).
 
 use crate::replay::{ForceRow, Pacing, connect, forces_csv, replay};
 use crate::trajectory::{BUNDLED, Trajectory};
+use crate::watch::ColourBy;
 use anyhow::{Context, bail};
 use fissure_proto::v1 as pb;
 use fissure_server::scene::Scene;
@@ -65,6 +70,11 @@ pub struct DemoArgs {
     /// Largest number of GIF frames (the frames are thinned evenly).
     #[arg(long, default_value_t = 60)]
     pub gif_frames: usize,
+    /// What the surface colour shows: `non-rigid` (the displacement left
+    /// once the best-fit rigid motion of the surface is taken away) or
+    /// `displacement` (from rest).
+    #[arg(long, value_enum, default_value_t = ColourBy::NonRigid)]
+    pub colour_by: ColourBy,
     /// Skip the pictures, the GIF and the VTU series (forces, OBJ,
     /// recording and summary only).
     #[arg(long)]
@@ -139,6 +149,8 @@ pub struct DemoReport {
     pub files: Vec<PathBuf>,
     /// Largest surface displacement of the run, m.
     pub max_displacement_m: f64,
+    /// The rigid part of the frame with the largest displacement.
+    pub rigid: Option<pb::RigidPart>,
     /// Wall-clock time of the run (server start to last file), s.
     pub elapsed_s: f64,
 }
@@ -154,6 +166,7 @@ pub async fn run(args: &DemoArgs) -> anyhow::Result<DemoReport> {
             frames: 0,
             files: Vec::new(),
             max_displacement_m: 0.0,
+            rigid: None,
             elapsed_s: 0.0,
         });
     }
@@ -255,6 +268,7 @@ pub async fn run(args: &DemoArgs) -> anyhow::Result<DemoReport> {
         .iter()
         .max_by(|a, b| a.max_displacement_m.total_cmp(&b.max_displacement_m));
     let max_displacement_m = deepest.map_or(0.0, |f| f.max_displacement_m);
+    let rigid = deepest.and_then(|f| f.rigid.as_ref().cloned());
     for (label, frame) in [("deepest", deepest), ("final", frames.last())] {
         if let Some(f) = frame {
             let path = args.out.join(format!("surface-{label}.obj"));
@@ -271,6 +285,7 @@ pub async fn run(args: &DemoArgs) -> anyhow::Result<DemoReport> {
             quiet: args.quiet,
             azimuth_deg: args.azimuth_deg,
             elevation_deg: args.elevation_deg,
+            colour_by: args.colour_by,
         };
         let (description, surface) = (description.clone(), surface.clone());
         let forces = forces.clone();
@@ -286,6 +301,9 @@ pub async fn run(args: &DemoArgs) -> anyhow::Result<DemoReport> {
         "largest surface displacement: {:.2} mm; deformation frames received: {frame_count}\n",
         max_displacement_m * 1e3
     ));
+    if let Some(r) = &rigid {
+        summary.push_str(&rigid_lines(max_displacement_m, r));
+    }
     let path = args.out.join("summary.txt");
     write(&path, &summary)?;
     files.push(path);
@@ -301,8 +319,39 @@ pub async fn run(args: &DemoArgs) -> anyhow::Result<DemoReport> {
         frames: frame_count,
         files,
         max_displacement_m,
+        rigid,
         elapsed_s,
     })
+}
+
+/// The rigid part of the frame with the largest displacement
+/// `max_displacement_m` (m), as lines of the summary.
+pub fn rigid_lines(max_displacement_m: f64, r: &pb::RigidPart) -> String {
+    let t = r.translation_m.unwrap_or_default();
+    let share = |v: f64| {
+        if max_displacement_m > 0.0 {
+            100.0 * v / max_displacement_m
+        } else {
+            0.0
+        }
+    };
+    let near = r.max_non_rigid_near_m;
+    format!(
+        "rigid part of that frame (best fit over the surface): rotation {:.3} deg, translation {:.3} mm; largest rigid displacement {:.2} mm ({:.1} % of the largest)\n\
+         largest non-rigid displacement: {:.2} mm within {:.0} mm of the tips, {:.2} mm beyond ({:.1} % of the near one)\n",
+        r.rotation_deg,
+        (t.x * t.x + t.y * t.y + t.z * t.z).sqrt() * 1e3,
+        r.max_rigid_m * 1e3,
+        share(r.max_rigid_m),
+        near * 1e3,
+        r.near_radius_m * 1e3,
+        r.max_non_rigid_far_m * 1e3,
+        if near > 0.0 {
+            100.0 * r.max_non_rigid_far_m / near
+        } else {
+            0.0
+        },
+    )
 }
 
 /// The list of results printed at the end: one line per kind of file, the
@@ -347,6 +396,7 @@ struct Pictures {
     quiet: bool,
     azimuth_deg: Option<f64>,
     elevation_deg: Option<f64>,
+    colour_by: ColourBy,
 }
 
 impl Pictures {
@@ -374,6 +424,7 @@ impl Pictures {
         bar.set_prefix("pictures");
         let mut files = Vec::new();
         let mut view = SessionView::new(scene, surface);
+        view.colour_by = self.colour_by;
         if let Some(a) = self.azimuth_deg {
             view.camera.azimuth_deg = a;
         }
@@ -390,10 +441,11 @@ impl Pictures {
             bar.inc(1);
         }
         files.push(series.finish()?);
-        // One colour scale for every picture: the run's largest displacement.
+        // One colour scale for every picture: the run's largest value of
+        // what the colour shows.
         let peak_mm = frames
             .iter()
-            .map(|f| f.max_displacement_m * 1e3)
+            .map(|f| self.colour_by.peak_mm(f))
             .fold(0.0, f64::max);
         let range_mm = crate::render::ticks::nice_range(0.0, peak_mm.max(0.1), 5).1;
         // Snapshots: the first frame, the first frame at half the peak
@@ -402,7 +454,7 @@ impl Pictures {
         let mut renderer = FrameRenderer::new(self.width, self.height)?;
         let during = frames
             .iter()
-            .find(|f| f.max_displacement_m * 1e3 >= 0.5 * peak_mm)
+            .find(|f| self.colour_by.peak_mm(f) >= 0.5 * peak_mm)
             .unwrap_or(&frames[frames.len() / 2]);
         for (name, label, frame) in [
             ("snapshot-1-before.png", "before", &frames[0]),

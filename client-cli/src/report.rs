@@ -49,6 +49,28 @@ impl LostEntries {
     }
 }
 
+/// The rigid part of the recorded frame with the largest surface
+/// displacement (the server's best fit over the surface vertices).
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct MotionReport {
+    /// Frame number.
+    pub frame: u64,
+    /// Its largest surface displacement, m.
+    pub max_displacement_m: f64,
+    /// Best-fit rotation angle, degrees.
+    pub rotation_deg: f64,
+    /// Best-fit translation of the surface centroid, m.
+    pub translation_m: f64,
+    /// Largest rigid displacement of a surface vertex, m.
+    pub max_rigid_m: f64,
+    /// Radius of "near the instruments' tips", m.
+    pub near_radius_m: f64,
+    /// Largest non-rigid displacement within that radius, m.
+    pub max_non_rigid_near_m: f64,
+    /// Largest non-rigid displacement beyond it, m.
+    pub max_non_rigid_far_m: f64,
+}
+
 /// Summary of a recording.
 #[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
 pub struct Report {
@@ -69,6 +91,9 @@ pub struct Report {
     pub lost: LostEntries,
     /// Per instrument.
     pub instruments: Vec<InstrumentReport>,
+    /// The rigid part of the frame with the largest displacement (absent
+    /// in recordings without it).
+    pub motion: Option<MotionReport>,
 }
 
 fn norm(v: &Option<pb::Vec3>) -> f64 {
@@ -90,6 +115,7 @@ pub fn report(path: &Path, threshold_n: f64) -> anyhow::Result<Report> {
     let mut scene = String::new();
     let mut frames = 0;
     let mut failed_frames = 0;
+    let mut motion: Option<MotionReport> = None;
     let mut forces: BTreeMap<String, Vec<pb::ForceSample>> = BTreeMap::new();
     let mut poses: BTreeMap<String, Vec<pb::PoseSample>> = BTreeMap::new();
     for e in rec.entries {
@@ -105,6 +131,21 @@ pub fn report(path: &Path, threshold_n: f64) -> anyhow::Result<Report> {
             }
             Some(pb::recording_entry::Entry::Frame(f)) => {
                 frames += 1;
+                if let Some(r) = &f.rigid {
+                    if motion.is_none_or(|m| f.max_displacement_m > m.max_displacement_m) {
+                        let t = r.translation_m.unwrap_or_default();
+                        motion = Some(MotionReport {
+                            frame: f.frame,
+                            max_displacement_m: f.max_displacement_m,
+                            rotation_deg: r.rotation_deg,
+                            translation_m: (t.x * t.x + t.y * t.y + t.z * t.z).sqrt(),
+                            max_rigid_m: r.max_rigid_m,
+                            near_radius_m: r.near_radius_m,
+                            max_non_rigid_near_m: r.max_non_rigid_near_m,
+                            max_non_rigid_far_m: r.max_non_rigid_far_m,
+                        });
+                    }
+                }
                 if !f.solver_error.is_empty() {
                     failed_frames += 1;
                 }
@@ -173,6 +214,7 @@ pub fn report(path: &Path, threshold_n: f64) -> anyhow::Result<Report> {
         truncated,
         lost,
         instruments,
+        motion,
     })
 }
 
@@ -254,6 +296,24 @@ pub fn table(r: &Report) -> String {
             i.time_above_threshold_s,
             i.path_length_m,
             i.time_in_contact_s
+        ));
+    }
+    if let Some(m) = &r.motion {
+        let pct = |a: f64, b: f64| if b > 0.0 { 100.0 * a / b } else { 0.0 };
+        s.push_str(&format!(
+            "\nframe {} (largest surface displacement {:.2} mm): rigid part (best fit over the surface) \
+             rotation {:.3} deg, translation {:.3} mm, largest rigid displacement {:.2} mm ({:.1} %)\n\
+             largest non-rigid displacement: {:.2} mm within {:.0} mm of the tips, {:.2} mm beyond ({:.1} %)\n",
+            m.frame,
+            m.max_displacement_m * 1e3,
+            m.rotation_deg,
+            m.translation_m * 1e3,
+            m.max_rigid_m * 1e3,
+            pct(m.max_rigid_m, m.max_displacement_m),
+            m.max_non_rigid_near_m * 1e3,
+            m.near_radius_m * 1e3,
+            m.max_non_rigid_far_m * 1e3,
+            pct(m.max_non_rigid_far_m, m.max_non_rigid_near_m),
         ));
     }
     s

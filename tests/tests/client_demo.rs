@@ -16,6 +16,7 @@ fn args(scene: &str, out: &std::path::Path) -> DemoArgs {
         width: 400,
         height: 300,
         gif_frames: 4,
+        colour_by: fissure_cli::watch::ColourBy::NonRigid,
         no_pictures: false,
         quiet: true,
     }

@@ -27,6 +27,7 @@ fn args(server: &str, out: &Path) -> WatchArgs {
         range_mm: None,
         azimuth_deg: None,
         elevation_deg: None,
+        colour_by: fissure_cli::watch::ColourBy::NonRigid,
     }
 }
 

@@ -128,6 +128,7 @@ fn frame(k: u64) -> Frame {
         timings: StepTimings::default(),
         solver_error: None,
         max_displacement_m: 1e-3,
+        rigid: Default::default(),
     }
 }
 

@@ -60,7 +60,10 @@ fn every_embedded_scene_starts() {
 /// upper wall; the force on the spatula points down (it opposes the lift).
 #[test]
 fn sylvian_spatula_lifts_the_upper_wall() {
-    let (scene, _) = Scene::load("sylvian").unwrap();
+    // Held at the brain stem only (the scene's foundation taken away): the
+    // lifted wall moves by about the push.
+    let (mut scene, _) = Scene::load("sylvian").unwrap();
+    scene.foundation = None;
     let home = scene.instruments[0].home_position_m;
     let sim = Simulation::start(scene, stepped()).unwrap();
     let mut poses = Vec::new();
@@ -95,12 +98,48 @@ fn sylvian_spatula_lifts_the_upper_wall() {
     sim.shutdown();
 }
 
+/// The default phantom scenes are held by the elastic foundation, and two
+/// stepped runs of the same poses give bit-identical forces and surfaces.
+#[test]
+fn foundation_scenes_replay_bit_identically() {
+    let (scene, _) = Scene::load("interhemispheric").unwrap();
+    assert!(scene.foundation.is_some());
+    let home = scene.instruments[0].home_position_m;
+    // Down 20 mm (the tip 15 mm into the fissure) in 0.1 s, then 2 mm
+    // along +x (1 mm into the wall) in 0.05 s.
+    let poses: Vec<(f64, [f64; 3])> = (0..=150)
+        .map(|i| {
+            let t = i as f64 * 1e-3;
+            let down = (t / 0.1).min(1.0);
+            let side = ((t - 0.1) / 0.05).clamp(0.0, 1.0);
+            (t, [home[0] + 0.002 * side, home[1], home[2] - 0.020 * down])
+        })
+        .collect();
+    let run = || {
+        let sim = Simulation::start(scene.clone(), stepped()).unwrap();
+        assert!(sim.model().foundation.is_some());
+        let f = drive(&sim, "left", &poses);
+        let frame = sim.snapshot().frame_summary.clone();
+        sim.shutdown();
+        (f.force_n, frame)
+    };
+    let (fa, a) = run();
+    let (fb, b) = run();
+    assert!(a.solver_error.is_none(), "{:?}", a.solver_error);
+    assert!(a.frame > 0 && a.max_displacement_m > 0.0);
+    assert_eq!(fa, fb);
+    assert_eq!(a.positions, b.positions);
+    assert_eq!(a.rigid, b.rigid);
+}
+
 /// A region of interest crops the FEM to the tissue near the fissure: fewer
 /// tetrahedra, the cut fixed. Cropping stiffens the model (more of it is held),
 /// and less so as the region grows: the force approaches the full model's.
 #[test]
 fn region_of_interest_crops_and_converges() {
-    let (scene, _) = Scene::load("sylvian").unwrap();
+    // Held at the brain stem only (the scene's foundation taken away).
+    let (mut scene, _) = Scene::load("sylvian").unwrap();
+    scene.foundation = None;
     let home = scene.instruments[0].home_position_m;
     let mut poses = Vec::new();
     for i in 0..=300 {

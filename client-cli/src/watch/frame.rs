@@ -2,7 +2,7 @@
 //! magnitude, the spatulas as plates, their reaction forces as arrows, a
 //! title band and a legend panel.
 
-use super::view::{ARROWS, STEEL, STEEL_CONTACT, SessionView, plate, tissue_colour};
+use super::view::{ARROWS, ColourBy, STEEL, STEEL_CONTACT, SessionView, plate, tissue_colour};
 use crate::render::draw::{fill_rect, line, stroke_rect};
 use crate::render::raster::{
     Background, Camera, Colouring, EdgeStyle, MeshRef, RenderOptions, Renderer, TriMesh,
@@ -10,6 +10,7 @@ use crate::render::raster::{
 use crate::render::text::{HAlign, TextStyle, VAlign, draw_text};
 use crate::render::{Image, RenderError, Rgb, ticks};
 use fissure_proto::v1 as pb;
+use fissure_server::sim::motion::RigidFit;
 use nalgebra::Point3;
 
 /// Height of the title band, px.
@@ -85,12 +86,23 @@ impl FrameRenderer {
             1.0
         };
         self.colours.clear();
-        self.colours.extend(
-            positions
-                .iter()
-                .zip(&view.rest)
-                .map(|(p, r)| tissue_colour((p - r).norm() * 1e3 / range)),
-        );
+        match view.colour_by {
+            ColourBy::Displacement => self.colours.extend(
+                positions
+                    .iter()
+                    .zip(&view.rest)
+                    .map(|(p, r)| tissue_colour((p - r).norm() * 1e3 / range)),
+            ),
+            ColourBy::NonRigid => {
+                let fit = RigidFit::new(&view.rest, &positions);
+                self.colours.extend(
+                    positions
+                        .iter()
+                        .zip(&view.rest)
+                        .map(|(p, r)| tissue_colour(fit.non_rigid(r, p).norm() * 1e3 / range)),
+                );
+            }
+        }
         let states = view.instrument_states(frame);
         let plates: Vec<TriMesh> = view
             .instruments
@@ -183,6 +195,7 @@ impl FrameRenderer {
             TITLE_BAND as i64 + 34,
             ((self.height - TITLE_BAND) as i64 - 120).clamp(80, 360),
             range,
+            view.colour_by.label(),
         );
         // Force readouts bottom-left, names at the arrow tips.
         let st = TextStyle::new(14.0).align(HAlign::Left, VAlign::Bottom);
@@ -227,7 +240,7 @@ impl FrameRenderer {
 }
 
 /// The colour scale: [`super::TISSUE_MAP`] from 0 (bottom) to `range_mm` (top).
-fn draw_legend(img: &mut Image, x: i64, y: i64, bar_h: i64, range_mm: f64) {
+fn draw_legend(img: &mut Image, x: i64, y: i64, bar_h: i64, range_mm: f64, label: &str) {
     let (bar_w, ink) = (18, [40, 40, 40]);
     for j in 0..bar_h {
         let t = 1.0 - (j as f64 + 0.5) / bar_h as f64;
@@ -251,7 +264,7 @@ fn draw_legend(img: &mut Image, x: i64, y: i64, bar_h: i64, range_mm: f64) {
     let st = TextStyle::new(13.0)
         .colour(ink)
         .align(HAlign::Left, VAlign::Bottom);
-    draw_text(img, "displacement", (x - 6) as f32, (y - 22) as f32, &st);
+    draw_text(img, label, (x - 6) as f32, (y - 22) as f32, &st);
     draw_text(img, "(mm)", (x - 6) as f32, (y - 7) as f32, &st);
 }
 

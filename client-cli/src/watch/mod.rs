@@ -33,7 +33,7 @@ mod vtu;
 pub use frame::{Caption, FrameRenderer, caption_of};
 pub use gif::{GifBuffer, gif_delay_cs};
 pub use view::{
-    ARROWS, CameraPreset, STEEL, STEEL_CONTACT, SessionView, TISSUE_MAP, plate, pose_of,
+    ARROWS, CameraPreset, ColourBy, STEEL, STEEL_CONTACT, SessionView, TISSUE_MAP, plate, pose_of,
     tissue_colour,
 };
 pub use vtu::{VtuSeries, pvd};
@@ -92,6 +92,11 @@ pub struct WatchArgs {
     /// Camera elevation above the xy plane, degrees (default: per scene).
     #[arg(long, allow_hyphen_values = true)]
     pub elevation_deg: Option<f64>,
+    /// What the surface colour shows: `non-rigid` (the displacement left
+    /// once the best-fit rigid motion of the surface is taken away) or
+    /// `displacement` (from rest).
+    #[arg(long, value_enum, default_value_t = ColourBy::NonRigid)]
+    pub colour_by: ColourBy,
 }
 
 /// How a watch ended.
@@ -182,6 +187,7 @@ pub async fn run(args: &WatchArgs) -> anyhow::Result<WatchReport> {
         .context("GetSurface")?
         .into_inner();
     let mut view = SessionView::new(&scene, &surface);
+    view.colour_by = args.colour_by;
     if let Some(a) = args.azimuth_deg {
         view.camera.azimuth_deg = a;
     }
@@ -247,7 +253,7 @@ pub async fn run(args: &WatchArgs) -> anyhow::Result<WatchReport> {
             continue;
         }
         report.kept += 1;
-        max_mm = max_mm.max(frame.max_displacement_m * 1e3);
+        max_mm = max_mm.max(args.colour_by.peak_mm(&frame));
         let range_mm = args.range_mm.unwrap_or(max_mm.max(0.1));
         let caption = caption_of(&scene.name, &frame, range_mm);
         if !args.no_vtu {

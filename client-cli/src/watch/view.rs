@@ -63,6 +63,38 @@ pub struct SessionView {
     pub instruments: Vec<pb::InstrumentDescription>,
     /// Camera.
     pub camera: CameraPreset,
+    /// What the surface colour shows.
+    pub colour_by: ColourBy,
+}
+
+/// What the surface colour of a picture shows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum ColourBy {
+    /// The displacement left once the best-fit rigid motion of the surface
+    /// is taken away ([`fissure_server::sim::motion`]).
+    #[default]
+    NonRigid,
+    /// The displacement from rest.
+    Displacement,
+}
+
+impl ColourBy {
+    /// The legend's label.
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::NonRigid => "non-rigid displ.",
+            Self::Displacement => "displacement",
+        }
+    }
+
+    /// The largest value this colouring shows in `frame`, mm (the non-rigid
+    /// one from the frame's rigid part; the total where the frame has none).
+    pub fn peak_mm(self, frame: &pb::DeformationFrame) -> f64 {
+        match (self, &frame.rigid) {
+            (Self::NonRigid, Some(r)) => r.max_non_rigid_near_m.max(r.max_non_rigid_far_m) * 1e3,
+            _ => frame.max_displacement_m * 1e3,
+        }
+    }
 }
 
 /// The pose of an instrument's handle point from proto fields (identity
@@ -114,6 +146,7 @@ impl SessionView {
                 elevation_deg: 35.0,
                 frame_box: (Point3::origin(), Point3::new(1.0, 1.0, 1.0)),
             },
+            colour_by: ColourBy::default(),
         };
         v.camera = v.preset();
         v

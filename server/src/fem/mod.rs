@@ -63,6 +63,7 @@ pub mod corotational;
 pub mod direct;
 pub mod element;
 pub mod factor;
+pub mod foundation;
 pub mod lcp;
 pub mod model;
 pub mod neo_hookean;
@@ -334,6 +335,10 @@ pub struct SolverOptions {
     /// The skull spheres, when the scene asks for them (wraps the strategy
     /// in an active set over the surface nodes).
     pub skull: Option<skull::Skull>,
+    /// An elastic foundation on the outer surface ([`foundation`]): its
+    /// springs are folded into the element matrices once. `direct` and
+    /// `compliance` only.
+    pub foundation: Option<foundation::Foundation>,
     /// Parallelism of the per-element loops (`corotational`) and of the
     /// dense block factorization and recovery (`compliance`,
     /// `corotational`); the answers do not depend on it beyond round-off.
@@ -354,6 +359,7 @@ impl Default for SolverOptions {
             axis_supports: Vec::new(),
             iterative: corotational::IterativeOptions::default(),
             skull: None,
+            foundation: None,
             parallelism: par::default_par(),
             cache_nodes: None,
         }
@@ -370,7 +376,16 @@ pub fn build_solver(
     fixed: &[u32],
     options: &SolverOptions,
 ) -> Result<Box<dyn DeformationSolver>, SolveError> {
-    let model = model::Model::new(mesh, material, fixed, &options.axis_supports)?;
+    let mut model = model::Model::new(mesh, material, fixed, &options.axis_supports)?;
+    if let Some(f) = &options.foundation {
+        if !matches!(strategy, Strategy::Direct | Strategy::Compliance) {
+            return Err(SolveError::InvalidModel(format!(
+                "an elastic foundation needs the direct or compliance strategy, not {}",
+                strategy.name()
+            )));
+        }
+        foundation::fold_into(&mut model, f)?;
+    }
     let solver: Box<dyn DeformationSolver> = match strategy {
         Strategy::Direct => Box::new(direct::Direct::new(model)?),
         Strategy::Compliance => {

@@ -26,7 +26,9 @@ pub struct Model {
     pub rest: Vec<Point3<f64>>,
     /// Rest geometry per element.
     pub geoms: Vec<TetGeometry>,
-    /// Linear element stiffness per element, N/m.
+    /// Linear element stiffness per element, N/m (with the springs of an
+    /// elastic foundation on its outer faces, once
+    /// [`super::foundation::fold_into`] has added them).
     pub kel: Vec<ElementMatrix>,
     /// Lamé parameters, Pa.
     pub lambda: f64,

@@ -11,6 +11,8 @@
 //! Every value is checked by [`Scene::validate`]; an error names the field
 //! (`instrument[1].thickness_m`) and what is wrong with it.
 
+pub mod region;
+
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
@@ -87,6 +89,9 @@ pub struct Scene {
     /// The skull, when modelled.
     #[serde(default)]
     pub skull: Option<SkullSpec>,
+    /// An elastic foundation on the outer surface, when modelled.
+    #[serde(default)]
+    pub foundation: Option<FoundationSpec>,
     /// A region of interest: when present, the FEM runs only on the tissue
     /// within `distance_m` of it, with the cut surface fixed (a speed option).
     #[serde(default)]
@@ -105,6 +110,22 @@ pub struct RoiSpec {
     pub plane_normal: Option<[f64; 3]>,
     /// Tissue farther than this is cropped away, m.
     pub distance_m: f64,
+}
+
+/// An elastic (Winkler) foundation on the outer surface: normal springs of
+/// `stiffness_pa_per_m` between the tissue and a fixed support, on every
+/// outer triangle except those of the `open` regions (see [`region`] and
+/// [`crate::fem::foundation`]). Needs the `direct` or `compliance` strategy.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct FoundationSpec {
+    /// Normal stiffness per area, Pa/m (N/m per m^2), > 0.
+    pub stiffness_pa_per_m: f64,
+    /// Regions left without springs (the craniotomy window, the fissure
+    /// walls): a triangle is open when its centroid lies in a box, sphere
+    /// or landmark, or when its three nodes are in a vertex list.
+    #[serde(default)]
+    pub open: Vec<Region>,
 }
 
 /// Which brain model to build.
@@ -177,10 +198,20 @@ pub enum Region {
         /// Radius, m.
         radius_m: f64,
     },
-    /// A region the model names (e.g. the phantom's `brain-stem`).
+    /// A region the model names: the phantom's `brain-stem` (a sphere),
+    /// `sylvian-left`, `sylvian-right` and `interhemispheric` (a fissure's
+    /// walls and floor: within half its width plus 1 mm of its mid-plane,
+    /// from its entry to its floor).
     Landmark {
         /// Landmark name.
         landmark: String,
+    },
+    /// The volume nodes listed in a file (one 0-based index a line, `#`
+    /// comments), relative to the scene file; for a user's mesh.
+    /// `foundation.open` only.
+    Vertices {
+        /// Path to the list.
+        vertices_file: PathBuf,
     },
 }
 
@@ -197,7 +228,7 @@ impl Region {
                 centre_m: c,
                 radius_m: r,
             } => (0..3).map(|i| (p[i] - c[i]).powi(2)).sum::<f64>() <= r * r,
-            Region::Landmark { .. } => false,
+            Region::Landmark { .. } | Region::Vertices { .. } => false,
         }
     }
 }
@@ -507,9 +538,19 @@ impl Scene {
             source,
         })?;
         let mut scene = Self::parse(&text, &path.display().to_string())?;
+        let dir = path.parent().unwrap_or(Path::new("."));
         if let ModelSpec::File { path: mesh, .. } = &mut scene.model {
             if mesh.is_relative() {
-                *mesh = path.parent().unwrap_or(Path::new(".")).join(&*mesh);
+                *mesh = dir.join(&*mesh);
+            }
+        }
+        if let Some(f) = &mut scene.foundation {
+            for r in &mut f.open {
+                if let Region::Vertices { vertices_file } = r {
+                    if vertices_file.is_relative() {
+                        *vertices_file = dir.join(&*vertices_file);
+                    }
+                }
             }
         }
         Ok((scene, Some(path.to_owned())))
@@ -573,26 +614,51 @@ impl Scene {
                 format!("must be in [0, 0.5), got {nu}"),
             ));
         }
-        for (i, r) in self.fixed.iter().enumerate() {
+        let check_region = |at: String, r: &Region| -> Result<(), SceneError> {
             match r {
                 Region::Box {
                     box_min_m,
                     box_max_m,
                 } => {
-                    finite3(format!("fixed[{i}].box_min_m"), box_min_m)?;
-                    finite3(format!("fixed[{i}].box_max_m"), box_max_m)?;
+                    finite3(format!("{at}.box_min_m"), box_min_m)?;
+                    finite3(format!("{at}.box_max_m"), box_max_m)?;
                     if (0..3).any(|k| box_min_m[k] > box_max_m[k]) {
-                        return Err(bad(
-                            format!("fixed[{i}]"),
-                            "box_min_m exceeds box_max_m".into(),
-                        ));
+                        return Err(bad(at, "box_min_m exceeds box_max_m".into()));
                     }
                 }
                 Region::Sphere { centre_m, radius_m } => {
-                    finite3(format!("fixed[{i}].centre_m"), centre_m)?;
-                    positive(&format!("fixed[{i}].radius_m"), *radius_m)?;
+                    finite3(format!("{at}.centre_m"), centre_m)?;
+                    positive(&format!("{at}.radius_m"), *radius_m)?;
                 }
-                Region::Landmark { .. } => {}
+                Region::Landmark { .. } | Region::Vertices { .. } => {}
+            }
+            Ok(())
+        };
+        for (i, r) in self.fixed.iter().enumerate() {
+            if matches!(r, Region::Vertices { .. }) {
+                return Err(bad(
+                    format!("fixed[{i}]"),
+                    "a vertex list is accepted in foundation.open only".into(),
+                ));
+            }
+            check_region(format!("fixed[{i}]"), r)?;
+        }
+        if let Some(f) = &self.foundation {
+            positive("foundation.stiffness_pa_per_m", f.stiffness_pa_per_m)?;
+            for (i, r) in f.open.iter().enumerate() {
+                check_region(format!("foundation.open[{i}]"), r)?;
+            }
+            if !matches!(
+                self.solver.strategy,
+                Strategy::Direct | Strategy::Compliance
+            ) {
+                return Err(bad(
+                    "foundation".into(),
+                    format!(
+                        "an elastic foundation needs solver.strategy = \"compliance\" or \"direct\" (the scene has {:?})",
+                        self.solver.strategy.name()
+                    ),
+                ));
             }
         }
         positive("collision.max_depth_m", self.collision.max_depth_m)?;
@@ -823,5 +889,162 @@ mod tests {
             Err(SceneError::Unknown { .. })
         ));
         assert_eq!(scene.name, "cube");
+    }
+
+    /// The cube scene with a foundation of `k` Pa/m and `open` regions
+    /// (TOML inline tables).
+    fn cube_on_foundation(open: &str) -> String {
+        format!(
+            "{}\n[foundation]\nstiffness_pa_per_m = 1e6\nopen = [{open}]\n",
+            include_str!("../../scenes/cube.toml")
+        )
+    }
+
+    fn centroid(model: &crate::sim::engine::Model, f: &[u32; 3]) -> [f64; 3] {
+        let mut c = [0.0; 3];
+        for &n in f {
+            let p = model.mesh.nodes[n as usize];
+            for (ck, pk) in c.iter_mut().zip(p.iter()) {
+                *ck += pk / 3.0;
+            }
+        }
+        c
+    }
+
+    #[test]
+    fn a_region_named_open_carries_no_springs() {
+        // Open: the upper half of the cube (a box). No supported face has
+        // its centroid there; the lower faces are all supported.
+        let size = match Scene::load("cube").unwrap().0.model {
+            ModelSpec::Cube { size_m, .. } => size_m,
+            _ => unreachable!(),
+        };
+        let all = Scene::parse(&cube_on_foundation(""), "all.toml").unwrap();
+        let all = crate::sim::engine::Model::build(&all).unwrap();
+        let open = format!(
+            "{{ box_min_m = [-1.0, -1.0, {}], box_max_m = [1.0, 1.0, 1.0] }}",
+            size / 2.0
+        );
+        let half = Scene::parse(&cube_on_foundation(&open), "half.toml").unwrap();
+        let half = crate::sim::engine::Model::build(&half).unwrap();
+        let (fa, fh) = (
+            all.foundation.as_ref().unwrap(),
+            half.foundation.as_ref().unwrap(),
+        );
+        assert!(!fh.faces.is_empty() && fh.faces.len() < fa.faces.len());
+        for f in &fh.faces {
+            assert!(centroid(&half, f)[2] < size / 2.0, "{f:?} is open");
+        }
+        let below = fa
+            .faces
+            .iter()
+            .filter(|f| centroid(&all, f)[2] < size / 2.0)
+            .count();
+        assert_eq!(below, fh.faces.len());
+        // Faces of fixed nodes only (the cube's fixed bottom) carry none.
+        for f in &fa.faces {
+            assert!(!f.iter().all(|&n| all.fixed_mask[n as usize]), "{f:?}");
+        }
+        // A vertex list: the faces whose three nodes are listed are open.
+        let dir = tempfile::tempdir().unwrap();
+        let face = fa.faces[0];
+        std::fs::write(
+            dir.path().join("open.txt"),
+            format!("# one face\n{}\n{}\n{}\n", face[0], face[1], face[2]),
+        )
+        .unwrap();
+        let path = dir.path().join("listed.toml");
+        std::fs::write(
+            &path,
+            cube_on_foundation("{ vertices_file = \"open.txt\" }"),
+        )
+        .unwrap();
+        let (listed, _) = Scene::load(path.to_str().unwrap()).unwrap();
+        let listed = crate::sim::engine::Model::build(&listed).unwrap();
+        let fl = listed.foundation.as_ref().unwrap();
+        assert_eq!(fl.faces.len(), fa.faces.len() - 1);
+        assert!(!fl.faces.contains(&face));
+    }
+
+    #[test]
+    fn an_unknown_region_is_named() {
+        let scene = Scene::parse(
+            &cube_on_foundation("{ landmark = \"craniotomy\" }"),
+            "u.toml",
+        )
+        .unwrap();
+        let err = crate::sim::engine::Model::build(&scene)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("craniotomy") && err.contains("foundation.open[0]"),
+            "{err}"
+        );
+        let text = include_str!("../../scenes/sylvian.toml")
+            .replace("preset = \"paper-48k\"", "preset = \"coarse\"")
+            .replace(
+                "landmark = \"sylvian-left\"",
+                "landmark = \"sylvian-middle\"",
+            );
+        let scene = Scene::parse(&text, "s.toml").unwrap();
+        let err = crate::sim::engine::Model::build(&scene)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("sylvian-middle") && err.contains("sylvian-left"),
+            "{err}"
+        );
+        let err = Scene::parse(
+            &cube_on_foundation("{ vertices_file = \"no-such-list.txt\" }"),
+            "v.toml",
+        )
+        .map(|s| crate::sim::engine::Model::build(&s).map(|_| ()))
+        .unwrap()
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("no-such-list.txt"), "{err}");
+        // The iterative strategies do not take a foundation.
+        let text = cube_on_foundation("")
+            .replace("strategy = \"compliance\"", "strategy = \"corotational\"");
+        let err = Scene::parse(&text, "c.toml").unwrap_err().to_string();
+        assert!(err.contains("`foundation`"), "{err}");
+    }
+
+    #[test]
+    fn the_default_scenes_load_with_the_foundation() {
+        // sylvian and interhemispheric are held by the foundation, open at
+        // their window and their fissure; the coarse phantom stands in for
+        // the 48k one here (the same landmarks).
+        for (name, fissure) in [
+            ("sylvian", "sylvian-left"),
+            ("interhemispheric", "interhemispheric"),
+        ] {
+            let (scene, _) = Scene::load(name).unwrap();
+            let f = scene.foundation.as_ref().expect(name);
+            assert!(f.stiffness_pa_per_m > 0.0);
+            assert!(
+                f.open.iter().any(|r| *r
+                    == Region::Landmark {
+                        landmark: fissure.into()
+                    }),
+                "{name}"
+            );
+            let mut coarse = scene.clone();
+            coarse.model = ModelSpec::Phantom {
+                preset: "coarse".into(),
+                proven: false,
+            };
+            let model = crate::sim::engine::Model::build(&coarse).unwrap();
+            let springs = model.foundation.as_ref().unwrap();
+            let total = model.surface.triangles.len();
+            assert!(
+                springs.faces.len() > total / 2 && springs.faces.len() < total,
+                "{name}: {} of {total} faces supported",
+                springs.faces.len()
+            );
+        }
+        for name in ["cube", "v-valley", "u-valley"] {
+            assert!(Scene::load(name).unwrap().0.foundation.is_none(), "{name}");
+        }
     }
 }

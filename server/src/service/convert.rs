@@ -235,6 +235,19 @@ pub fn frame(f: &Frame, include_positions: bool) -> pb::DeformationFrame {
         }),
         solver_error: f.solver_error.clone().unwrap_or_default(),
         max_displacement_m: f.max_displacement_m,
+        rigid: Some(rigid_part(&f.rigid)),
+    }
+}
+
+fn rigid_part(r: &crate::sim::motion::RigidPart) -> pb::RigidPart {
+    pb::RigidPart {
+        rotation_deg: r.rotation_deg,
+        translation_m: Some(vec3(&r.translation_m)),
+        max_rigid_m: r.max_rigid_m,
+        centre_m: Some(vec3(&r.centre_m.coords)),
+        near_radius_m: crate::sim::motion::NEAR_RADIUS_M,
+        max_non_rigid_near_m: r.max_non_rigid_near_m,
+        max_non_rigid_far_m: r.max_non_rigid_far_m,
     }
 }
 

@@ -58,6 +58,8 @@ pub struct Model {
     pub to_full: Option<(Vec<u32>, usize)>,
     /// Per volume node: its surface vertex, `u32::MAX` inside.
     pub from_volume: Vec<u32>,
+    /// The elastic foundation's springs, when the scene has one.
+    pub foundation: Option<fem::foundation::Foundation>,
     history_mode: CollideHistoryMode,
 }
 
@@ -205,6 +207,22 @@ impl Model {
             .zip(&edge_count)
             .map(|(&s, &c)| if c > 0 { e * s / c as f64 } else { 0.0 })
             .collect();
+        let foundation = scene
+            .foundation
+            .as_ref()
+            .map(|f| {
+                let to_full = to_full.as_ref().map(|t| t.0.as_slice());
+                crate::scene::region::foundation(
+                    f,
+                    &mesh,
+                    &surface,
+                    &fixed_mask,
+                    landmarks.as_ref(),
+                    to_full,
+                )
+            })
+            .transpose()
+            .map_err(|e| SimError::Model(e.to_string()))?;
         let mut from_volume = vec![u32::MAX; mesh.nodes.len()];
         for (s, &v) in surface.to_volume.iter().enumerate() {
             from_volume[v as usize] = s as u32;
@@ -219,6 +237,7 @@ impl Model {
             fixed_mask,
             penalty_n_per_m,
             to_full,
+            foundation,
             history_mode,
         })
     }
@@ -294,6 +313,7 @@ impl Model {
                 timings: StepTimings::default(),
                 solver_error: None,
                 max_displacement_m: 0.0,
+                rigid: super::motion::RigidPart::default(),
             }),
         }
     }
@@ -831,6 +851,7 @@ impl Deformer {
         let mut options = fem::SolverOptions::default();
         options.iterative.tolerance = scene.solver.tolerance;
         options.iterative.max_outer = scene.solver.max_iterations;
+        options.foundation = model.foundation.clone();
         let mut solver = fem::build_solver(strategy, &model.mesh, material, &model.fixed, &options)
             .map_err(|e| SimError::Solver(e.to_string()))?;
         solver.set_column_policy(columns, hook);
@@ -1507,6 +1528,11 @@ impl StepEngine {
                 }
             })
             .collect();
+        let rigid = super::motion::RigidPart::of(
+            &model.rest_surface,
+            &surface,
+            tips_centre(&self.scene, poses),
+        );
         let positions = surface
             .iter()
             .map(|p| [p.x as f32, p.y as f32, p.z as f32])
@@ -1539,9 +1565,23 @@ impl StepEngine {
                 timings,
                 solver_error: None,
                 max_displacement_m: max_d,
+                rigid,
             }),
         }
     }
+}
+
+/// The mean of the instruments' tips (`+z` of the plate frame at its
+/// length from the handle), m: the fissure's centre while they work in it.
+fn tips_centre(scene: &Scene, poses: &[Isometry3<f64>]) -> Point3<f64> {
+    let n = poses.len().max(1) as f64;
+    let sum: Vector3<f64> = scene
+        .instruments
+        .iter()
+        .zip(poses)
+        .map(|(spec, pose)| (pose * Point3::new(0.0, 0.0, spec.length_m)).coords)
+        .sum();
+    Point3::from(sum / n)
 }
 
 /// A step's compliance patch with its index.

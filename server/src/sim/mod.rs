@@ -35,6 +35,7 @@ pub mod force_loop;
 pub mod haptic_stream;
 pub mod journal;
 pub mod local_model;
+pub mod motion;
 pub mod pose;
 pub mod priority;
 pub mod rows;

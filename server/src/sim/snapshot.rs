@@ -61,6 +61,10 @@ pub struct Frame {
     pub solver_error: Option<String>,
     /// Largest surface displacement from rest, m.
     pub max_displacement_m: f64,
+    /// The rigid part of the surface motion and the largest non-rigid
+    /// displacement near the instruments' tips and beyond
+    /// ([`super::motion`]).
+    pub rigid: super::motion::RigidPart,
 }
 
 /// The state force loops read: the surface and the local force model of the
