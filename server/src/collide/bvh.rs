@@ -313,11 +313,6 @@ impl Bvh {
         Ok(bvh)
     }
 
-    /// Number of tree nodes.
-    pub fn node_count(&self) -> usize {
-        self.nodes.len()
-    }
-
     /// What the last position update refitted.
     pub fn refit_stats(&self) -> RefitStats {
         self.stats

@@ -219,11 +219,6 @@ impl ContactSolver {
         }
     }
 
-    /// Rows in the kept factor (the last working set), in factor order.
-    pub fn working_set(&self) -> &[usize] {
-        &self.fac
-    }
-
     fn ensure(&mut self, n: usize) {
         if self.pos.len() < n {
             self.pos.resize(n, NONE);

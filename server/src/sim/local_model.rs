@@ -98,11 +98,6 @@ impl ForceModel {
         self.step_lookup.get(&key).map(|&i| self.step_lambda[i])
     }
 
-    /// The step's row with `key`, if the step had it.
-    pub fn step_row(&self, key: u64) -> Option<&Row> {
-        self.step_lookup.get(&key).map(|&i| &self.step_rows[i])
-    }
-
     /// Index of volume node `v` in the patch.
     pub fn patch_slot(&self, v: u32) -> Option<usize> {
         match self.patch_index.get(v as usize) {

@@ -51,17 +51,6 @@ pub struct Row {
 /// No triangle (rows on one node).
 pub const NO_TRIANGLE: ([u32; 3], [f64; 3]) = ([u32::MAX; 3], [0.0; 3]);
 
-impl Row {
-    /// The free position of a point row's tissue point, m.
-    pub fn free_point(&self, free: &FreePositions<'_>) -> Vector3<f64> {
-        let (nodes, w) = self.triangle;
-        (0..3)
-            .filter(|&a| nodes[a] != u32::MAX)
-            .map(|a| free.of(nodes[a]).coords * w[a])
-            .sum()
-    }
-}
-
 /// The key of a row: node (or triangle), owner, face (0-4, 6 the paper's
 /// rule, 7 the skull) and component (0 normal or x, 1 and 2 tangents or y
 /// and z; `64 + feature` for a point row, [`EdgeCandidate::feature`]).
