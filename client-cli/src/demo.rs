@@ -269,6 +269,7 @@ pub async fn run(args: &DemoArgs) -> anyhow::Result<DemoReport> {
         .max_by(|a, b| a.max_displacement_m.total_cmp(&b.max_displacement_m));
     let max_displacement_m = deepest.map_or(0.0, |f| f.max_displacement_m);
     let rigid = deepest.and_then(|f| f.rigid.as_ref().cloned());
+    let motion = deepest.and_then(crate::report::MotionReport::of);
     for (label, frame) in [("deepest", deepest), ("final", frames.last())] {
         if let Some(f) = frame {
             let path = args.out.join(format!("surface-{label}.obj"));
@@ -301,8 +302,8 @@ pub async fn run(args: &DemoArgs) -> anyhow::Result<DemoReport> {
         "largest surface displacement: {:.2} mm; deformation frames received: {frame_count}\n",
         max_displacement_m * 1e3
     ));
-    if let Some(r) = &rigid {
-        summary.push_str(&rigid_lines(max_displacement_m, r));
+    if let Some(m) = &motion {
+        summary.push_str(&m.lines());
     }
     let path = args.out.join("summary.txt");
     write(&path, &summary)?;
@@ -322,36 +323,6 @@ pub async fn run(args: &DemoArgs) -> anyhow::Result<DemoReport> {
         rigid,
         elapsed_s,
     })
-}
-
-/// The rigid part of the frame with the largest displacement
-/// `max_displacement_m` (m), as lines of the summary.
-pub fn rigid_lines(max_displacement_m: f64, r: &pb::RigidPart) -> String {
-    let t = r.translation_m.unwrap_or_default();
-    let share = |v: f64| {
-        if max_displacement_m > 0.0 {
-            100.0 * v / max_displacement_m
-        } else {
-            0.0
-        }
-    };
-    let near = r.max_non_rigid_near_m;
-    format!(
-        "rigid part of that frame (best fit over the surface): rotation {:.3} deg, translation {:.3} mm; largest rigid displacement {:.2} mm ({:.1} % of the largest)\n\
-         largest non-rigid displacement: {:.2} mm within {:.0} mm of the tips, {:.2} mm beyond ({:.1} % of the near one)\n",
-        r.rotation_deg,
-        (t.x * t.x + t.y * t.y + t.z * t.z).sqrt() * 1e3,
-        r.max_rigid_m * 1e3,
-        share(r.max_rigid_m),
-        near * 1e3,
-        r.near_radius_m * 1e3,
-        r.max_non_rigid_far_m * 1e3,
-        if near > 0.0 {
-            100.0 * r.max_non_rigid_far_m / near
-        } else {
-            0.0
-        },
-    )
 }
 
 /// The list of results printed at the end: one line per kind of file, the

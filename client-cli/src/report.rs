@@ -71,6 +71,42 @@ pub struct MotionReport {
     pub max_non_rigid_far_m: f64,
 }
 
+impl MotionReport {
+    /// The rigid part `frame` carries, if it carries one.
+    pub fn of(frame: &pb::DeformationFrame) -> Option<Self> {
+        let r = frame.rigid.as_ref()?;
+        let t = r.translation_m.unwrap_or_default();
+        Some(Self {
+            frame: frame.frame,
+            max_displacement_m: frame.max_displacement_m,
+            rotation_deg: r.rotation_deg,
+            translation_m: (t.x * t.x + t.y * t.y + t.z * t.z).sqrt(),
+            max_rigid_m: r.max_rigid_m,
+            near_radius_m: r.near_radius_m,
+            max_non_rigid_near_m: r.max_non_rigid_near_m,
+            max_non_rigid_far_m: r.max_non_rigid_far_m,
+        })
+    }
+
+    /// Two lines of text: the rigid part, and the non-rigid displacement
+    /// near the tips and beyond (the demo's summary and `fissure report`).
+    pub fn lines(&self) -> String {
+        let pct = |a: f64, b: f64| if b > 0.0 { 100.0 * a / b } else { 0.0 };
+        format!(
+            "rigid part of that frame (best fit over the surface): rotation {:.3} deg, translation {:.3} mm; largest rigid displacement {:.2} mm ({:.1} % of the largest)\n\
+             largest non-rigid displacement: {:.2} mm within {:.0} mm of the tips, {:.2} mm beyond ({:.1} % of the near one)\n",
+            self.rotation_deg,
+            self.translation_m * 1e3,
+            self.max_rigid_m * 1e3,
+            pct(self.max_rigid_m, self.max_displacement_m),
+            self.max_non_rigid_near_m * 1e3,
+            self.near_radius_m * 1e3,
+            self.max_non_rigid_far_m * 1e3,
+            pct(self.max_non_rigid_far_m, self.max_non_rigid_near_m),
+        )
+    }
+}
+
 /// Summary of a recording.
 #[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
 pub struct Report {
@@ -131,19 +167,9 @@ pub fn report(path: &Path, threshold_n: f64) -> anyhow::Result<Report> {
             }
             Some(pb::recording_entry::Entry::Frame(f)) => {
                 frames += 1;
-                if let Some(r) = &f.rigid {
-                    if motion.is_none_or(|m| f.max_displacement_m > m.max_displacement_m) {
-                        let t = r.translation_m.unwrap_or_default();
-                        motion = Some(MotionReport {
-                            frame: f.frame,
-                            max_displacement_m: f.max_displacement_m,
-                            rotation_deg: r.rotation_deg,
-                            translation_m: (t.x * t.x + t.y * t.y + t.z * t.z).sqrt(),
-                            max_rigid_m: r.max_rigid_m,
-                            near_radius_m: r.near_radius_m,
-                            max_non_rigid_near_m: r.max_non_rigid_near_m,
-                            max_non_rigid_far_m: r.max_non_rigid_far_m,
-                        });
+                if let Some(m) = MotionReport::of(&f) {
+                    if motion.is_none_or(|best| m.max_displacement_m > best.max_displacement_m) {
+                        motion = Some(m);
                     }
                 }
                 if !f.solver_error.is_empty() {
@@ -299,22 +325,12 @@ pub fn table(r: &Report) -> String {
         ));
     }
     if let Some(m) = &r.motion {
-        let pct = |a: f64, b: f64| if b > 0.0 { 100.0 * a / b } else { 0.0 };
         s.push_str(&format!(
-            "\nframe {} (largest surface displacement {:.2} mm): rigid part (best fit over the surface) \
-             rotation {:.3} deg, translation {:.3} mm, largest rigid displacement {:.2} mm ({:.1} %)\n\
-             largest non-rigid displacement: {:.2} mm within {:.0} mm of the tips, {:.2} mm beyond ({:.1} %)\n",
+            "\nframe {} (largest surface displacement {:.2} mm):\n",
             m.frame,
-            m.max_displacement_m * 1e3,
-            m.rotation_deg,
-            m.translation_m * 1e3,
-            m.max_rigid_m * 1e3,
-            pct(m.max_rigid_m, m.max_displacement_m),
-            m.max_non_rigid_near_m * 1e3,
-            m.near_radius_m * 1e3,
-            m.max_non_rigid_far_m * 1e3,
-            pct(m.max_non_rigid_far_m, m.max_non_rigid_near_m),
+            m.max_displacement_m * 1e3
         ));
+        s.push_str(&m.lines());
     }
     s
 }

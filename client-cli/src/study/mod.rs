@@ -342,7 +342,8 @@ impl RunLog {
         }
     }
 
-    fn begin(&mut self, label: &str) {
+    /// Run `label` starts: the bar's message, and its line.
+    fn begin(&mut self, pb: &ProgressBar, label: String) {
         self.done += 1;
         if self.on {
             eprintln!(
@@ -352,6 +353,7 @@ impl RunLog {
                 self.started.elapsed().as_secs_f64()
             );
         }
+        pb.set_message(label);
     }
 }
 
@@ -394,8 +396,7 @@ pub fn run_study(args: &StudyArgs) -> Result<StudyResult, StudyError> {
     let mut grid = Vec::new();
     let mut plots = Vec::new();
     if !args.no_grid {
-        pb.set_message(format!("reference {}", plan.reference.label));
-        log.begin(&format!("reference {}", plan.reference.label));
+        log.begin(&pb, format!("reference {}", plan.reference.label));
         let reference = driver::run(&plan.reference, &scenario, &mut models, true, &tick)?;
         let region = compare::region_vertices(&reference);
         reference_row = Some(Row::of(
@@ -405,8 +406,7 @@ pub fn run_study(args: &StudyArgs) -> Result<StudyResult, StudyError> {
         ));
         plots.push((plan.reference.label.clone(), reference.forces_for_plot()));
         for c in &plan.grid {
-            pb.set_message(c.label.clone());
-            log.begin(&c.label);
+            log.begin(&pb, c.label.clone());
             let run = driver::run(c, &scenario, &mut models, true, &tick)?;
             let errors = compare::compare(&reference, &region, &run);
             grid.push((
@@ -418,8 +418,7 @@ pub fn run_study(args: &StudyArgs) -> Result<StudyResult, StudyError> {
     let mut stab = Vec::new();
     if !args.no_stability {
         for (c, s) in &stab_runs {
-            pb.set_message(c.label.clone());
-            log.begin(&c.label);
+            log.begin(&pb, c.label.clone());
             let run = driver::run(c, s, &mut models, false, &tick)?;
             stab.push((Row::of(&run, s, None), run));
         }
