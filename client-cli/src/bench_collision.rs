@@ -345,6 +345,7 @@ fn time_queries(
             rest: &surf.rest,
             triangles: &surf.triangles,
             to_volume,
+            solved: None,
         };
         let mut tools: Vec<Tool<'_>> = hist
             .iter_mut()

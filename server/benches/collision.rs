@@ -65,6 +65,7 @@ fn query(c: &mut Criterion) {
                     rest: &rest,
                     triangles: &tris,
                     to_volume: &to_volume,
+                    solved: None,
                 };
                 let mut tools: Vec<Tool<'_>> = hist
                     .iter_mut()

@@ -84,6 +84,7 @@ fn run(
         rest: &b.rest,
         triangles: &b.tris,
         to_volume: &b.to_volume,
+        solved: None,
     };
     let opts = DetectOptions {
         bounded_rays: bounded,

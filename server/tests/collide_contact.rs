@@ -39,6 +39,7 @@ fn conflicting_vertices_take_the_deepest_projection() {
         rest: &pos,
         triangles: &tris,
         to_volume: &to_volume,
+        solved: None,
     };
     let h = 1.0 * MM;
     let inst = Instrument::new(
@@ -118,6 +119,7 @@ fn same_facing_triangle_gives_no_pair() {
         rest: &pos,
         triangles: &tris,
         to_volume: &to_volume,
+        solved: None,
     };
     let h = 1.0 * MM;
     let inst = Instrument::new(
@@ -161,6 +163,7 @@ fn rim_nodes_pair_within_reach() {
         rest: &pos,
         triangles: &tris,
         to_volume: &to_volume,
+        solved: None,
     };
     let inst = Instrument::new(
         Plate::flat(1.0 * MM, 8.0 * MM, 15.0 * MM),
@@ -227,6 +230,7 @@ fn bad_queries_are_reported() {
         rest: &pos[1..],
         triangles: &tris,
         to_volume: &to_volume,
+        solved: None,
     };
     let err = detect(
         &mut bvh,
@@ -248,6 +252,7 @@ fn bad_queries_are_reported() {
         rest: &pos,
         triangles: &tris,
         to_volume: &to_volume,
+        solved: None,
     };
     let mut bad = press(0.005, 3e-4, 1e-3);
     bad.translation.vector.x = f64::NAN;
@@ -279,6 +284,7 @@ fn steady_state_does_not_reallocate() {
         rest: &pos,
         triangles: &tris,
         to_volume: &to_volume,
+        solved: None,
     };
     let inst = Instrument::new(
         Plate::flat(1e-3, 8e-3, 15e-3),
@@ -370,6 +376,7 @@ fn signorini_rule_names_only_covered_vertices_the_paper_rule_projects_all() {
         rest: &pos,
         triangles: &tris,
         to_volume: &to_volume,
+        solved: None,
     };
     let mut bvh = Bvh::new(&tris, &pos).unwrap();
     for opts in [DetectOptions::paper(), DetectOptions::default()] {

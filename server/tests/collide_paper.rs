@@ -42,6 +42,7 @@ impl Surface {
             rest: &self.pos,
             triangles: &self.tris,
             to_volume: &self.to_volume,
+            solved: None,
         }
     }
 

@@ -52,6 +52,7 @@ impl Fissure {
             rest: &self.pos,
             triangles: &self.tris,
             to_volume: &self.to_volume,
+            solved: None,
         }
     }
 

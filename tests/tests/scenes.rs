@@ -87,13 +87,26 @@ fn sylvian_spatula_lifts_the_upper_wall() {
         "force {:?}",
         f.force_n
     );
-    let frame = sim.snapshot().frame_summary.clone();
+    let snap = sim.snapshot();
+    let frame = snap.frame_summary.clone();
     assert!(frame.solver_error.is_none());
-    // The wall moved up by about the push (3 mm minus the 1 mm clearance).
+    // The wall the spatula pushes moved up by about the push (3 mm minus
+    // the 1 mm clearance): the nodes it holds, on its upper face. (The
+    // brain, held at the stem only, also swings a little as a whole, so
+    // the largest displacement elsewhere can exceed the push.)
+    let fm = &snap.force_model;
+    let lifted: Vec<f64> = fm
+        .step_rows
+        .iter()
+        .zip(&fm.step_lambda)
+        .filter(|(r, l)| r.owner == 0 && **l > 0.0 && r.row.dir.z > 0.9)
+        .map(|(r, _)| snap.displacements[r.row.node as usize].z)
+        .collect();
+    assert!(!lifted.is_empty(), "nothing pushed up");
+    let mean = lifted.iter().sum::<f64>() / lifted.len() as f64;
     assert!(
-        frame.max_displacement_m > 0.0015 && frame.max_displacement_m < 0.004,
-        "{}",
-        frame.max_displacement_m
+        mean > 0.0015 && mean < 0.0025,
+        "the held wall rose {mean} m"
     );
     sim.shutdown();
 }

@@ -76,6 +76,24 @@ pub struct ContactQuery<'a> {
     pub triangles: &'a [[u32; 3]],
     /// Surface vertex -> volume node.
     pub to_volume: &'a [u32],
+    /// Where the last solve put the surface vertices, m, when the search
+    /// runs on another shape (the rest shape of a linearized contact): a
+    /// vertex that no face pushed last time becomes a large face's
+    /// candidate only where its solved position is at most
+    /// [`entry_depth_m`] behind the face.
+    pub solved: Option<&'a [Point3<f64>]>,
+}
+
+/// How far behind a large face a vertex's solved position may lie when it
+/// first becomes the face's candidate on the rest shape, m: the band (the
+/// plate's travel within one deformation interval), and less than the
+/// plate's thickness (`thickness_m`). Tissue that comes under the face
+/// deeper than that did not meet the face: the plate's outline swept over
+/// it (its edge plows through the tissue, or the tissue lies beyond the
+/// opposite face), and pushing it onto the face would drag it through the
+/// plate.
+pub fn entry_depth_m(band_m: f64, thickness_m: f64) -> f64 {
+    band_m.min(0.95 * thickness_m)
 }
 
 /// What the last stage makes of the surviving pairs.
@@ -126,6 +144,14 @@ pub struct DetectOptions {
     /// Signorini rule: how far outside a face's outline a vertex may lie and
     /// still be covered by the face, m.
     pub cover_tolerance_m: f64,
+    /// Signorini rule: a vertex is a face's candidate only where its normal
+    /// opposes the face's (the tissue faces the face), seeds included. On
+    /// the rest shape (a linearized contact) tissue the plate has entered
+    /// lies inside the plate's slab, in reach of both large faces; the one
+    /// it faces is the one that pushes it. Off, a pair's triangle gives its
+    /// vertices to the face whatever their normals (the search on a pushed
+    /// shape, where the tissue lies on the face).
+    pub facing_only: bool,
 }
 
 /// Default contact skin, m (0.1 um: far above rounding, far below any
@@ -150,6 +176,7 @@ impl Default for DetectOptions {
             band_m: DEFAULT_BAND_M,
             ahead_m: DEFAULT_AHEAD_M,
             cover_tolerance_m: DEFAULT_COVER_TOLERANCE_M,
+            facing_only: false,
         }
     }
 }
@@ -395,6 +422,11 @@ pub struct Workspace {
     pub(crate) keep: Vec<bool>,
     pub(crate) covered: Vec<u32>,
     pub(crate) covered_stamp: u32,
+    /// Per surface vertex covered at `covered_stamp`: the large face (A or
+    /// B, as [`FaceId::index`]) whose candidate it is, or `u8::MAX`.
+    ///
+    /// [`FaceId::index`]: super::faces::FaceId::index
+    pub(crate) claimed: Vec<u8>,
     /// Per surface triangle, the `covered_stamp` at which faces A and B
     /// clipped it.
     pub(crate) clipped: Vec<[u32; 2]>,

@@ -83,6 +83,7 @@ pub(crate) fn candidates(
         let inst = tool.instrument;
         let inv = tool.pose.inverse();
         let first = ws.offsets[k];
+        let entry = super::contact::entry_depth_m(band, inst.plate.thickness);
         // How deep behind a rim face a vertex may lie and still be its
         // candidate: its nodes' reach, at least the plate's thickness.
         let mut rim_reach = [inst.plate.thickness; 5];
@@ -156,7 +157,19 @@ pub(crate) fn candidates(
                 }
                 let normal = tool.pose.rotation * fp.normal;
                 let faces_it = vertex_normal(query, &topo.triangles, v).dot(&normal) < 0.0;
-                if !is_seed && !faces_it {
+                // A seed (its triangle was paired) that does not face the
+                // face by its vertex normal (a crease between two walls)
+                // is still pushed; on the rest shape only where one of its
+                // triangles faces the face.
+                let claimable = faces_it
+                    || (is_seed
+                        && (!opts.facing_only
+                            || topo
+                                .triangles
+                                .row(v as usize)
+                                .iter()
+                                .any(|&t| facing(query, t, &normal))));
+                if !claimable {
                     continue;
                 }
                 // The face itself, or else a rim face (the plate's edges
@@ -164,6 +177,15 @@ pub(crate) fn candidates(
                 // the outline between covered vertices is pushed at the
                 // polygon points of [`edges`]).
                 let mut covered = (fp.outside_m <= tol && fp.gap_m <= band).then_some((face, fp));
+                if let (Some(solved), Some((f, p))) = (query.solved, covered) {
+                    let large = matches!(f, FaceId::A | FaceId::B);
+                    if large && !tool.history.is_seed(f.index() as u8, v) {
+                        let g = normal.dot(&(solved[v as usize] - tool.pose * p.point));
+                        if g < -entry {
+                            covered = None;
+                        }
+                    }
+                }
                 // A rim face takes tissue beside the plate's body only:
                 // behind both large faces by a margin. Tissue at the level
                 // of face A or B beyond the outline is that face's, at the
@@ -213,7 +235,7 @@ pub(crate) fn candidates(
     }
     ws.topology = Some(topo);
     drop_parallel_claims(&mut out.candidates, &mut ws.order, &mut ws.keep);
-    edges(query, tools, ahead, band, ws, out);
+    edges(query, tools, ahead, band, opts.facing_only, ws, out);
 }
 
 /// The pierced triangles of which a face of the same instrument does not
@@ -241,14 +263,17 @@ fn edges(
     tools: &[Tool<'_>],
     ahead: f64,
     band: f64,
+    facing_only: bool,
     ws: &mut Workspace,
     out: &mut ContactOutput,
 ) {
     let nv = query.positions.len();
     let nt = query.triangles.len();
-    if ws.covered.len() != nv || ws.clipped.len() != nt {
+    if ws.covered.len() != nv || ws.clipped.len() != nt || ws.claimed.len() != nv {
         ws.covered.clear();
         ws.covered.resize(nv, 0);
+        ws.claimed.clear();
+        ws.claimed.resize(nv, u8::MAX);
         ws.clipped.clear();
         ws.clipped.resize(nt, [0; 2]);
         ws.covered_stamp = 0;
@@ -264,7 +289,12 @@ fn edges(
         let stamp = ws.covered_stamp;
         let first_candidate = c;
         while c < out.candidates.len() && out.candidates[c].instrument as usize == k {
-            ws.covered[out.candidates[c].surface_vertex as usize] = stamp;
+            let cand = out.candidates[c];
+            ws.covered[cand.surface_vertex as usize] = stamp;
+            ws.claimed[cand.surface_vertex as usize] = match cand.face {
+                FaceId::A | FaceId::B => cand.face.index() as u8,
+                _ => u8::MAX,
+            };
             c += 1;
         }
         let inst = tool.instrument;
@@ -281,6 +311,9 @@ fn edges(
                 continue;
             }
             let face = FaceId::of(inst.nodes[p.node as usize].kind);
+            if facing_only && !facing(query, p.triangle, &ws.dirs[first + p.node as usize]) {
+                continue;
+            }
             let polygon = flat && matches!(face, FaceId::A | FaceId::B);
             if polygon {
                 // The pierced triangle and those around it: no node's ray
@@ -299,6 +332,7 @@ fn edges(
                     p.triangle,
                     band,
                     &mut ws.clipped,
+                    facing_only.then_some((&ws.covered[..], &ws.claimed[..])),
                     stamp,
                     out,
                 );
@@ -317,6 +351,7 @@ fn edges(
                                 t,
                                 band,
                                 &mut ws.clipped,
+                                facing_only.then_some((&ws.covered[..], &ws.claimed[..])),
                                 stamp,
                                 out,
                             );
@@ -369,7 +404,18 @@ fn edges(
                         {
                             continue;
                         }
-                        clip_triangle(query, tool, k, face, t, band, &mut ws.clipped, stamp, out);
+                        clip_triangle(
+                            query,
+                            tool,
+                            k,
+                            face,
+                            t,
+                            band,
+                            &mut ws.clipped,
+                            facing_only.then_some((&ws.covered[..], &ws.claimed[..])),
+                            stamp,
+                            out,
+                        );
                     }
                 }
             }
@@ -393,6 +439,7 @@ fn edges(
                         t,
                         band,
                         &mut ws.clipped,
+                        facing_only.then_some((&ws.covered[..], &ws.claimed[..])),
                         stamp,
                         out,
                     );
@@ -446,6 +493,7 @@ fn clip_triangle(
     triangle: u32,
     band: f64,
     clipped: &mut [[u32; 2]],
+    claims: Option<(&[u32], &[u8])>,
     stamp: u32,
     out: &mut ContactOutput,
 ) {
@@ -455,15 +503,50 @@ fn clip_triangle(
     }
     *slot = stamp;
     let tri = query.triangles[triangle as usize];
+    // `claims` (covered stamps and claiming faces): a triangle with a
+    // vertex the opposite large face pushes gets no points of this face.
+    // On the rest shape such a triangle lies across the plate's slab, and
+    // rows of both faces on it would pinch the tissue through the plate.
+    if let Some((covered, claimed)) = claims {
+        let opposite = if face == FaceId::A {
+            FaceId::B
+        } else {
+            FaceId::A
+        }
+        .index() as u8;
+        if tri
+            .iter()
+            .any(|&v| covered[v as usize] == stamp && claimed[v as usize] == opposite)
+        {
+            return;
+        }
+    }
     let inv = tool.pose.inverse();
     let local = tri.map(|v| inv * query.positions[v as usize]);
     let nodes = tri.map(|v| query.to_volume[v as usize]);
+    // On another shape than the solved one: a triangle the face did not
+    // push last time gives points only where their solved position is
+    // within the entry depth (as a vertex, [`candidates`]).
+    let entering = query.solved.filter(|_| {
+        !tri.iter()
+            .any(|&v| tool.history.is_seed(face.index() as u8, v))
+    });
+    let entry = super::contact::entry_depth_m(band, tool.instrument.plate.thickness);
     clip_points(
         &tool.instrument.plate,
         face,
         &local,
         band,
         |feature, w, gap, at| {
+            if let Some(solved) = entering {
+                let x = solved[tri[0] as usize].coords * w[0]
+                    + solved[tri[1] as usize].coords * w[1]
+                    + solved[tri[2] as usize].coords * w[2];
+                let n = tool.pose.rotation * at.1;
+                if n.dot(&(x - (tool.pose * at.0).coords)) < -entry {
+                    return;
+                }
+            }
             out.edges.push(EdgeCandidate {
                 instrument: k as u16,
                 face,

@@ -108,6 +108,11 @@ impl History {
         self.seeds.dedup();
     }
 
+    /// Whether surface vertex `v` is seeded for face index `face`.
+    pub fn is_seed(&self, face: u8, v: u32) -> bool {
+        self.seeds.binary_search(&(face, v)).is_ok()
+    }
+
     /// The surface vertices seeded for face index `face`.
     pub fn seeds_of(&self, face: u8) -> impl Iterator<Item = u32> + '_ {
         let from = self.seeds.partition_point(|s| s.0 < face);

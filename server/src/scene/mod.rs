@@ -361,6 +361,38 @@ impl ContactLaw {
     }
 }
 
+/// The shape the contact search runs on (`contact.geometry`).
+#[derive(Debug, Clone, Copy, Default, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum ContactGeometry {
+    /// `rest` for the linear strategies with a Signorini law, `deformed`
+    /// otherwise (the default).
+    #[default]
+    Auto,
+    /// Linearized contact: candidates, pairs and polygon points from the
+    /// rest surface at the instruments' poses; the gap
+    /// `g = n . (x_rest - p) + n . u` is exact for any displacement, as the
+    /// small-strain model is. The rows are then a function of the poses
+    /// alone, so a step needs no search on its own solved shape and a force
+    /// sample solves the problem a full solve at its poses solves.
+    Rest,
+    /// The search runs on the last solved surface and on each step's own
+    /// solved shape until the rows come back the same (the geometry's
+    /// fixed point); what large-deformation strategies need.
+    Deformed,
+}
+
+impl ContactGeometry {
+    /// The scene-file name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Auto => "auto",
+            Self::Rest => "rest",
+            Self::Deformed => "deformed",
+        }
+    }
+}
+
 /// Contact settings (the `[contact]` table).
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
@@ -382,6 +414,8 @@ pub struct ContactSpec {
     /// How far outside a face's outline a vertex may lie and still be
     /// pushed by the face, m.
     pub cover_tolerance_m: f64,
+    /// The shape the contact search runs on ([`ContactGeometry`]).
+    pub geometry: ContactGeometry,
 }
 
 impl Default for ContactSpec {
@@ -392,6 +426,7 @@ impl Default for ContactSpec {
             band_m: crate::collide::contact::DEFAULT_BAND_M,
             ahead_m: crate::collide::contact::DEFAULT_AHEAD_M,
             cover_tolerance_m: crate::collide::contact::DEFAULT_COVER_TOLERANCE_M,
+            geometry: ContactGeometry::Auto,
         }
     }
 }
@@ -517,6 +552,26 @@ pub struct SphereSpec {
 }
 
 impl Scene {
+    /// The contact geometry the scene runs: `contact.geometry`, with `auto`
+    /// resolved (rest for `direct` and `compliance` under a Signorini law,
+    /// deformed otherwise).
+    pub fn contact_geometry(&self) -> ContactGeometry {
+        match self.contact.geometry {
+            ContactGeometry::Auto => {
+                let linear = matches!(
+                    self.solver.strategy,
+                    Strategy::Direct | Strategy::Compliance
+                );
+                if linear && self.contact.law != ContactLaw::Paper {
+                    ContactGeometry::Rest
+                } else {
+                    ContactGeometry::Deformed
+                }
+            }
+            g => g,
+        }
+    }
+
     /// Loads an embedded scene by name, or a scene file by path.
     pub fn load(name_or_path: &str) -> Result<(Scene, Option<PathBuf>), SceneError> {
         if let Some((_, text)) = EMBEDDED.iter().find(|(n, _)| *n == name_or_path) {
@@ -680,6 +735,26 @@ impl Scene {
                 format!("must be a finite number >= 0, got {tol}"),
             ));
         }
+        if self.contact.geometry == ContactGeometry::Rest {
+            if !matches!(
+                self.solver.strategy,
+                Strategy::Direct | Strategy::Compliance
+            ) {
+                return Err(bad(
+                    "contact.geometry".into(),
+                    format!(
+                        "\"rest\" linearizes the contact about the rest shape, as only the linear strategies (\"compliance\", \"direct\") do their elasticity; the scene has {:?} (use \"deformed\")",
+                        self.solver.strategy.name()
+                    ),
+                ));
+            }
+            if self.contact.law == ContactLaw::Paper {
+                return Err(bad(
+                    "contact.geometry".into(),
+                    "the paper's rule projects onto the deformed surface; \"rest\" needs law = \"frictionless\" or \"coulomb\"".into(),
+                ));
+            }
+        }
         match (self.contact.law, self.contact.friction_coefficient) {
             (ContactLaw::Coulomb, None) => {
                 return Err(bad(
@@ -825,6 +900,46 @@ impl Scene {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The contact geometry: `auto` is the rest shape for the linear
+    /// strategies and the deformed one otherwise; `rest` with a
+    /// large-deformation strategy or the paper's rule is refused, naming
+    /// the field.
+    #[test]
+    fn the_contact_geometry_follows_the_strategy_and_rest_is_refused_where_it_does_not_hold() {
+        let cube = include_str!("../../scenes/cube.toml");
+        let with = |strategy: &str, contact: &str| {
+            let text = cube.replace(
+                "strategy = \"compliance\"",
+                &format!("strategy = \"{strategy}\""),
+            );
+            Scene::parse(&format!("{text}\n[contact]\n{contact}\n"), "c.toml")
+        };
+        let geometry = |strategy: &str, contact: &str| {
+            with(strategy, contact)
+                .map(|s| s.contact_geometry())
+                .map_err(|e| e.to_string())
+        };
+        assert_eq!(geometry("compliance", ""), Ok(ContactGeometry::Rest));
+        assert_eq!(geometry("direct", ""), Ok(ContactGeometry::Rest));
+        assert_eq!(geometry("neo-hookean", ""), Ok(ContactGeometry::Deformed));
+        assert_eq!(geometry("corotational", ""), Ok(ContactGeometry::Deformed));
+        assert_eq!(
+            geometry("compliance", "law = \"paper\""),
+            Ok(ContactGeometry::Deformed)
+        );
+        assert_eq!(
+            geometry("compliance", "geometry = \"deformed\""),
+            Ok(ContactGeometry::Deformed)
+        );
+        for (strategy, contact) in [
+            ("neo-hookean", "geometry = \"rest\""),
+            ("compliance", "law = \"paper\"\ngeometry = \"rest\""),
+        ] {
+            let err = geometry(strategy, contact).unwrap_err();
+            assert!(err.contains("contact.geometry"), "{strategy}: {err}");
+        }
+    }
 
     #[test]
     fn embedded_scenes_parse() {

@@ -22,8 +22,8 @@ use crate::fem::compliance::ColumnPolicy;
 use crate::fem::{self, CompliancePatch, ContactAnswer, ContactRow, DeformationSolver, RowKind};
 use crate::mesh::{BoundarySurface, TetMesh};
 use crate::scene::{
-    CollisionBackend, CollisionMethod, ContactLaw, HistoryMode, LayoutKind, ModelSpec, Region,
-    Scene, ShapeKind,
+    CollisionBackend, CollisionMethod, ContactGeometry, ContactLaw, HistoryMode, LayoutKind,
+    ModelSpec, Region, Scene, ShapeKind,
 };
 use faer::Par;
 use nalgebra::{Isometry3, Point3, Vector3};
@@ -60,7 +60,23 @@ pub struct Model {
     pub from_volume: Vec<u32>,
     /// The elastic foundation's springs, when the scene has one.
     pub foundation: Option<fem::foundation::Foundation>,
+    /// Per surface vertex, its neighbours on the surface.
+    pub surface_neighbours: crate::mesh::adjacency::Csr,
+    /// The rest surface the contact search runs on, when the scene's
+    /// contact geometry is the rest shape ([`ContactGeometry::Rest`]).
+    pub contact_rest: Option<RestContact>,
     history_mode: CollideHistoryMode,
+}
+
+/// The shape of a linearized contact search: the rest surface and, for
+/// scenes that cast on the CPU BVH, its tree, built once and shared by the
+/// deformation step and every force loop (no refit, ever).
+#[derive(Debug)]
+pub struct RestContact {
+    /// Rest positions of the surface vertices, m.
+    pub surface: Arc<Vec<Point3<f64>>>,
+    /// A BVH over them (CPU BVH scenes).
+    pub tree: Option<Arc<Bvh>>,
 }
 
 fn build_instrument(
@@ -227,8 +243,27 @@ impl Model {
         for (s, &v) in surface.to_volume.iter().enumerate() {
             from_volume[v as usize] = s as u32;
         }
+        let contact_rest = (scene.contact_geometry() == ContactGeometry::Rest).then(|| {
+            let tree = (scene.collision.method == CollisionMethod::Bvh
+                && scene.collision.backend == CollisionBackend::Cpu)
+                .then(|| {
+                    Arc::new(
+                        Bvh::new(&surface.triangles, &rest_surface).expect("surface checked above"),
+                    )
+                });
+            RestContact {
+                surface: Arc::new(rest_surface.clone()),
+                tree,
+            }
+        });
+        let surface_neighbours = crate::mesh::adjacency::surface_vertex_neighbours(
+            &surface.triangles,
+            rest_surface.len(),
+        );
         Ok(Self {
             from_volume,
+            surface_neighbours,
+            contact_rest,
             mesh,
             surface,
             rest_surface,
@@ -249,6 +284,19 @@ impl Model {
             rest: &self.rest_surface,
             triangles: &self.surface.triangles,
             to_volume: &self.surface.to_volume,
+            solved: None,
+        }
+    }
+
+    /// The surface (and its tree) a contact search at `snap` runs on: the
+    /// rest shape for a linearized contact, else the snapshot's.
+    pub fn contact_shape<'a>(
+        &'a self,
+        snap: &'a Snapshot,
+    ) -> (&'a Arc<Vec<Point3<f64>>>, Option<&'a Arc<Bvh>>) {
+        match &self.contact_rest {
+            Some(r) => (&r.surface, r.tree.as_ref()),
+            None => (&snap.surface, snap.surface_bvh.as_ref()),
         }
     }
 
@@ -473,6 +521,7 @@ pub fn detect_options(scene: &Scene) -> DetectOptions {
         band_m: scene.contact.band_m,
         ahead_m: scene.contact.ahead_m,
         cover_tolerance_m: scene.contact.cover_tolerance_m,
+        facing_only: scene.contact_geometry() == ContactGeometry::Rest,
         ..DetectOptions::default()
     }
 }
@@ -537,18 +586,22 @@ impl ContactQuery {
         pose: &Isometry3<f64>,
         history: &mut History,
     ) -> &ContactOutput {
+        let (surface, tree) = model.contact_shape(snap);
         let mut shared = None;
         let backend = Self::backend_for(
             &mut self.backend,
             &mut self.fitted,
             &self.scene,
             model,
-            &snap.surface,
-            snap.surface_bvh.as_ref(),
+            surface,
+            tree,
             Par::Seq,
             &mut shared,
         );
-        let q = model.contact_query(&snap.surface);
+        let mut q = model.contact_query(surface);
+        if model.contact_rest.is_some() {
+            q.solved = Some(&snap.surface);
+        }
         if let Err(e) = contact::detect(
             backend,
             &q,
@@ -594,13 +647,9 @@ impl ContactQuery {
         poses: &[Isometry3<f64>],
         histories: &mut [History],
     ) -> &ContactOutput {
-        self.query_all_on(
-            model,
-            &snap.surface,
-            snap.surface_bvh.as_ref(),
-            poses,
-            histories,
-        )
+        let (surface, tree) = model.contact_shape(snap);
+        let solved = model.contact_rest.is_some().then_some(&snap.surface[..]);
+        self.query_all_with(model, surface, tree, solved, poses, histories)
     }
 
     /// All instruments in one cast against `surface` (with its fitted
@@ -610,6 +659,20 @@ impl ContactQuery {
         model: &Model,
         surface: &Arc<Vec<Point3<f64>>>,
         tree: Option<&Arc<Bvh>>,
+        poses: &[Isometry3<f64>],
+        histories: &mut [History],
+    ) -> &ContactOutput {
+        self.query_all_with(model, surface, tree, None, poses, histories)
+    }
+
+    /// [`Self::query_all_on`], with the last solve's surface (`solved`)
+    /// when `surface` is another shape.
+    fn query_all_with(
+        &mut self,
+        model: &Model,
+        surface: &Arc<Vec<Point3<f64>>>,
+        tree: Option<&Arc<Bvh>>,
+        solved: Option<&[Point3<f64>]>,
         poses: &[Isometry3<f64>],
         histories: &mut [History],
     ) -> &ContactOutput {
@@ -624,7 +687,8 @@ impl ContactQuery {
             self.par,
             &mut shared,
         );
-        let q = model.contact_query(surface);
+        let mut q = model.contact_query(surface);
+        q.solved = solved;
         let mut tools: Vec<Tool<'_>> = model
             .instruments
             .iter()
@@ -1186,7 +1250,9 @@ impl StepEngine {
             // Contact search on the solved shape: rows a query at the
             // step's poses finds there that the solution violates (tissue
             // the plate now pierces elsewhere) join the problem.
-            if searches < CONTACT_SEARCHES {
+            // (None for a linearized contact: its rows do not depend on
+            // the shape.)
+            if model.contact_rest.is_none() && searches < CONTACT_SEARCHES {
                 searches += 1;
                 if self.search_solved(&model, poses, &after, &mut n_instrument_rows) {
                     continue;
@@ -1258,8 +1324,12 @@ impl StepEngine {
             surface.push(model.rest_surface[s] + displacements[v as usize]);
         }
         let surface = Arc::new(surface);
-        let surface_bvh =
-            tracing::debug_span!("refit").in_scope(|| self.bvhs.as_mut().map(|b| b.fit(&surface)));
+        // A linearized contact searches the rest tree: nothing to refit.
+        let surface_bvh = if model.contact_rest.is_none() {
+            tracing::debug_span!("refit").in_scope(|| self.bvhs.as_mut().map(|b| b.fit(&surface)))
+        } else {
+            None
+        };
         let mut patch_nodes: Vec<u32> = self
             .rows
             .iter()
@@ -1274,24 +1344,45 @@ impl StepEngine {
                 ahead.push(n.volume_node);
             }
         }
-        let post =
-            self.query
-                .query_all_on(&model, &surface, surface_bvh.as_ref(), poses, &mut after);
-        let mut post_rows = Vec::new();
-        self.rule.rows(
-            &model,
-            post,
-            &FreePositions::Rest(&model.mesh.nodes),
-            &self.anchors,
-            poses,
-            &mut post_rows,
-        );
-        patch_nodes.extend(post_rows.iter().flat_map(|r| r.row.nodes().map(|(n, _)| n)));
-        for n in &post.nearby {
-            if n.distance_m <= band2 {
-                patch_nodes.push(n.volume_node);
-            } else {
-                ahead.push(n.volume_node);
+        // (A linearized contact finds the same rows on any shape.)
+        if model.contact_rest.is_none() {
+            let post =
+                self.query
+                    .query_all_on(&model, &surface, surface_bvh.as_ref(), poses, &mut after);
+            let mut post_rows = Vec::new();
+            self.rule.rows(
+                &model,
+                post,
+                &FreePositions::Rest(&model.mesh.nodes),
+                &self.anchors,
+                poses,
+                &mut post_rows,
+            );
+            patch_nodes.extend(post_rows.iter().flat_map(|r| r.row.nodes().map(|(n, _)| n)));
+            for n in &post.nearby {
+                if n.distance_m <= band2 {
+                    patch_nodes.push(n.volume_node);
+                } else {
+                    ahead.push(n.volume_node);
+                }
+            }
+        }
+        // And one ring of surface neighbours: a plate's outline that moves
+        // within the interval crosses triangles beyond the vertices the
+        // step found, and a polygon point there names all three.
+        patch_nodes.sort_unstable();
+        patch_nodes.dedup();
+        let found = patch_nodes.len();
+        for i in 0..found {
+            let s = model.from_volume[patch_nodes[i] as usize];
+            if s != u32::MAX {
+                patch_nodes.extend(
+                    model
+                        .surface_neighbours
+                        .row(s as usize)
+                        .iter()
+                        .map(|&w| model.surface.to_volume[w as usize]),
+                );
             }
         }
         patch_nodes.sort_unstable();

@@ -18,8 +18,9 @@
 //! rows it has seen in slots of a dense `W` and the solver's Cholesky factor
 //! of the working set: a row that is still there with the same direction
 //! (within [`DIRECTION_TOLERANCE`]) keeps its row of `W`; a new row, or one
-//! whose direction turned farther, gets its row computed (one `3 x 3`
-//! block per slot) and leaves the factor; a row gone leaves it. A sample
+//! whose direction turned farther, or a point row whose weights changed
+//! at all, gets its row computed (one `3 x 3` block per slot) and leaves
+//! the factor; a row gone leaves it. A sample
 //! with an unchanged contact set costs one pair of triangular solves. The
 //! gaps always use the rows' exact directions; only `W` may lag the
 //! rotation of a plate by up to [`DIRECTION_TOLERANCE`], a relative error
@@ -266,11 +267,11 @@ impl ForceSolver {
                 Some(&s) => {
                     let su = s as usize;
                     let turned = (self.slot_dir[su] - r.row.dir).norm() > DIRECTION_TOLERANCE;
-                    let moved = self.slot_patch[su] != p
-                        || self.slot_w[su]
-                            .iter()
-                            .zip(&w)
-                            .any(|(a, b)| (a - b).abs() > DIRECTION_TOLERANCE);
+                    // A point that slid on its triangle changes its row
+                    // of W exactly: rows on one triangle nearly depend on
+                    // each other, and a lagging W would move the answer
+                    // by far more than the lag.
+                    let moved = self.slot_patch[su] != p || self.slot_w[su] != w;
                     if turned || moved {
                         self.slot_dir[su] = r.row.dir;
                         self.slot_patch[su] = p;
