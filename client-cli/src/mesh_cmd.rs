@@ -130,7 +130,7 @@ pub fn run(cmd: MeshCommand) -> anyhow::Result<()> {
             cells,
             proven,
         } => {
-            let (mesh, repair) = generate(
+            let generated = generate(
                 &preset,
                 &out,
                 &PresetOptions {
@@ -139,15 +139,10 @@ pub fn run(cmd: MeshCommand) -> anyhow::Result<()> {
                     proven,
                 },
             )?;
-            if !repair.is_empty() {
-                println!("repaired: {repair}");
+            if !generated.repair.is_empty() {
+                println!("repaired: {}", generated.repair);
             }
-            println!(
-                "wrote {}: {} nodes, {} tetrahedra",
-                out.display(),
-                mesh.nodes.len(),
-                mesh.tets.len()
-            );
+            println!("wrote {}: {}", out.display(), generated.written);
         }
         MeshCommand::FromSurface {
             file,
@@ -166,13 +161,10 @@ pub fn run(cmd: MeshCommand) -> anyhow::Result<()> {
             if !meshed.repair.is_empty() {
                 println!("repaired: {}", meshed.repair);
             }
-            let mesh = meshed.mesh;
-            write_any(&mesh, &out)?;
+            let written = write_any(&meshed.mesh, &out)?;
             println!(
-                "wrote {}: {} nodes, {} tetrahedra; the boundary is a closed manifold",
-                out.display(),
-                mesh.nodes.len(),
-                mesh.tets.len()
+                "wrote {}: {written}; the boundary is a closed manifold",
+                out.display()
             );
         }
         MeshCommand::Convert {
@@ -292,20 +284,34 @@ pub fn preset_mesh_repaired(
     })
 }
 
+/// A preset as [`generate`] wrote it.
+#[derive(Debug, Clone)]
+pub struct Generated {
+    /// The volume mesh.
+    pub mesh: TetMesh,
+    /// The repair of the mesher's output that made its boundary a closed
+    /// manifold (empty when none was needed).
+    pub repair: BoundaryRepair,
+    /// What the file holds: nodes and tetrahedra for a volume format, the
+    /// boundary's vertices and triangles for a surface format.
+    pub written: String,
+}
+
 /// Generates a preset and writes it to `out` (a volume format, or a surface
-/// format for its boundary); returns it with the repair of its boundary.
-pub fn generate(
-    preset: &str,
-    out: &Path,
-    cube: &PresetOptions,
-) -> anyhow::Result<(TetMesh, BoundaryRepair)> {
+/// format for its boundary).
+pub fn generate(preset: &str, out: &Path, cube: &PresetOptions) -> anyhow::Result<Generated> {
     let (mesh, repair) = preset_mesh_repaired(preset, cube)?;
-    write_any(&mesh, out)?;
-    Ok((mesh, repair))
+    let written = write_any(&mesh, out)?;
+    Ok(Generated {
+        mesh,
+        repair,
+        written,
+    })
 }
 
 /// Writes `mesh` to `out`: the volume, or its boundary surface for a surface
-/// format. Returns what was written.
+/// format. Returns what was written (the counts of what the file holds, not
+/// of the volume it came from).
 fn write_any(mesh: &TetMesh, out: &Path) -> anyhow::Result<String> {
     if VolumeFormat::from_path(out).is_some() {
         io::write_volume(out, mesh)?;
@@ -726,7 +732,7 @@ mod tests {
             cells: 8,
             proven,
         };
-        let (proven, _) = generate("coarse", &vtu, &opts(true)).unwrap();
+        let proven = generate("coarse", &vtu, &opts(true)).unwrap().mesh;
         let plain = preset_mesh("coarse", &opts(false)).unwrap();
         assert_ne!(proven.tets.len(), plain.tets.len());
         let r = inspect(&vtu, &InspectOptions::default()).unwrap();
@@ -742,7 +748,11 @@ mod tests {
     fn generate_convert_inspect() {
         let dir = tempfile::tempdir().unwrap();
         let vtu = dir.path().join("v.vtu");
-        let (mesh, repair) = generate(
+        let Generated {
+            mesh,
+            repair,
+            written,
+        } = generate(
             "v-valley",
             &vtu,
             &PresetOptions {
@@ -754,6 +764,10 @@ mod tests {
         .unwrap();
         assert_eq!(mesh.tets.len(), 4608);
         assert!(repair.is_empty());
+        assert_eq!(
+            written,
+            format!("{} nodes, 4608 tetrahedra", mesh.nodes.len())
+        );
 
         let msh = dir.path().join("v.msh");
         let summary = convert(&vtu, &msh, 1.0).unwrap();
@@ -994,7 +1008,7 @@ mod tests {
             cells: 8,
             proven: false,
         };
-        let (mesh, repair) = generate("paper-34k", &vtu, &opts).unwrap();
+        let Generated { mesh, repair, .. } = generate("paper-34k", &vtu, &opts).unwrap();
         assert_eq!(
             (repair.pinched_edges, repair.pinched_nodes),
             (4, 0),
@@ -1007,6 +1021,41 @@ mod tests {
         let r = inspect(&vtu, &InspectOptions::default()).unwrap();
         assert_eq!(r.problems_found, 0, "{:?}", r.problems);
         assert_eq!(r.tets, mesh.tets.len());
+    }
+
+    /// A volume written to a surface format (generate, convert) reports the
+    /// vertices and triangles of the surface written, the counts the file
+    /// holds when read back, not the tetrahedra it came from.
+    #[test]
+    fn a_volume_written_as_stl_reports_the_triangles_written() {
+        let dir = tempfile::tempdir().unwrap();
+        let opts = PresetOptions {
+            size_m: 0.05,
+            cells: 4,
+            proven: false,
+        };
+        let stl = dir.path().join("cube.stl");
+        let g = generate("cube", &stl, &opts).unwrap();
+        // 6 faces of 4 x 4 cells, 2 triangles each; 5 x 5 nodes a face,
+        // shared along edges and corners.
+        let (vertices, triangles) = (6 * 25 - 12 * 5 + 8, 6 * 16 * 2);
+        assert_eq!(
+            g.written,
+            format!("the boundary surface, {vertices} vertices, {triangles} triangles")
+        );
+        assert_eq!(g.mesh.tets.len(), 4 * 4 * 4 * 6);
+        let back = inspect(&stl, &InspectOptions::default()).unwrap();
+        assert_eq!((back.kind, back.surface_triangles), ("surface", triangles));
+        let vtu = dir.path().join("cube.vtu");
+        generate("cube", &vtu, &opts).unwrap();
+        let ply = dir.path().join("cube.ply");
+        let s = convert(&vtu, &ply, 1.0).unwrap();
+        assert!(
+            s.ends_with(&format!(
+                "wrote the boundary surface, {vertices} vertices, {triangles} triangles"
+            )),
+            "{s}"
+        );
     }
 
     #[test]

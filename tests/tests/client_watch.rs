@@ -1,9 +1,11 @@
 //! `fissure watch` against an in-process server: the files are completed
-//! when the server shuts down, and a watcher slower than a fast stepped
-//! replay stays current and counts the frames it skipped.
+//! when the server shuts down and when the connection fails, the VTU files
+//! it writes are read back as surfaces, and a watcher slower than a fast
+//! stepped replay stays current and counts the frames it skipped.
 
 mod reliability_common;
 
+use fissure_cli::mesh_cmd::{InspectOptions, convert, inspect};
 use fissure_cli::watch::{WatchArgs, WatchEnd, run};
 use fissure_server::service::ServeOptions;
 use fissure_server::sim::SimOptions;
@@ -92,7 +94,96 @@ async fn watch_completes_its_files_when_the_server_shuts_down() -> anyhow::Resul
         .collect();
     assert_eq!(listed.len(), report.kept, "{pvd}");
     assert!(listed.iter().all(|f| dir.path().join(f).is_file()));
+    // What it wrote is a surface to the mesh tools: inspected as one, with
+    // no problem (the cube's closed boundary), and converted to STL.
+    let last_vtu = dir.path().join(listed.last().expect("a VTU"));
+    let r = inspect(&last_vtu, &InspectOptions::default())?;
+    assert_eq!(
+        (r.kind, r.tets, r.problems_found),
+        ("surface", 0, 0),
+        "{r:?}"
+    );
+    assert!(r.surface_triangles > 0 && r.volume_m3 > 0.0, "{r:?}");
+    let stl = dir.path().join("last.stl");
+    let s = convert(&last_vtu, &stl, 1.0)?;
+    assert!(
+        s.ends_with(&format!("{} triangles", r.surface_triangles)),
+        "{s}"
+    );
     Ok(())
+}
+
+/// A TCP relay from a local port to `to` whose connections all drop when
+/// the returned sender is dropped (a connection lost mid-stream).
+async fn relay(
+    to: std::net::SocketAddr,
+) -> anyhow::Result<(String, tokio::sync::oneshot::Sender<()>)> {
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
+    let url = format!("http://{}", listener.local_addr()?);
+    let (cut, cut_rx) = tokio::sync::oneshot::channel::<()>();
+    tokio::spawn(async move {
+        let mut links = tokio::task::JoinSet::new();
+        let accept = async {
+            while let Ok((mut client, _)) = listener.accept().await {
+                links.spawn(async move {
+                    let mut server = tokio::net::TcpStream::connect(to).await?;
+                    tokio::io::copy_bidirectional(&mut client, &mut server).await
+                });
+            }
+        };
+        tokio::select! {
+            _ = accept => {}
+            _ = cut_rx => {}
+        }
+        // Dropping the set aborts every link: both sockets close.
+    });
+    Ok((url, cut))
+}
+
+/// The connection fails while `fissure watch` runs (its TCP link to the
+/// server is cut, the server still up): the watch fails, saying the stream
+/// failed (the command exits 1), after it has completed its files: the
+/// `.pvd` index of every VTU written, the first and the last PNG, the GIF.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn watch_completes_its_files_when_the_connection_fails() -> anyhow::Result<()> {
+    let server = TestServer::start("cube", SimOptions::default(), ServeOptions::default()).await?;
+    let (url, cut) = relay(server.addr).await?;
+    let dir = tempfile::tempdir()?;
+    let a = args(&url, dir.path());
+    let watch = tokio::spawn(async move { run(&a).await });
+    let mut client = server.client().await?;
+    let mut haptic = Haptic::open(&mut client, "left", None).await?;
+    press(&mut haptic, 400, Some(Duration::from_millis(1))).await?;
+    haptic.close().await;
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    drop(cut);
+    let err = tokio::time::timeout(Duration::from_secs(30), watch)
+        .await??
+        .expect_err("a failed stream is an error");
+    let err = format!("{err:#}");
+    assert!(
+        err.contains("the frame stream failed") && err.contains("completed"),
+        "{err}"
+    );
+    let pvd = std::fs::read_to_string(dir.path().join("surface.pvd"))?;
+    let listed: Vec<&str> = pvd
+        .lines()
+        .filter_map(|l| l.split("file=\"").nth(1))
+        .map(|rest| rest.trim_end_matches("\"/>"))
+        .collect();
+    let vtus = std::fs::read_dir(dir.path())?
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_name().to_string_lossy().ends_with(".vtu"))
+        .count();
+    assert!(listed.len() >= 3, "{pvd}");
+    assert_eq!(listed.len(), vtus, "the index lists every VTU written");
+    let pngs = std::fs::read_dir(dir.path())?
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_name().to_string_lossy().ends_with(".png"))
+        .count();
+    assert_eq!(pngs, 2, "the first and the last frame");
+    assert!(dir.path().join("session.gif").is_file());
+    server.stop().await
 }
 
 /// A fast stepped replay (poses sent as fast as answered) makes frames

@@ -99,8 +99,8 @@ async fn reset_restarts_the_stepped_clock_and_a_pose_behind_it_is_refused() -> a
 }
 
 /// Free-running: frame numbers only increase, across resets with and without
-/// a claimed instrument, in the answers, in `Reset`'s reply and in the
-/// recording's frame summaries.
+/// a claimed instrument, in the answers, in `Reset`'s reply, in a watcher's
+/// stream and in the recording's frame summaries.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn frame_numbers_increase_for_the_life_of_the_server() -> anyhow::Result<()> {
     let dir = tempfile::tempdir()?;
@@ -112,6 +112,19 @@ async fn frame_numbers_increase_for_the_life_of_the_server() -> anyhow::Result<(
     };
     let server = TestServer::start("cube", options, ServeOptions::default()).await?;
     let mut client = server.client().await?;
+    let mut watch = client
+        .watch(pb::WatchRequest {
+            include_positions: false,
+        })
+        .await?
+        .into_inner();
+    let watched = tokio::spawn(async move {
+        let mut frames = Vec::new();
+        while let Ok(Some(f)) = watch.message().await {
+            frames.push(f.frame);
+        }
+        frames
+    });
     let mut seen = Vec::new();
     let mut resets = Vec::new();
     for round in 0..3 {
@@ -147,6 +160,12 @@ async fn frame_numbers_increase_for_the_life_of_the_server() -> anyhow::Result<(
     );
     let sim = server.sim.clone();
     server.stop().await?;
+    let watched = watched.await?;
+    assert!(watched.len() > 10, "{} frames watched", watched.len());
+    assert!(
+        watched.windows(2).all(|w| w[0] < w[1]),
+        "watched frames go back or repeat: {watched:?}"
+    );
     tokio::task::spawn_blocking(move || sim.recorder().map_or(Ok(()), |r| r.finish())).await??;
     let (entries, truncated) = recording::read(&path)?;
     assert!(!truncated);

@@ -345,7 +345,7 @@ async fn free_running_frames_are_at_least_the_reported_interval_apart() -> anyho
 /// Reflection answers on `grpc.reflection.v1` and `v1alpha` alike: the
 /// services, an unknown symbol as an in-band NOT_FOUND error response that
 /// leaves the stream open, then the file of a known symbol on the same
-/// stream.
+/// stream, with the language options (Go, Java, C#) set.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn reflection_v1_and_v1alpha_answer_unknown_symbols_in_band() -> anyhow::Result<()> {
     use prost::Message;
@@ -395,7 +395,14 @@ async fn reflection_v1_and_v1alpha_answer_unknown_symbols_in_band() -> anyhow::R
                         prost_types::FileDescriptorProto::decode(&*f.file_descriptor_proto[0])
                             .unwrap();
                     assert_eq!(file.name(), "fissure/v1/fissure.proto");
-                    assert_eq!(file.options.unwrap().java_outer_classname(), "FissureProto");
+                    // The options code generators of other languages read;
+                    // Java's outer class is not `Fissure`, the service.
+                    let o = file.options.unwrap();
+                    assert_eq!(o.java_outer_classname(), "FissureProto");
+                    assert_eq!(o.java_package(), "invalid.example.fissure.v1");
+                    assert!(o.java_multiple_files());
+                    assert_eq!(o.csharp_namespace(), "Fissure.V1");
+                    assert!(o.go_package().ends_with("fissure/v1;fissurev1"), "{o:?}");
                 }
                 other => panic!("{other:?}"),
             }

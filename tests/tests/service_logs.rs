@@ -229,3 +229,76 @@ async fn a_loop_behind_its_interval_is_warned_once_and_loading_reports_its_stage
     );
     Ok(())
 }
+
+/// Stepped mode: a replay sent as fast as it is answered, on a scene whose
+/// interval (0.5 ms of pose time a step) no step of the cube keeps up with
+/// in wall-clock time. The server warns once that the loop is behind and
+/// how much slower than real time the replay runs at least (the median step
+/// over the interval; the replay measured here is slower still, its round
+/// trips and collision added).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stepped_replay_slower_than_real_time_is_warned_once_with_its_ratio() -> anyhow::Result<()>
+{
+    log();
+    let scene = cube_scene(&[
+        ("name = \"cube\"", "name = \"cube-stepped-behind\""),
+        (
+            "deformation_interval_s = 0.02",
+            "deformation_interval_s = 0.0005",
+        ),
+    ]);
+    let options = SimOptions {
+        stepped: Some(true),
+        ..SimOptions::default()
+    };
+    let server = TestServer::start_scene(scene, options, ServeOptions::default()).await?;
+    let mut client = server.client().await?;
+    let mut haptic = Haptic::open(&mut client, "left", None).await?;
+    let start = Instant::now();
+    let mut k = 0u64;
+    while start.elapsed() < Duration::from_secs(3) {
+        k += 1;
+        // A press 1 mm deep over 1 s of pose time, then held.
+        let depth = 0.001 * (k as f64 * 1e-3).min(1.0);
+        let z = TOUCH_Z + 0.0005 - depth;
+        let a = haptic
+            .send(pose(k as f64 * 1e-3, k, [LEFT_X, HANDLE_Y, z], FLAT_DOWN))
+            .await?;
+        assert!(a.rejection.is_none(), "{:?}", a.rejection);
+    }
+    let pose_time_s = k as f64 * 1e-3;
+    let wall_s = start.elapsed().as_secs_f64();
+    haptic.close().await;
+    server.stop().await?;
+    let warned: Vec<String> = lines_with("the deformation loop is behind its interval")
+        .into_iter()
+        .filter(|l| l.contains("scene=cube-stepped-behind"))
+        .collect();
+    assert_eq!(
+        warned.len(),
+        1,
+        "{pose_time_s:.3} s of poses in {wall_s:.2} s: {warned:?}"
+    );
+    assert!(
+        warned[0].contains("WARN")
+            && warned[0].contains("loops.deformation_interval_s = 0.5 ms")
+            && warned[0].contains("x slower than real time"),
+        "{warned:?}"
+    );
+    // The steps are part of the replay's wall-clock time: the ratio named
+    // is at most the measured one, within the spread of the step times
+    // (the median of the three slow steps seen).
+    let ratio: f64 = warned[0]
+        .split("stepped replays run at least ")
+        .nth(1)
+        .and_then(|r| r.split('x').next())
+        .and_then(|r| r.parse().ok())
+        .expect("a ratio in the warning");
+    let measured = wall_s / pose_time_s;
+    eprintln!("stepped replay: warned {ratio}x, measured {measured:.1}x slower than real time");
+    assert!(
+        ratio > 1.0 && ratio < 3.0 * measured,
+        "{ratio} vs {measured}"
+    );
+    Ok(())
+}

@@ -2,7 +2,8 @@
 //! longer than the scene's interval (`loops.deformation_interval_s`).
 //!
 //! A step slower than the interval means, in stepped mode, that a replay runs
-//! slower than real time (by the ratio of the two); free-running, that frames
+//! slower than real time, by at least the ratio of the two (the steps alone;
+//! collision and the force samples add to it); free-running, that frames
 //! come less often than the scene asks and the force loops extrapolate from
 //! older models. Neither is an error, but a user should hear of it rather
 //! than find out from the timings. The monitor samples the published
@@ -106,7 +107,7 @@ pub async fn watch_pace(sim: Arc<Simulation>, mut stopping: tokio::sync::watch::
         if let Some(b) = check.observe(snap.frame, step_s) {
             let effect = if stepped {
                 format!(
-                    "stepped replays run about {:.1}x slower than real time",
+                    "stepped replays run at least {:.1}x slower than real time (the steps alone)",
                     b.ratio()
                 )
             } else {
