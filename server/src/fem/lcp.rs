@@ -43,7 +43,8 @@
 //! trial `lambda_t = -W_tt^-1 (b_t + W_tn lambda_n)` projected radially onto
 //! the disc `|lambda_t| <= mu lambda_n` (Jourdan, Alart & Jean 1998; Duriez
 //! et al. 2006 use it at haptic rates). Sweeps stop when no multiplier moves
-//! by more than `1e-10` of the largest.
+//! by more than `1e-10` of the largest, or at the sweep limit; either way
+//! the answer is checked.
 //!
 //! # Why hand-written
 //! faer factors dense matrices but has no row up- and down-dates of a
@@ -692,12 +693,13 @@ impl ContactSolver {
             if change <= tol.sweep_rel * scale.max(f64::MIN_POSITIVE) {
                 break;
             }
+            // At the limit the answer stands if it meets the conditions
+            // ([`Self::check`] decides): rows that depend on each other (a
+            // triangle held at its vertices and at points on it) make the
+            // split of the multipliers among them drift slowly while the
+            // gaps and the forces have converged.
             if sweeps >= tol.max_iterations {
-                let violation_m = self.violation(w, n, q, kinds, lambda);
-                return Err(LcpError::NotConverged {
-                    iterations: sweeps,
-                    violation_m,
-                });
+                break;
             }
         }
         Ok(Report {
