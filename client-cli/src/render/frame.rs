@@ -9,7 +9,7 @@
 //! the right whose colour scale is a `plotters` axis. Lengths in the scene
 //! are metres; the scale and readouts show millimetres and newtons.
 
-use super::plot::{FONT, chart_err, draw_over, linear_label, rgb};
+use super::plot::chart::{FONT, chart_err, draw_over, linear_label, rgb};
 use super::raster::{
     Background, Camera, Colouring, EdgeStyle, MeshRef, RenderOptions, Renderer, TriMesh,
 };
