@@ -418,7 +418,7 @@ impl Pictures {
             .iter()
             .map(|f| self.colour_by.peak_mm(f))
             .fold(0.0, f64::max);
-        let range_mm = crate::render::ticks::nice_range(0.0, peak_mm.max(0.1), 5).1;
+        let range_mm = crate::render::plot::nice_range(0.0, peak_mm.max(0.1), 5).1;
         // Snapshots: the first frame, the first frame at half the peak
         // displacement, the last frame.
         bar.set_message("snapshots");
@@ -435,7 +435,8 @@ impl Pictures {
             let mut caption = caption_of(&scene.name, frame, range_mm);
             caption.title = format!("{} \u{2014} {label}", caption.title);
             let path = self.out.join(name);
-            renderer.render(&view, frame, &caption)?.save_png(&path)?;
+            view.render(&mut renderer, frame, &caption)?
+                .save_png(&path)?;
             files.push(path);
             bar.inc(1);
         }
@@ -474,7 +475,11 @@ impl Pictures {
             .chain(frames.last().filter(|_| (frames.len() - 1) % stride != 0))
             .collect();
         for f in &picked {
-            images.push(gif_renderer.render(&view, f, &caption_of(&scene.name, f, range_mm))?);
+            images.push(view.render(
+                &mut gif_renderer,
+                f,
+                &caption_of(&scene.name, f, range_mm),
+            )?);
         }
         let dt = if frames.len() > 1 {
             (frames[frames.len() - 1].sim_time_s - frames[0].sim_time_s) / (frames.len() - 1) as f64

@@ -5,11 +5,11 @@
 //! temporary folder), printing how long each took.
 
 use fissure_cli::render::anim::{GifOptions, save_gif};
+use fissure_cli::render::frame::{CameraPreset, Caption, FrameRenderer, Plate, Scene, bounds};
 use fissure_cli::render::plot::{
     Axis, InstrumentForces, Marker, ScatterGroup, ScatterPlot, force_plot, palette,
 };
 use fissure_cli::render::raster::{Camera, Colouring, EdgeStyle, MeshRef, RenderOptions, Renderer};
-use fissure_cli::render::view::{SpatulaView, SurfaceColour, ViewRenderer, ViewSpec, bounds};
 use fissure_cli::render::{Image, colormap::Colormap};
 use fissure_server::mesh::blocks::v_valley;
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
@@ -32,13 +32,52 @@ fn out_dir() -> (PathBuf, Option<tempfile::TempDir>) {
 
 /// The spatula in the V groove: a plate 1 x 12 x 40 mm, tip 2 mm above the
 /// groove's bottom, tilted 6 degrees, shifted `push` m towards +x.
-fn spatula(push: f64, force: Option<Vector3<f64>>) -> SpatulaView {
+fn spatula(push: f64, force: Option<Vector3<f64>>) -> Plate {
     let rot = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), 6f64.to_radians());
-    SpatulaView {
+    Plate {
         name: "right".into(),
         pose: Isometry3::from_parts(Translation3::new(0.03 + push, 0.015, 0.032), rot),
         half_extents: Vector3::new(0.0005, 0.006, 0.02),
+        touching: force.is_some(),
         force,
+    }
+}
+
+/// Displacements |moved - rest|, mm.
+fn displacement_mm(rest: &[Point3<f64>], moved: &[Point3<f64>]) -> Vec<f64> {
+    rest.iter()
+        .zip(moved)
+        .map(|(r, m)| (m - r).norm() * 1e3)
+        .collect()
+}
+
+/// The camera of the valley pictures: framing the surface and the plate.
+fn camera(
+    surface: &[Point3<f64>],
+    plate: &Plate,
+    azimuth_deg: f64,
+    elevation_deg: f64,
+) -> CameraPreset {
+    let (lo, hi) = bounds(surface);
+    let c = plate.pose.translation.vector;
+    let h = plate.half_extents.norm();
+    let (plo, phi) = (
+        Point3::from(c.add_scalar(-h)),
+        Point3::from(c.add_scalar(h)),
+    );
+    CameraPreset {
+        azimuth_deg,
+        elevation_deg,
+        frame_box: (lo.inf(&plo), hi.sup(&phi)),
+    }
+}
+
+fn caption(title: &str, subtitle: String, range_mm: f64) -> Caption {
+    Caption {
+        title: title.into(),
+        subtitle,
+        range_mm,
+        force_scale: None,
     }
 }
 
@@ -70,11 +109,12 @@ fn valley_surface(push: f64) -> Surface {
 }
 
 fn not_background_fraction(img: &Image) -> f64 {
-    // The default background is a light grey-blue gradient.
+    // The frame's background is a light grey-blue gradient, from
+    // [250, 251, 253] at the top to [205, 212, 222] at the bottom.
     let bg = img
         .pixels()
         .iter()
-        .filter(|p| p[0] > 205 && p[2] > 215 && (p[2] as i32 - p[0] as i32) < 20)
+        .filter(|p| p[0] >= 200 && p[2] >= 210 && (p[2] as i32 - p[0] as i32) < 20)
         .count();
     1.0 - bg as f64 / img.pixels().len() as f64
 }
@@ -82,14 +122,29 @@ fn not_background_fraction(img: &Image) -> f64 {
 #[test]
 fn v_valley_with_spatula_still() {
     let (dir, _keep) = out_dir();
-    let (rest, moved, tris) = valley_surface(0.0);
-    let _ = rest;
-    let mut vr = ViewRenderer::new(1000, 700).unwrap();
-    let mut spec = ViewSpec::new("V-valley block with a spatula in the groove");
-    spec.subtitle = format!("{} surface triangles   colour: height", tris.len());
+    let (_, moved, tris) = valley_surface(0.0);
+    let mut fr = FrameRenderer::new(1000, 700).unwrap();
+    let plates = [spatula(0.0, None)];
+    let height_mm: Vec<f64> = moved.iter().map(|p| p.z * 1e3).collect();
+    let top_mm = height_mm.iter().copied().fold(0.0, f64::max);
+    let scene = Scene {
+        positions: &moved,
+        triangles: &tris,
+        values_mm: &height_mm,
+        quantity: "height",
+        plates: &plates,
+        camera: camera(&moved, &plates[0], -60.0, 35.0),
+    };
     let t = Instant::now();
-    let img = vr
-        .render(&moved, &tris, &[spatula(0.0, None)], &spec)
+    let img = fr
+        .render(
+            &scene,
+            &caption(
+                "V-valley block with a spatula in the groove",
+                format!("{} surface triangles   colour: height", tris.len()),
+                top_mm,
+            ),
+        )
         .unwrap();
     eprintln!(
         "v-valley still 1000x700: {:.1} ms",
@@ -105,48 +160,74 @@ fn v_valley_with_spatula_still() {
 fn v_valley_pushed_open_with_force_arrow() {
     let (dir, _keep) = out_dir();
     let (rest, moved, tris) = valley_surface(0.004);
-    let mut vr = ViewRenderer::new(1000, 700).unwrap();
-    let mut spec = ViewSpec::new("Opening the groove: wall displacement");
-    spec.subtitle = "synthetic deformation, 4 mm push".into();
-    spec.colour = SurfaceColour::Displacement { rest: &rest };
-    spec.azimuth_deg = -125.0;
-    spec.elevation_deg = 38.0;
+    let mut fr = FrameRenderer::new(1000, 700).unwrap();
     let f = Vector3::new(-0.42, 0.03, 0.08);
-    let img = vr
-        .render(&moved, &tris, &[spatula(0.004, Some(f))], &spec)
+    let plates = [spatula(0.004, Some(f))];
+    let d = displacement_mm(&rest, &moved);
+    let scene = Scene {
+        positions: &moved,
+        triangles: &tris,
+        values_mm: &d,
+        quantity: "displacement",
+        plates: &plates,
+        camera: camera(&moved, &plates[0], -125.0, 38.0),
+    };
+    let img = fr
+        .render(
+            &scene,
+            &caption(
+                "Opening the groove: wall displacement",
+                "synthetic deformation, 4 mm push".into(),
+                4.0,
+            ),
+        )
         .unwrap();
     img.save_png(dir.join("v_valley_pushed.png")).unwrap();
     assert!(not_background_fraction(&img) > 0.15);
+    // The force readout is written in the arrow's colour, bottom-left.
+    let arrow = fissure_cli::render::frame::ARROWS[0];
+    let readout = (0..500)
+        .flat_map(|x| (img.height() - 40..img.height()).map(move |y| (x, y)))
+        .filter(|&(x, y)| {
+            let p = img.get(x, y).unwrap();
+            p.iter()
+                .zip(arrow)
+                .all(|(a, b)| (*a as i32 - b as i32).abs() < 40)
+        })
+        .count();
+    assert!(readout > 30, "{readout} readout pixels");
 }
 
 #[test]
 fn v_valley_opening_animation_gif() {
     let (dir, _keep) = out_dir();
     let (rest, _, tris) = valley_surface(0.0);
-    let mut vr = ViewRenderer::new(480, 360).unwrap();
+    let mut fr = FrameRenderer::new(480, 360).unwrap();
     let frames_n = 40;
     let mut frames = Vec::with_capacity(frames_n);
+    let cam = camera(&rest, &spatula(0.0, None), -60.0, 35.0);
     let t = Instant::now();
     for k in 0..frames_n {
         let s = (k as f64 / (frames_n - 1) as f64 * std::f64::consts::PI).sin();
         let push = 0.004 * s;
         let (_, moved, _) = valley_surface(push);
-        let mut spec = ViewSpec::new("Opening the V groove");
-        spec.subtitle = format!("frame {k}   push {:.1} mm", push * 1e3);
-        spec.colour = SurfaceColour::Displacement { rest: &rest };
-        spec.range = Some((0.0, 4.0));
-        spec.frame_box = Some(bounds(&rest));
-        spec.force_scale = Some(0.05);
-        spec.edges = false;
-        frames.push(
-            vr.render(
-                &moved,
-                &tris,
-                &[spatula(push, Some(Vector3::new(-0.4 * s, 0.0, 0.05 * s)))],
-                &spec,
-            )
-            .unwrap(),
+        let d = displacement_mm(&rest, &moved);
+        let plates = [spatula(push, Some(Vector3::new(-0.4 * s, 0.0, 0.05 * s)))];
+        let scene = Scene {
+            positions: &moved,
+            triangles: &tris,
+            values_mm: &d,
+            quantity: "displacement",
+            plates: &plates,
+            camera: cam,
+        };
+        let mut cap = caption(
+            "Opening the V groove",
+            format!("frame {k}   push {:.1} mm", push * 1e3),
+            4.0,
         );
+        cap.force_scale = Some(0.05);
+        frames.push(fr.render(&scene, &cap).unwrap());
     }
     let render_ms = t.elapsed().as_secs_f64() * 1e3;
     let t = Instant::now();
@@ -269,13 +350,12 @@ fn force_plot_of_two_spatulas() {
     ];
     let plot = force_plot("Reaction forces on the spatulas", &ins, true, Some(0.5));
     let t = Instant::now();
-    let img = plot.render().unwrap();
+    let (img, frame) = plot.render_with_frame().unwrap();
     eprintln!(
         "force plot 900x500, 8 series x 3000 samples: {:.1} ms",
         t.elapsed().as_secs_f64() * 1e3
     );
     // The left |F| curve at t = 2 s (about 0.48 N) is where the frame says.
-    let frame = plot.frame().unwrap();
     img.save_png(dir.join("forces.png")).unwrap();
     let fx = -0.45 + 0.02 * 18.0f64.sin();
     let mag = (fx * fx + 0.05f64.powi(2) + 0.12f64.powi(2)).sqrt();
@@ -331,8 +411,7 @@ fn accuracy_scatter_with_pareto_front() {
             marker,
         });
     }
-    let img = plot.render().unwrap();
+    let (img, f) = plot.render_with_frame().unwrap();
     img.save_png(dir.join("pareto.png")).unwrap();
-    let f = plot.frame().unwrap();
     assert_eq!(f.x_range, (1e-3, 10.0));
 }

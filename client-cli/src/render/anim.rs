@@ -235,7 +235,6 @@ pub fn save_gif(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::render::draw::{disc, fill_rect};
 
     /// A disc moving across a gradient, `n` frames of `w` x `h`.
     fn frames(n: usize, w: u32, h: u32) -> Vec<Image> {
@@ -243,17 +242,19 @@ mod tests {
             .map(|i| {
                 let mut img = Image::new(w, h, [240, 240, 240]).unwrap();
                 for y in 0..h as i64 {
-                    fill_rect(
-                        &mut img,
-                        0,
-                        y,
-                        30,
-                        y + 1,
-                        [(y * 255 / h as i64) as u8, 60, 120],
-                    );
+                    for x in 0..30 {
+                        img.put(x, y, [(y * 255 / h as i64) as u8, 60, 120]);
+                    }
                 }
-                let x = 40.0 + (w as f64 - 80.0) * i as f64 / n as f64;
-                disc(&mut img, [x, h as f64 / 2.0], 15.0, [200, 40, 40]);
+                let cx = 40.0 + (w as f64 - 80.0) * i as f64 / n as f64;
+                let cy = h as f64 / 2.0;
+                for y in 0..h as i64 {
+                    for x in 0..w as i64 {
+                        if (x as f64 + 0.5 - cx).hypot(y as f64 + 0.5 - cy) <= 15.0 {
+                            img.put(x, y, [200, 40, 40]);
+                        }
+                    }
+                }
                 img
             })
             .collect()

@@ -1,25 +1,25 @@
 //! Headless pictures of the simulation: shaded views of the deformed brain with
-//! the spatulas and force arrows ([`raster`]), colour scales ([`colormap`]),
-//! text ([`text`]), force and accuracy plots ([`plot`]) and animated GIFs
-//! ([`anim`]).
+//! the spatulas and force arrows ([`raster`]), the one composed picture of a
+//! simulation state used by the demo, `fissure watch` and the tests
+//! ([`frame`]), colour maps ([`colormap`]), text ([`text`]), force and
+//! accuracy plots ([`plot`]) and animated GIFs ([`anim`]).
 //!
 //! Everything draws into an [`Image`] (8-bit sRGB, row-major, top-left origin,
 //! `x` to the right and `y` down, in pixels). Nothing needs a GPU, a display or
-//! system fonts: the triangle rasteriser is written here (about a thousand
-//! lines for a z-buffer with supersampling, smaller than any 3-D stack, and the
-//! GPU is reserved for the solver), text uses the `ab_glyph` rasteriser with the
-//! DejaVu Sans fonts embedded in the binary (licence in
-//! `render/fonts/LICENSE-DejaVu.txt`), and the plots are drawn with the same
-//! primitives so that all pictures share one look.
+//! system fonts: the triangle rasteriser is written here (a z-buffer with
+//! supersampling, smaller than any 3-D stack, and the GPU is reserved for the
+//! solver); plots, their axes and legends and the colour scale are drawn by
+//! `plotters` into an RGB buffer; all text uses the DejaVu Sans fonts
+//! embedded in the binary (licence in `render/fonts/LICENSE-DejaVu.txt`),
+//! rasterised by `ab_glyph` (directly in [`text`], through `plotters` in the
+//! charts).
 
 pub mod anim;
 pub mod colormap;
-pub mod draw;
+pub mod frame;
 pub mod plot;
 pub mod raster;
 pub mod text;
-pub mod ticks;
-pub mod view;
 
 use std::path::{Path, PathBuf};
 
@@ -56,6 +56,11 @@ pub enum RenderError {
     /// A plot has nothing to draw or a range it cannot show.
     #[error("plot: {0}")]
     Plot(String),
+    /// `plotters` failed to draw a chart or a panel.
+    #[error("cannot draw the chart: {source}")]
+    Chart {
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
     /// Animation frames disagree in size or there are none.
     #[error("animation: {0}")]
     Anim(String),

@@ -10,8 +10,8 @@ use super::{Image, Rgb};
 use ab_glyph::{Font, FontRef, GlyphId, PxScale, ScaleFont, point};
 use std::sync::OnceLock;
 
-static REGULAR_BYTES: &[u8] = include_bytes!("fonts/DejaVuSans.ttf");
-static BOLD_BYTES: &[u8] = include_bytes!("fonts/DejaVuSans-Bold.ttf");
+pub(crate) static REGULAR_BYTES: &[u8] = include_bytes!("fonts/DejaVuSans.ttf");
+pub(crate) static BOLD_BYTES: &[u8] = include_bytes!("fonts/DejaVuSans-Bold.ttf");
 
 /// Font weight.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

@@ -17,25 +17,24 @@
 //! current and says how many frames it skipped ([`WatchReport::skipped`])
 //! instead of falling behind.
 //!
-//! The pictures come from the headless software rasteriser of
-//! [`crate::render`]; [`SessionView`] holds what they need (rest surface,
-//! instruments, a camera per scene) and is shared with `fissure demo`.
+//! The pictures are drawn by [`crate::render::frame::FrameRenderer`], the
+//! one frame renderer of the demo, the watcher and the tests;
+//! [`SessionView`] holds what a session's pictures need (rest surface,
+//! instruments, a camera per scene) and turns a frame into what it draws.
 //!
 //! Colours: undisplaced tissue is a light pink ([`TISSUE_MAP`] at 0), deeper
 //! displacement blends through salmon and orange-red to dark crimson, so
 //! that the tissue reads as tissue and the deformation stands out.
 
-mod frame;
 mod gif;
 mod view;
 mod vtu;
 
-pub use frame::{Caption, FrameRenderer, caption_of};
-pub use gif::{GifBuffer, gif_delay_cs};
-pub use view::{
-    ARROWS, CameraPreset, ColourBy, STEEL, STEEL_CONTACT, SessionView, TISSUE_MAP, plate, pose_of,
-    tissue_colour,
+pub use crate::render::frame::{
+    ARROWS, CameraPreset, Caption, FrameRenderer, STEEL, STEEL_CONTACT, TISSUE_MAP, tissue_colour,
 };
+pub use gif::{GifBuffer, gif_delay_cs};
+pub use view::{ColourBy, SessionView, caption_of, plate, pose_of};
 pub use vtu::{VtuSeries, pvd};
 
 use crate::render::anim;
@@ -261,11 +260,12 @@ pub async fn run(args: &WatchArgs) -> anyhow::Result<WatchReport> {
         }
         if args.png_all || report.kept == 1 {
             let path = args.out.join(format!("frame-{:06}.png", frame.frame));
-            renderer.render(&view, &frame, &caption)?.save_png(&path)?;
+            view.render(&mut renderer, &frame, &caption)?
+                .save_png(&path)?;
             report.files.push(path);
         }
         let img = if gif.wants_next() {
-            Some(gif_renderer.render(&view, &frame, &caption)?)
+            Some(view.render(&mut gif_renderer, &frame, &caption)?)
         } else {
             None
         };
@@ -289,9 +289,12 @@ pub async fn run(args: &WatchArgs) -> anyhow::Result<WatchReport> {
         if !args.png_all && report.kept > 1 {
             let range_mm = args.range_mm.unwrap_or(max_mm.max(0.1));
             let path = args.out.join(format!("frame-{:06}.png", frame.frame));
-            renderer
-                .render(&view, frame, &caption_of(&scene.name, frame, range_mm))?
-                .save_png(&path)?;
+            view.render(
+                &mut renderer,
+                frame,
+                &caption_of(&scene.name, frame, range_mm),
+            )?
+            .save_png(&path)?;
             report.files.push(path);
         }
     }

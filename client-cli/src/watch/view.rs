@@ -1,53 +1,12 @@
-//! What the pictures of a session need: the rest surface, the instruments,
-//! the camera of each scene, and the colours of tissue and spatulas.
+//! What the pictures of a session need: the rest surface, the instruments
+//! and the camera of each scene; and the translation of a session's frame
+//! into the [`Scene`] that [`FrameRenderer`] draws.
 
-use crate::render::Rgb;
+use crate::render::frame::{CameraPreset, Caption, FrameRenderer, Plate, Scene, bounds};
+use crate::render::{Image, RenderError};
 use fissure_proto::v1 as pb;
+use fissure_server::sim::motion::RigidFit;
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
-
-/// The tissue colour map: light pink at 0, salmon, orange-red, dark crimson
-/// at 1 (sRGB stops, linear blend between them).
-pub const TISSUE_MAP: [(f64, Rgb); 4] = [
-    (0.0, [240, 208, 200]),
-    (0.35, [236, 150, 120]),
-    (0.7, [214, 72, 52]),
-    (1.0, [140, 16, 40]),
-];
-
-/// The colour of `t` in [0, 1] on [`TISSUE_MAP`] (clamped; NaN gives grey).
-pub fn tissue_colour(t: f64) -> Rgb {
-    if t.is_nan() {
-        return [160, 160, 160];
-    }
-    let t = t.clamp(0.0, 1.0);
-    for w in TISSUE_MAP.windows(2) {
-        let ((t0, a), (t1, b)) = (w[0], w[1]);
-        if t <= t1 {
-            let u = (t - t0) / (t1 - t0);
-            return [0, 1, 2]
-                .map(|c| (a[c] as f64 + (b[c] as f64 - a[c] as f64) * u).round() as u8);
-        }
-    }
-    TISSUE_MAP[TISSUE_MAP.len() - 1].1
-}
-
-/// Plate colour.
-pub const STEEL: Rgb = [150, 160, 176];
-/// Plate colour while it touches tissue.
-pub const STEEL_CONTACT: Rgb = [95, 130, 190];
-/// Force arrows, per instrument.
-pub const ARROWS: [Rgb; 2] = [[20, 90, 220], [20, 150, 90]];
-
-/// A camera placement: azimuth and elevation (degrees) and the box framed.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct CameraPreset {
-    /// Azimuth about +z from +x, degrees (the eye's direction from the box).
-    pub azimuth_deg: f64,
-    /// Elevation above the xy plane, degrees.
-    pub elevation_deg: f64,
-    /// Box framed, m.
-    pub frame_box: (Point3<f64>, Point3<f64>),
-}
 
 /// What the pictures of one session need: the rest surface, the
 /// instruments and the camera.
@@ -161,7 +120,7 @@ impl SessionView {
     /// * `v-valley`, `u-valley`: along the groove from -y, a little above;
     /// * anything else: from the front-left and above, the whole model.
     pub fn preset(&self) -> CameraPreset {
-        let (lo, hi) = crate::render::view::bounds(&self.rest);
+        let (lo, hi) = bounds(&self.rest);
         let homes = self.instruments.iter().flat_map(|ins| {
             let (c, h) = plate(
                 ins,
@@ -250,25 +209,78 @@ impl SessionView {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
+impl SessionView {
+    /// Draws `frame` with `renderer`: the surface coloured by
+    /// [`SessionView::colour_by`] (mm), the plates at the frame's poses with
+    /// their forces, under `caption`.
+    pub fn render(
+        &self,
+        renderer: &mut FrameRenderer,
+        frame: &pb::DeformationFrame,
+        caption: &Caption,
+    ) -> Result<Image, RenderError> {
+        let mut positions = Vec::with_capacity(self.rest.len());
+        self.positions_into(frame, &mut positions);
+        let values_mm: Vec<f64> = match self.colour_by {
+            ColourBy::Displacement => positions
+                .iter()
+                .zip(&self.rest)
+                .map(|(p, r)| (p - r).norm() * 1e3)
+                .collect(),
+            ColourBy::NonRigid => {
+                let fit = RigidFit::new(&self.rest, &positions);
+                positions
+                    .iter()
+                    .zip(&self.rest)
+                    .map(|(p, r)| fit.non_rigid(r, p).norm() * 1e3)
+                    .collect()
+            }
+        };
+        let plates: Vec<Plate> = self
+            .instruments
+            .iter()
+            .zip(self.instrument_states(frame))
+            .map(|(ins, (pose, force, touching))| {
+                let (centre, half_extents) = plate(ins, &pose);
+                Plate {
+                    name: ins.name.clone(),
+                    pose: centre,
+                    half_extents,
+                    force,
+                    touching,
+                }
+            })
+            .collect();
+        renderer.render(
+            &Scene {
+                positions: &positions,
+                triangles: &self.triangles,
+                values_mm: &values_mm,
+                quantity: self.colour_by.label(),
+                plates: &plates,
+                camera: self.camera,
+            },
+            caption,
+        )
+    }
+}
 
-    #[test]
-    fn tissue_map_is_light_at_rest_and_strong_at_the_top() {
-        let lum = |c: Rgb| 0.2126 * c[0] as f64 + 0.7152 * c[1] as f64 + 0.0722 * c[2] as f64;
-        let rest = tissue_colour(0.0);
-        assert!(lum(rest) > 190.0, "{rest:?}");
-        assert!(rest[0] > rest[1] && rest[0] > rest[2], "pinkish {rest:?}");
-        // Luminance falls monotonically with displacement.
-        let mut prev = f64::INFINITY;
-        for k in 0..=20 {
-            let l = lum(tissue_colour(k as f64 / 20.0));
-            assert!(l <= prev + 1e-9, "{k}");
-            prev = l;
-        }
-        assert!(lum(tissue_colour(1.0)) < 60.0);
-        assert_eq!(tissue_colour(2.0), tissue_colour(1.0));
-        assert_eq!(tissue_colour(f64::NAN), [160, 160, 160]);
+/// Title and subtitle of a frame.
+pub fn caption_of(scene: &str, frame: &pb::DeformationFrame, range_mm: f64) -> Caption {
+    Caption {
+        title: format!("fissure \u{2014} {scene}"),
+        subtitle: format!(
+            "frame {}   t = {:.3} s   max displacement {:.2} mm{}",
+            frame.frame,
+            frame.sim_time_s,
+            frame.max_displacement_m * 1e3,
+            if frame.solver_error.is_empty() {
+                String::new()
+            } else {
+                format!("   step failed: {}", frame.solver_error)
+            }
+        ),
+        range_mm,
+        force_scale: None,
     }
 }

@@ -70,7 +70,9 @@ impl Background {
         match *self {
             Background::Solid(c) => c,
             Background::Gradient { top, bottom } => {
-                crate::render::draw::mix(top, bottom, y as f64 / (height.max(2) - 1) as f64)
+                let t = y as f64 / (height.max(2) - 1) as f64;
+                [0, 1, 2]
+                    .map(|i| (top[i] as f64 + (bottom[i] as f64 - top[i] as f64) * t).round() as u8)
             }
         }
     }
