@@ -9,8 +9,8 @@ use crate::render::raster::{
 };
 use crate::render::text::{HAlign, TextStyle, VAlign, draw_text};
 use crate::render::{Image, RenderError, Rgb, ticks};
+use fissure_proto::motion::RigidFit;
 use fissure_proto::v1 as pb;
-use fissure_server::sim::motion::RigidFit;
 use nalgebra::Point3;
 
 /// Height of the title band, px.
