@@ -19,7 +19,7 @@
 //! * [`contact`]: the pipeline of one query ([`contact::detect`]) and its
 //!   types; its stages are `cast`, `pair`, `cull`, the history's renewal,
 //!   and `gap` (Signorini) or `enforce` (paper).
-//! * [`gpu`]: wgpu backends.
+//! * `gpu`: wgpu backends (the `gpu` feature, on by default).
 
 pub mod brute;
 pub mod bvh;
@@ -29,6 +29,7 @@ pub(crate) mod cull;
 pub(crate) mod enforce;
 pub mod faces;
 pub(crate) mod gap;
+#[cfg(feature = "gpu")]
 pub mod gpu;
 pub mod history;
 pub mod instrument;
@@ -125,7 +126,7 @@ impl RayRange {
 /// answers, for every source-node ray, the nearest hit behind and in front.
 ///
 /// Implementations: CPU brute force (the paper's reference), CPU BVH, and the
-/// wgpu backends in [`gpu`]. All must give the same answers.
+/// wgpu backends in `gpu` (the `gpu` feature). All must give the same answers.
 pub trait RayBackend: Send {
     /// Name for logs and benchmarks, e.g. "brute" or "bvh".
     fn method(&self) -> &'static str;
