@@ -19,6 +19,7 @@ struct Cli {
 enum Command {
     /// Start a server in-process, drive both spatulas with the bundled
     /// trajectories and write a results folder.
+    #[cfg(feature = "lab")]
     Demo(fissure_cli::demo::DemoArgs),
     /// Stream trajectories to a server as haptic clients (one per instrument)
     /// and write the forces per instrument.
@@ -32,11 +33,13 @@ enum Command {
     /// ParaView), PNG images and an animated GIF.
     Watch(fissure_cli::watch::WatchArgs),
     /// Build, convert and inspect brain models.
+    #[cfg(feature = "lab")]
     Mesh {
         #[command(subcommand)]
         command: fissure_cli::mesh_cmd::MeshCommand,
     },
     /// Benchmarks (print a table, or JSON with --json).
+    #[cfg(feature = "lab")]
     Bench {
         #[command(subcommand)]
         which: Bench,
@@ -56,6 +59,7 @@ enum Command {
     /// Speed against accuracy of the simulation's configurations on the
     /// scripted Sylvian opening, and stability at the extremes (CSV,
     /// markdown, PNG plots).
+    #[cfg(feature = "lab")]
     Study(fissure_cli::study::StudyArgs),
     /// Ask a server's grpc.health.v1 whether it is serving; exits non-zero if not.
     Health {
@@ -65,6 +69,7 @@ enum Command {
     },
 }
 
+#[cfg(feature = "lab")]
 #[derive(Debug, Subcommand)]
 enum Bench {
     /// Time per deformation step of each solver strategy on a phantom preset,
@@ -173,7 +178,6 @@ struct ReplayArgs {
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     {
-        use fissure_cli::progress::ProgressLayer;
         use tracing_subscriber::Layer;
         use tracing_subscriber::layer::SubscriberExt;
         use tracing_subscriber::util::SubscriberInitExt;
@@ -185,14 +189,20 @@ fn main() -> anyhow::Result<()> {
                 tracing_subscriber::EnvFilter::try_from_env("FISSURE_LOG")
                     .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
             );
-        tracing_subscriber::registry()
-            .with(log)
-            .with(ProgressLayer::stderr().with_filter(ProgressLayer::filter()))
-            .init();
+        let registry = tracing_subscriber::registry().with(log);
+        // Progress events come from engine work in process (lab commands).
+        #[cfg(feature = "lab")]
+        let registry = {
+            use fissure_cli::progress::ProgressLayer;
+            registry.with(ProgressLayer::stderr().with_filter(ProgressLayer::filter()))
+        };
+        registry.init();
     }
     let rt = tokio::runtime::Runtime::new().context("starting the async runtime")?;
     match cli.command {
+        #[cfg(feature = "lab")]
         Command::Study(args) => fissure_cli::study::run(&args)?,
+        #[cfg(feature = "lab")]
         Command::Demo(args) => {
             rt.block_on(fissure_cli::demo::run(&args))?;
         }
@@ -259,7 +269,9 @@ fn main() -> anyhow::Result<()> {
         Command::Watch(args) => {
             rt.block_on(fissure_cli::watch::run(&args))?;
         }
+        #[cfg(feature = "lab")]
         Command::Mesh { command } => fissure_cli::mesh_cmd::run(command)?,
+        #[cfg(feature = "lab")]
         Command::Bench { which } => match which {
             Bench::Fem {
                 preset,

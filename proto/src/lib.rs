@@ -4,8 +4,17 @@
 //! field is documented there with its units. This crate re-exports the types that
 //! prost and tonic generate from it, plus the encoded file descriptor set used to
 //! serve gRPC reflection, and the reader of session recordings ([`recording`]).
+//!
+//! It also holds what the engine and its clients both compute on the data of
+//! the contract, so that a client reads, draws and writes what the server
+//! sends without linking the engine: the rigid part of a frame's motion
+//! ([`motion`]), the checks of a triangle surface ([`surface`]) and the VTU
+//! writer of frame series ([`vtu`]).
 
+pub mod motion;
 pub mod recording;
+pub mod surface;
+pub mod vtu;
 
 /// Generated types of package `fissure.v1`.
 #[allow(missing_docs, clippy::all, clippy::pedantic, rust_2018_idioms)]

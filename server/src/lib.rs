@@ -19,6 +19,11 @@
 //! * [`progress`]: progress events of long work (scene loading).
 //!
 //! Units are SI throughout: m, Pa, N, s.
+//!
+//! Feature `gpu` (on by default, and in the shipped binaries): the wgpu ray
+//! backends, `collide::gpu`. Without it the crate builds without wgpu, and a
+//! scene asking for `collision.backend = "gpu"` is refused at load
+//! ([`scene::SceneError::NotBuilt`]).
 
 pub mod collide;
 pub mod fem;

@@ -11,7 +11,7 @@ use std::time::Instant;
 
 use fissure_server::collide::gpu::{self, GpuBruteForce, GpuBvh, GpuError, GpuMethod, RefitMode};
 use fissure_server::collide::ray::watertight;
-use fissure_server::collide::{BruteForce, NodeHits, RayBackend};
+use fissure_server::collide::{BruteForce, NodeHits, RayBackend, SurfaceError};
 use nalgebra::{Point3, Vector3};
 
 /// Small deterministic generator (SplitMix64), so failures reproduce.
@@ -225,19 +225,18 @@ fn sphere(
 fn errors_name_the_bad_input() {
     let positions = vec![Point3::origin(); 3];
     match gpu::try_new_brute(&[[0, 1, 7]], &positions) {
-        Err(GpuError::IndexOutOfRange {
+        Err(GpuError::Surface(SurfaceError::VertexOutOfRange {
             triangle: 0,
-            corner: 2,
-            index: 7,
+            vertex: 7,
             vertices: 3,
-        }) => {}
-        other => panic!("expected IndexOutOfRange, got {:?}", other.err()),
+        })) => {}
+        other => panic!("expected VertexOutOfRange, got {:?}", other.err()),
     }
     let mut bad = positions.clone();
     bad[1].y = f64::NAN;
     match gpu::try_new_bvh(&[[0, 1, 2]], &bad) {
-        Err(GpuError::NonFinitePosition { vertex: 1 }) => {}
-        other => panic!("expected NonFinitePosition, got {:?}", other.err()),
+        Err(GpuError::Surface(SurfaceError::NonFinite { vertex: 1 })) => {}
+        other => panic!("expected NonFinite, got {:?}", other.err()),
     }
 }
 

@@ -32,15 +32,12 @@ pub enum RenderError {
     /// An image was asked for with a zero or too large size.
     #[error("invalid image size {width} x {height} px (each side must be 1..=16384)")]
     BadSize { width: u32, height: u32 },
-    /// A triangle refers to a vertex that does not exist.
-    #[error(
-        "mesh {mesh}: triangle {triangle} refers to vertex {vertex}, but the mesh has {vertices} vertices"
-    )]
-    IndexOutOfRange {
+    /// A triangle of a mesh refers to a vertex that does not exist, or a
+    /// vertex is not finite.
+    #[error("mesh {mesh}: {source}")]
+    Surface {
         mesh: usize,
-        triangle: usize,
-        vertex: u32,
-        vertices: usize,
+        source: fissure_proto::surface::SurfaceError,
     },
     /// Per-vertex data does not match the number of vertices.
     #[error("mesh {mesh}: {what} has {got} entries for {vertices} vertices")]

@@ -30,7 +30,7 @@ pub struct SessionView {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
 pub enum ColourBy {
     /// The displacement left once the best-fit rigid motion of the surface
-    /// is taken away ([`fissure_server::sim::motion`]).
+    /// is taken away ([`fissure_proto::motion`]).
     #[default]
     NonRigid,
     /// The displacement from rest.

@@ -47,7 +47,7 @@ impl VtuSeries {
         let file =
             std::fs::File::create(&path).with_context(|| format!("creating {}", path.display()))?;
         let mut w = std::io::BufWriter::new(file);
-        fissure_server::mesh::io::vtu::write_vtu_surface(
+        fissure_proto::vtu::write_vtu_surface(
             &mut w,
             &self.positions,
             &view.triangles,

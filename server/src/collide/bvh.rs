@@ -287,7 +287,8 @@ impl Bvh {
         let needed = check_surface(triangles, positions)?;
         if triangles.len() >= (u32::MAX / 3) as usize {
             return Err(SurfaceError::TooLarge {
-                triangles: triangles.len(),
+                what: "triangles",
+                count: triangles.len(),
             });
         }
         let mut bvh = Self {

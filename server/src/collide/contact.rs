@@ -38,7 +38,7 @@
 use super::faces::FaceId;
 use super::history::{History, Stage};
 use super::instrument::Instrument;
-use super::{NodeHits, RayBackend, RayRange};
+use super::{NodeHits, RayBackend, RayRange, SurfaceError};
 use crate::mesh::adjacency::Csr;
 use nalgebra::{Isometry3, Point3, Vector3};
 
@@ -53,10 +53,8 @@ pub enum ContactError {
         got: usize,
     },
     /// A triangle index from the backend, or a vertex index of a triangle, is out of range.
-    #[error(
-        "triangle {triangle} is out of range or refers to a vertex out of range ({vertices} vertices)"
-    )]
-    BadTriangle { triangle: u32, vertices: usize },
+    #[error(transparent)]
+    Surface(#[from] SurfaceError),
     /// A pose has a non-finite component.
     #[error("the pose of instrument {instrument} is not finite")]
     NonFinitePose { instrument: usize },

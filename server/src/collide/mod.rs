@@ -19,7 +19,7 @@
 //! * [`contact`]: the pipeline of one query ([`contact::detect`]) and its
 //!   types; its stages are `cast`, `pair`, `cull`, the history's renewal,
 //!   and `gap` (Signorini) or `enforce` (paper).
-//! * [`gpu`]: wgpu backends.
+//! * `gpu`: wgpu backends (the `gpu` feature, on by default).
 
 pub mod brute;
 pub mod bvh;
@@ -29,6 +29,7 @@ pub(crate) mod cull;
 pub(crate) mod enforce;
 pub mod faces;
 pub(crate) mod gap;
+#[cfg(feature = "gpu")]
 pub mod gpu;
 pub mod history;
 pub mod instrument;
@@ -125,7 +126,7 @@ impl RayRange {
 /// answers, for every source-node ray, the nearest hit behind and in front.
 ///
 /// Implementations: CPU brute force (the paper's reference), CPU BVH, and the
-/// wgpu backends in [`gpu`]. All must give the same answers.
+/// wgpu backends in `gpu` (the `gpu` feature). All must give the same answers.
 pub trait RayBackend: Send {
     /// Name for logs and benchmarks, e.g. "brute" or "bvh".
     fn method(&self) -> &'static str;
@@ -167,50 +168,10 @@ pub(crate) fn widen_box(lo: Point3<f64>, hi: Point3<f64>) -> (Point3<f64>, Point
     (lo.map(|x| x - margin), hi.map(|x| x + margin))
 }
 
-/// Errors in a surface handed to a backend.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum SurfaceError {
-    /// A triangle refers to a vertex that does not exist.
-    #[error(
-        "triangle {triangle} refers to vertex {vertex}, but the surface has {vertices} vertices"
-    )]
-    VertexOutOfRange {
-        triangle: usize,
-        vertex: u32,
-        vertices: usize,
-    },
-    /// A vertex position is NaN or infinite.
-    #[error("surface vertex {vertex} has a non-finite coordinate")]
-    NonFinite { vertex: usize },
-    /// More triangles than a backend's `u32` tables can index.
-    #[error("{triangles} triangles are more than a backend can index")]
-    TooLarge { triangles: usize },
-}
+/// Errors in a surface handed to a backend (and to the contact pipeline):
+/// the one surface-validation error of the engine and its clients.
+pub use fissure_proto::surface::SurfaceError;
 
 /// Checks indices and finiteness; returns one more than the largest vertex
 /// index used (the number of positions a backend needs).
-pub(crate) fn check_surface(
-    triangles: &[[u32; 3]],
-    positions: &[Point3<f64>],
-) -> Result<usize, SurfaceError> {
-    if let Some(vertex) = positions
-        .iter()
-        .position(|p| !p.coords.iter().all(|c| c.is_finite()))
-    {
-        return Err(SurfaceError::NonFinite { vertex });
-    }
-    let mut needed = 0usize;
-    for (triangle, t) in triangles.iter().enumerate() {
-        for &vertex in t {
-            if vertex as usize >= positions.len() {
-                return Err(SurfaceError::VertexOutOfRange {
-                    triangle,
-                    vertex,
-                    vertices: positions.len(),
-                });
-            }
-            needed = needed.max(vertex as usize + 1);
-        }
-    }
-    Ok(needed)
-}
+pub(crate) use fissure_proto::surface::check_surface;

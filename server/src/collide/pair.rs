@@ -8,6 +8,7 @@
 //! test: tissue the face is about to touch, or is leaving while the tissue
 //! still pushes on it.
 
+use super::SurfaceError;
 use super::contact::{ContactError, ContactQuery, DetectOptions, Pair, Tool, Workspace};
 
 /// The pairs of every tool, in (instrument, node) order, into
@@ -21,10 +22,6 @@ pub(crate) fn pair(
     ws.candidates.clear();
     let nv = query.positions.len();
     let band = opts.front_band();
-    let bad = |triangle: u32| ContactError::BadTriangle {
-        triangle,
-        vertices: nv,
-    };
     for (k, tool) in tools.iter().enumerate() {
         let first = ws.offsets[k];
         for (i, node) in tool.instrument.nodes.iter().enumerate() {
@@ -35,12 +32,22 @@ pub(crate) fn pair(
             let behind = hits.behind.filter(|h| -h.t <= node.reach);
             let front = hits.front.filter(|h| band > 0.0 && h.t <= band);
             for hit in [behind, front].into_iter().flatten() {
-                let tri = query
-                    .triangles
-                    .get(hit.triangle as usize)
-                    .ok_or_else(|| bad(hit.triangle))?;
-                if tri.iter().any(|&v| v as usize >= nv) {
-                    return Err(bad(hit.triangle));
+                let triangle = hit.triangle as usize;
+                let tri =
+                    query
+                        .triangles
+                        .get(triangle)
+                        .ok_or(SurfaceError::TriangleOutOfRange {
+                            triangle,
+                            triangles: query.triangles.len(),
+                        })?;
+                if let Some(&vertex) = tri.iter().find(|&&v| v as usize >= nv) {
+                    return Err(SurfaceError::VertexOutOfRange {
+                        triangle,
+                        vertex,
+                        vertices: nv,
+                    }
+                    .into());
                 }
                 let [a, b, c] = tri.map(|v| query.positions[v as usize]);
                 let n_tri = (b - a).cross(&(c - a));

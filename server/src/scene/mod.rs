@@ -53,6 +53,16 @@ pub enum SceneError {
         field: String,
         reason: String,
     },
+    /// The scene asks for a part this build was compiled without.
+    #[error(
+        "scene {origin}: field `{field}`: {value} needs the `{feature}` feature of fissure-server, which this build was compiled without (build with `--features {feature}`)"
+    )]
+    NotBuilt {
+        origin: String,
+        field: &'static str,
+        value: &'static str,
+        feature: &'static str,
+    },
 }
 
 /// A scene: everything the server models.
@@ -621,8 +631,23 @@ impl Scene {
         Ok(scene)
     }
 
+    /// Checks that this build has every part the scene asks for: the GPU
+    /// collision backend needs the `gpu` feature.
+    pub fn check_built(&self, origin: &str) -> Result<(), SceneError> {
+        if self.collision.backend == CollisionBackend::Gpu && !cfg!(feature = "gpu") {
+            return Err(SceneError::NotBuilt {
+                origin: origin.to_owned(),
+                field: "collision.backend",
+                value: "\"gpu\"",
+                feature: "gpu",
+            });
+        }
+        Ok(())
+    }
+
     /// Checks every value; the error names the first bad field.
     pub fn validate(&self, origin: &str) -> Result<(), SceneError> {
+        self.check_built(origin)?;
         let bad = |field: String, reason: String| SceneError::Invalid {
             origin: origin.to_owned(),
             field,
@@ -980,6 +1005,34 @@ mod tests {
         );
         let plain = crate::mesh::phantom::preset("coarse").unwrap().mesh;
         assert_ne!(model.mesh.tets.len(), plain.tets.len());
+    }
+
+    #[test]
+    fn a_gpu_scene_loads_only_where_the_gpu_backend_is_built() {
+        let text = include_str!("../../scenes/v-valley.toml");
+        let gpu = text.replace(
+            "method = \"bvh\"\n",
+            "method = \"bvh\"\nbackend = \"gpu\"\n",
+        );
+        assert_ne!(gpu, text);
+        let parsed = Scene::parse(&gpu, "v.toml");
+        if cfg!(feature = "gpu") {
+            assert_eq!(parsed.unwrap().collision.backend, CollisionBackend::Gpu);
+        } else {
+            let e = parsed.unwrap_err();
+            assert!(
+                matches!(
+                    e,
+                    SceneError::NotBuilt {
+                        field: "collision.backend",
+                        feature: "gpu",
+                        ..
+                    }
+                ),
+                "{e:?}"
+            );
+            assert!(e.to_string().contains("`gpu` feature"), "{e}");
+        }
     }
 
     #[test]

@@ -111,8 +111,11 @@ fn build_instrument(
         tip: 5,
         tip_reach: spec.thickness_m.max(0.002),
     });
-    let mut instrument = Instrument::new(plate, layout, rim)
-        .map_err(|e| SimError::Model(format!("instrument {:?}: {e}", spec.name)))?;
+    let mut instrument =
+        Instrument::new(plate, layout, rim).map_err(|source| SimError::Instrument {
+            name: spec.name.clone(),
+            source,
+        })?;
     instrument.cap_reach(max_depth_m);
     Ok(instrument)
 }
@@ -120,19 +123,18 @@ fn build_instrument(
 impl Model {
     /// Builds the mesh, the surface, the fixed set and the instruments.
     pub fn build(scene: &Scene) -> Result<Self, SimError> {
+        scene.check_built(&scene.name)?;
         let mut landmarks = None;
         let mesh = match &scene.model {
             ModelSpec::Cube { size_m, cells } => crate::mesh::blocks::cube(*size_m, *cells),
             ModelSpec::VValley => crate::mesh::blocks::v_valley(),
             ModelSpec::UValley => crate::mesh::blocks::u_valley(),
             ModelSpec::Phantom { preset, proven } => {
-                let p = crate::mesh::phantom::preset_meshed(preset, *proven)
-                    .map_err(|e| SimError::Model(e.to_string()))?;
+                let p = crate::mesh::phantom::preset_meshed(preset, *proven)?;
                 landmarks = Some(p.landmarks);
                 p.mesh
             }
-            ModelSpec::File { path, scale } => crate::mesh::io::read_model(path, *scale)
-                .map_err(|e| SimError::Model(e.to_string()))?,
+            ModelSpec::File { path, scale } => crate::mesh::io::read_model(path, *scale)?,
         };
         let mut regions = Vec::with_capacity(scene.fixed.len());
         for r in &scene.fixed {
@@ -143,9 +145,9 @@ impl Model {
                         radius_m: l.brain_stem.radius,
                     },
                     _ => {
-                        return Err(SimError::Model(format!(
-                            "the model has no landmark named {landmark:?} (the phantom has \"brain-stem\")"
-                        )));
+                        return Err(SimError::UnknownLandmark {
+                            landmark: landmark.clone(),
+                        });
                     }
                 },
                 other => other.clone(),
@@ -169,7 +171,7 @@ impl Model {
                     },
                 };
                 let crop = fem::roi::crop(&mesh, at, roi.distance_m, &fixed)
-                    .map_err(|e| SimError::Model(format!("region of interest: {e}")))?;
+                    .map_err(SimError::RegionOfInterest)?;
                 tracing::info!(
                     tets = crop.mesh.tets.len(),
                     of = mesh.tets.len(),
@@ -184,9 +186,7 @@ impl Model {
             }
         };
         if fixed.is_empty() {
-            return Err(SimError::Model(
-                "no node lies in the fixed region(s); the model would float".into(),
-            ));
+            return Err(SimError::Floating);
         }
         let surface = mesh.boundary();
         let mut rest_surface = Vec::new();
@@ -237,8 +237,7 @@ impl Model {
                     to_full,
                 )
             })
-            .transpose()
-            .map_err(|e| SimError::Model(e.to_string()))?;
+            .transpose()?;
         let mut from_volume = vec![u32::MAX; mesh.nodes.len()];
         for (s, &v) in surface.to_volume.iter().enumerate() {
             from_volume[v as usize] = s as u32;
@@ -383,6 +382,17 @@ pub fn ray_backend(scene: &Scene, model: &Model, positions: &[Point3<f64>]) -> B
     };
     match scene.collision.backend {
         CollisionBackend::Cpu => cpu(),
+        // Model::build refuses such scenes in a build without the `gpu`
+        // feature (Scene::check_built); one changed after that runs on the CPU.
+        #[cfg(not(feature = "gpu"))]
+        CollisionBackend::Gpu => {
+            tracing::warn!(
+                scene = %scene.name,
+                "scene asks for the GPU collision backend, which this build lacks (the `gpu` feature); casting on the CPU"
+            );
+            cpu()
+        }
+        #[cfg(feature = "gpu")]
         CollisionBackend::Gpu => {
             let gpu_method = match method {
                 CollisionMethod::Brute => crate::collide::gpu::GpuMethod::Brute,
@@ -917,7 +927,7 @@ impl Deformer {
         options.iterative.max_outer = scene.solver.max_iterations;
         options.foundation = model.foundation.clone();
         let mut solver = fem::build_solver(strategy, &model.mesh, material, &model.fixed, &options)
-            .map_err(|e| SimError::Solver(e.to_string()))?;
+            .map_err(SimError::Solver)?;
         solver.set_column_policy(columns, hook);
         Ok(Self {
             solver,

@@ -125,12 +125,38 @@ impl Default for SimOptions {
 /// Errors of building a simulation.
 #[derive(Debug, thiserror::Error)]
 pub enum SimError {
-    /// The model could not be built.
+    /// The scene asks for a part this build lacks.
     #[error("building the model: {0}")]
-    Model(String),
+    Scene(#[from] crate::scene::SceneError),
+    /// The phantom preset could not be generated.
+    #[error("building the model: {0}")]
+    Phantom(#[from] crate::mesh::phantom::PhantomError),
+    /// The model file could not be read.
+    #[error("building the model: {0}")]
+    ModelFile(#[from] crate::mesh::io::ModelFileError),
+    /// An instrument of the scene could not be built.
+    #[error("building the model: instrument {name:?}: {source}")]
+    Instrument {
+        name: String,
+        source: crate::collide::instrument::InstrumentError,
+    },
+    /// A fixed region names a landmark the model does not have.
+    #[error(
+        "building the model: the model has no landmark named {landmark:?} (the phantom has \"brain-stem\")"
+    )]
+    UnknownLandmark { landmark: String },
+    /// The region of interest could not be cropped.
+    #[error("building the model: region of interest: {0}")]
+    RegionOfInterest(#[source] crate::fem::SolveError),
+    /// No node lies in the fixed regions.
+    #[error("building the model: no node lies in the fixed region(s); the model would float")]
+    Floating,
+    /// The elastic foundation's regions could not be resolved.
+    #[error("building the model: {0}")]
+    Foundation(#[from] crate::scene::region::RegionError),
     /// The solver could not be set up.
     #[error("setting up the solver: {0}")]
-    Solver(String),
+    Solver(#[source] crate::fem::SolveError),
     /// The recording could not be opened.
     #[error("opening the recording {path}: {source}")]
     Recording {
@@ -1026,5 +1052,59 @@ impl Drop for Claim {
         }
         self.sim.inputs_changed.notify_all();
         tracing::info!(instrument = %self.name, "instrument released");
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::{ModelSpec, Region};
+    use std::error::Error as _;
+
+    fn cube() -> Scene {
+        Scene::load("cube").unwrap().0
+    }
+
+    #[test]
+    fn a_model_that_cannot_be_built_says_why_in_a_variant_callers_match() {
+        let mut floating = cube();
+        floating.fixed = vec![Region::Box {
+            box_min_m: [1.0, 1.0, 1.0],
+            box_max_m: [2.0, 2.0, 2.0],
+        }];
+        let e = Model::build(&floating).unwrap_err();
+        assert!(matches!(e, SimError::Floating), "{e:?}");
+        assert_eq!(
+            e.to_string(),
+            "building the model: no node lies in the fixed region(s); the model would float"
+        );
+
+        let mut landmark = cube();
+        landmark.fixed = vec![Region::Landmark {
+            landmark: "brain-stem".into(),
+        }];
+        let e = Model::build(&landmark).unwrap_err();
+        assert!(
+            matches!(&e, SimError::UnknownLandmark { landmark } if landmark == "brain-stem"),
+            "{e:?}"
+        );
+    }
+
+    #[test]
+    fn an_unreadable_model_file_keeps_the_reader_error_as_its_source() {
+        let mut scene = cube();
+        let path = std::env::temp_dir().join("fissure-no-such-model.vtu");
+        scene.model = ModelSpec::File {
+            path: path.clone(),
+            scale: 1.0,
+        };
+        let e = Model::build(&scene).unwrap_err();
+        let SimError::ModelFile(source) = &e else {
+            panic!("expected SimError::ModelFile, got {e:?}");
+        };
+        let text = e.to_string();
+        assert!(text.starts_with("building the model: "), "{text}");
+        assert!(text.contains(&source.to_string()), "{text}");
+        assert!(e.source().is_some(), "the reader's error is the source");
     }
 }

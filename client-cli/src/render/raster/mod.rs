@@ -41,6 +41,7 @@ pub use light::{Background, Light, Lighting, RenderOptions};
 pub use mesh::{CREASE_DEG, Colouring, EdgeStyle, MeshRef, Shading, TriMesh};
 
 use super::{Image, RenderError};
+use fissure_proto::surface::check_surface;
 use nalgebra::{Isometry3, Vector3};
 use rayon::prelude::*;
 
@@ -662,25 +663,8 @@ fn raster_rows(
 
 fn validate(mi: usize, m: &MeshRef<'_>) -> Result<(), RenderError> {
     let nv = m.positions.len();
-    if let Some(i) = m
-        .positions
-        .iter()
-        .position(|p| !p.coords.iter().all(|c| c.is_finite()))
-    {
-        return Err(RenderError::NonFinite {
-            what: format!("mesh {mi}: vertex {i}"),
-        });
-    }
-    for (ti, t) in m.triangles.iter().enumerate() {
-        if let Some(&vertex) = t.iter().find(|&&i| i as usize >= nv) {
-            return Err(RenderError::IndexOutOfRange {
-                mesh: mi,
-                triangle: ti,
-                vertex,
-                vertices: nv,
-            });
-        }
-    }
+    check_surface(m.triangles, m.positions)
+        .map_err(|source| RenderError::Surface { mesh: mi, source })?;
     match m.colouring {
         Colouring::PerVertex(c) if c.len() != nv => Err(RenderError::LengthMismatch {
             mesh: mi,

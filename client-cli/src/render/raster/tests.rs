@@ -3,6 +3,7 @@
 use super::super::Rgb;
 use super::super::colormap::Colormap;
 use super::*;
+use fissure_proto::surface::SurfaceError;
 use nalgebra::Point3;
 
 const BG: Rgb = [10, 20, 30];
@@ -213,10 +214,13 @@ fn bad_meshes_are_reported() {
     );
     assert!(matches!(
         e,
-        Err(RenderError::IndexOutOfRange {
-            triangle: 0,
-            vertex: 9,
-            ..
+        Err(RenderError::Surface {
+            mesh: 0,
+            source: SurfaceError::VertexOutOfRange {
+                triangle: 0,
+                vertex: 9,
+                ..
+            },
         })
     ));
     let ok_tri = [[0u32, 1, 2]];
@@ -239,7 +243,13 @@ fn bad_meshes_are_reported() {
         &front_camera(),
         &[MeshRef::new(&nan, &ok_tri, Colouring::Uniform([0; 3]))],
     );
-    assert!(matches!(e, Err(RenderError::NonFinite { .. })));
+    assert!(matches!(
+        e,
+        Err(RenderError::Surface {
+            source: SurfaceError::NonFinite { vertex: 2 },
+            ..
+        })
+    ));
     // Degenerate triangles draw nothing and do not fail.
     let flat = [
         Point3::new(0.0, 0.0, 0.0),

@@ -81,7 +81,7 @@ pub use brute::GpuBruteForce;
 pub use bvh::{GpuBvh, RefitMode};
 pub use lbvh::{Lbvh, LbvhNode};
 
-use super::RayBackend;
+use super::{RayBackend, SurfaceError};
 
 /// Why a GPU backend could not be created.
 #[derive(Debug, thiserror::Error)]
@@ -97,34 +97,10 @@ pub enum GpuError {
         /// wgpu's message.
         reason: String,
     },
-    /// A triangle refers to a vertex that does not exist.
-    #[error(
-        "triangle {triangle} corner {corner} refers to vertex {index}, but there are {vertices} vertices"
-    )]
-    IndexOutOfRange {
-        /// Triangle index.
-        triangle: usize,
-        /// Corner 0, 1 or 2.
-        corner: usize,
-        /// The offending vertex index.
-        index: u32,
-        /// Number of vertices given.
-        vertices: usize,
-    },
-    /// A vertex position is NaN or infinite.
-    #[error("vertex {vertex} has a non-finite position")]
-    NonFinitePosition {
-        /// Vertex index.
-        vertex: usize,
-    },
-    /// More triangles or vertices than the kernels address with u32.
-    #[error("{what} count {count} exceeds the GPU backend's limit")]
-    TooLarge {
-        /// "triangle" or "vertex".
-        what: &'static str,
-        /// The count given.
-        count: usize,
-    },
+    /// The surface has a vertex index out of range, a non-finite position,
+    /// or more triangles or vertices than the kernels address with `u32`.
+    #[error(transparent)]
+    Surface(#[from] SurfaceError),
 }
 
 /// Which GPU kernel [`backend_or_cpu`] should try.

@@ -10,7 +10,7 @@ use nalgebra::{Point3, Vector3};
 use super::GpuError;
 use crate::collide::brute::{cast_line, keep_nearest};
 use crate::collide::ray::{RayTest, WatertightRay};
-use crate::collide::{Hit, NodeHits};
+use crate::collide::{Hit, NodeHits, SurfaceError, check_surface};
 
 /// Candidates kept per ray and side (the kernels' `K`).
 pub(crate) const K: usize = 8;
@@ -152,35 +152,20 @@ impl Device {
 /// Checks the surface: indices in range, positions finite, counts addressable.
 pub(crate) fn validate(triangles: &[[u32; 3]], positions: &[Point3<f64>]) -> Result<(), GpuError> {
     if triangles.len() >= (u32::MAX / 2) as usize {
-        return Err(GpuError::TooLarge {
-            what: "triangle",
+        return Err(SurfaceError::TooLarge {
+            what: "triangles",
             count: triangles.len(),
-        });
+        }
+        .into());
     }
     if positions.len() >= u32::MAX as usize {
-        return Err(GpuError::TooLarge {
-            what: "vertex",
+        return Err(SurfaceError::TooLarge {
+            what: "vertices",
             count: positions.len(),
-        });
-    }
-    for (i, tri) in triangles.iter().enumerate() {
-        for (corner, &index) in tri.iter().enumerate() {
-            if index as usize >= positions.len() {
-                return Err(GpuError::IndexOutOfRange {
-                    triangle: i,
-                    corner,
-                    index,
-                    vertices: positions.len(),
-                });
-            }
         }
+        .into());
     }
-    if let Some(vertex) = positions
-        .iter()
-        .position(|p| !p.coords.iter().all(|c| c.is_finite()))
-    {
-        return Err(GpuError::NonFinitePosition { vertex });
-    }
+    check_surface(triangles, positions)?;
     Ok(())
 }
 
