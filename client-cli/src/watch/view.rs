@@ -4,8 +4,8 @@
 
 use crate::render::frame::{CameraPreset, Caption, FrameRenderer, Plate, Scene, bounds};
 use crate::render::{Image, RenderError};
+use fissure_proto::motion::RigidFit;
 use fissure_proto::v1 as pb;
-use fissure_server::sim::motion::RigidFit;
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 
 /// What the pictures of one session need: the rest surface, the
