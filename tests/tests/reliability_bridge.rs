@@ -52,22 +52,7 @@ async fn malformed_datagrams_are_dropped_and_the_bridge_keeps_serving() -> anyho
     let mut version = above(2);
     version[4] = 2;
     let mut force = [0u8; FORCE_LEN];
-    encode_force(
-        &ForceDatagram {
-            instrument: 0,
-            status: 0,
-            sequence: 2,
-            t_s: 0.002,
-            force_n: [0.0; 3],
-            torque_nm: [0.0; 3],
-            contact_count: 0,
-            safety_flags: 0,
-            model_frame: 0,
-            model_age_s: 0.0,
-            server_compute_us: 0.0,
-        },
-        &mut force,
-    );
+    encode_force(&ForceDatagram::empty(0, 0, 2, 0.002), &mut force);
     assert_eq!(force[..4], FORCE_MAGIC);
     let mut long = above(2).to_vec();
     long.resize(MAX_DATAGRAM + 1, 0);

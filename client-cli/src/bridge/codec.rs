@@ -244,6 +244,27 @@ pub struct ForceDatagram {
     pub server_compute_us: f64,
 }
 
+impl ForceDatagram {
+    /// An answer to the pose `sequence` at `t_s` (s) that carries no force:
+    /// zero force and torque, no contact, no model (a pose not forwarded,
+    /// or one the bridge answers itself).
+    pub fn empty(instrument: u8, status: u16, sequence: u64, t_s: f64) -> Self {
+        Self {
+            instrument,
+            status,
+            sequence,
+            t_s,
+            force_n: [0.0; 3],
+            torque_nm: [0.0; 3],
+            contact_count: 0,
+            safety_flags: 0,
+            model_frame: 0,
+            model_age_s: 0.0,
+            server_compute_us: 0.0,
+        }
+    }
+}
+
 /// Encodes a binary force datagram into `out`.
 pub fn encode_force(f: &ForceDatagram, out: &mut [u8; FORCE_LEN]) {
     out.fill(0);

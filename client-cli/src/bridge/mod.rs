@@ -287,22 +287,11 @@ async fn serve(
             continue;
         }
         counters.not_forwarded.fetch_add(1, Ordering::Relaxed);
-        let f = ForceDatagram {
-            instrument: match d.instrument {
-                InstrumentRef::Index(i) => i,
-                InstrumentRef::Name(_) => index.unwrap_or(255) as u8,
-            },
-            status: Status::NotForwarded as u16,
-            sequence: d.sequence,
-            t_s: d.t_s,
-            force_n: [0.0; 3],
-            torque_nm: [0.0; 3],
-            contact_count: 0,
-            safety_flags: 0,
-            model_frame: 0,
-            model_age_s: 0.0,
-            server_compute_us: 0.0,
+        let instrument = match d.instrument {
+            InstrumentRef::Index(i) => i,
+            InstrumentRef::Name(_) => index.unwrap_or(255) as u8,
         };
+        let f = ForceDatagram::empty(instrument, Status::NotForwarded as u16, d.sequence, d.t_s);
         let name = match (index, d.instrument) {
             (Some(i), _) => lanes.name(i),
             (None, InstrumentRef::Name(n)) => n,
