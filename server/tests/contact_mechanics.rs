@@ -126,6 +126,25 @@ fn run(scene: &Scene, times: &[f64], tracks: &[Vec<Isometry3<f64>>], reference: 
     out
 }
 
+/// The bundled `v-valley-insert-left` trajectory: times (s) and poses.
+fn v_valley_insertion() -> (Vec<f64>, Vec<Isometry3<f64>>) {
+    let text = include_str!("../../client-cli/trajectories/v-valley-insert-left.csv");
+    let mut ts = Vec::new();
+    let mut track = Vec::new();
+    for line in text.lines().skip(1) {
+        let v: Vec<f64> = line
+            .split(',')
+            .map(|x| x.parse().expect("a number"))
+            .collect();
+        ts.push(v[0]);
+        track.push(Isometry3::from_parts(
+            Translation3::new(v[1], v[2], v[3]),
+            UnitQuaternion::new_normalize(Quaternion::new(v[4], v[5], v[6], v[7])),
+        ));
+    }
+    (ts, track)
+}
+
 /// Sample times `0, dt, ...` up to `end_s`.
 fn times(end_s: f64, dt_s: f64) -> Vec<f64> {
     (0..=((end_s / dt_s).round() as usize))
@@ -312,20 +331,7 @@ fn two_instruments_moving_in_opposite_directions_each_sample_equals_a_full_solve
 #[test]
 fn a_plate_held_still_in_the_v_valley_settles() {
     let (scene, _) = Scene::load("v-valley").expect("bundled scene");
-    let text = include_str!("../../client-cli/trajectories/v-valley-insert-left.csv");
-    let mut ts = Vec::new();
-    let mut track = Vec::new();
-    for line in text.lines().skip(1) {
-        let v: Vec<f64> = line
-            .split(',')
-            .map(|x| x.parse().expect("a number"))
-            .collect();
-        ts.push(v[0]);
-        track.push(Isometry3::from_parts(
-            Translation3::new(v[1], v[2], v[3]),
-            UnitQuaternion::new_normalize(Quaternion::new(v[4], v[5], v[6], v[7])),
-        ));
-    }
+    let (ts, track) = v_valley_insertion();
     // The hold: the last stretch with the pose unchanged.
     let last = *track.last().expect("poses");
     let hold_from = ts[track
@@ -379,20 +385,7 @@ fn a_plate_held_still_in_the_v_valley_settles() {
 #[test]
 fn every_sample_of_the_v_valley_insertion_equals_a_full_solve() {
     let (scene, _) = Scene::load("v-valley").expect("bundled scene");
-    let text = include_str!("../../client-cli/trajectories/v-valley-insert-left.csv");
-    let mut ts = Vec::new();
-    let mut track = Vec::new();
-    for line in text.lines().skip(1) {
-        let v: Vec<f64> = line
-            .split(',')
-            .map(|x| x.parse().expect("a number"))
-            .collect();
-        ts.push(v[0]);
-        track.push(Isometry3::from_parts(
-            Translation3::new(v[1], v[2], v[3]),
-            UnitQuaternion::new_normalize(Quaternion::new(v[4], v[5], v[6], v[7])),
-        ));
-    }
+    let (ts, track) = v_valley_insertion();
     let r = run(&scene, &ts, &[track], true);
     let peak = r.full.iter().map(|f| f[0].norm()).fold(0.0, f64::max);
     assert!(peak > 0.05, "the plate meets the walls: peak {peak} N");
