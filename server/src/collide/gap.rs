@@ -297,6 +297,8 @@ fn edges(
             };
             c += 1;
         }
+        // Read by every clipping of this tool (see [`clip_triangle`]).
+        let claims = facing_only.then_some((&ws.covered[..], &ws.claimed[..]));
         let inst = tool.instrument;
         let flat = inst.plate.bend_radius.is_none();
         let first_edge = out.edges.len();
@@ -332,7 +334,7 @@ fn edges(
                     p.triangle,
                     band,
                     &mut ws.clipped,
-                    facing_only.then_some((&ws.covered[..], &ws.claimed[..])),
+                    claims,
                     stamp,
                     out,
                 );
@@ -351,7 +353,7 @@ fn edges(
                                 t,
                                 band,
                                 &mut ws.clipped,
-                                facing_only.then_some((&ws.covered[..], &ws.claimed[..])),
+                                claims,
                                 stamp,
                                 out,
                             );
@@ -412,7 +414,7 @@ fn edges(
                             t,
                             band,
                             &mut ws.clipped,
-                            facing_only.then_some((&ws.covered[..], &ws.claimed[..])),
+                            claims,
                             stamp,
                             out,
                         );
@@ -439,7 +441,7 @@ fn edges(
                         t,
                         band,
                         &mut ws.clipped,
-                        facing_only.then_some((&ws.covered[..], &ws.claimed[..])),
+                        claims,
                         stamp,
                         out,
                     );

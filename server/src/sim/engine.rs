@@ -1099,7 +1099,13 @@ impl StepEngine {
                     .expect("surface checked at load"),
             ),
         );
-        let bvhs = SurfaceBvhs::new(scene, &model);
+        // A linearized contact searches the model's rest tree: no tree is
+        // published, nor refitted.
+        let bvhs = if model.contact_rest.is_none() {
+            SurfaceBvhs::new(scene, &model)
+        } else {
+            None
+        };
         let paper_history = (0..model.instruments.len())
             .map(|i| model.new_history(i))
             .collect();
@@ -1334,12 +1340,8 @@ impl StepEngine {
             surface.push(model.rest_surface[s] + displacements[v as usize]);
         }
         let surface = Arc::new(surface);
-        // A linearized contact searches the rest tree: nothing to refit.
-        let surface_bvh = if model.contact_rest.is_none() {
-            tracing::debug_span!("refit").in_scope(|| self.bvhs.as_mut().map(|b| b.fit(&surface)))
-        } else {
-            None
-        };
+        let surface_bvh =
+            tracing::debug_span!("refit").in_scope(|| self.bvhs.as_mut().map(|b| b.fit(&surface)));
         let mut patch_nodes: Vec<u32> = self
             .rows
             .iter()
