@@ -154,6 +154,18 @@ impl CompliancePatch {
         let m3 = 3 * self.nodes.len();
         Matrix3::from_fn(|a, b| self.blocks[(3 * i + a) * m3 + 3 * j + b])
     }
+
+    /// `C[i][j] v` (m/N times N: m), read straight from the blocks (the
+    /// force loop's inner product; no `3 x 3` copy).
+    #[inline]
+    pub fn block_mul(&self, i: usize, j: usize, v: &Vector3<f64>) -> Vector3<f64> {
+        let m3 = 3 * self.nodes.len();
+        let row = |a: usize| {
+            let r = &self.blocks[(3 * i + a) * m3 + 3 * j..(3 * i + a) * m3 + 3 * j + 3];
+            r[0] * v.x + r[1] * v.y + r[2] * v.z
+        };
+        Vector3::new(row(0), row(1), row(2))
+    }
 }
 
 /// Checks rows for finiteness and unit directions; friction is refused

@@ -23,9 +23,13 @@
 //! dropped.
 //!
 //! A haptic client that stops reading its force samples is not served
-//! forever into a growing queue: after [`MAX_UNREAD_ANSWERS`] answers it has
-//! not read, its stream ends with `RESOURCE_EXHAUSTED` (after the answers
-//! already queued) and the instrument is released; the server logs it. Its
+//! forever into a growing queue: once [`MAX_UNREAD_ANSWERS`] answers wait
+//! unread, the stream's force loop waits for the client to take one (its
+//! poses meanwhile wait in HTTP/2 flow control: a client reading slower
+//! than it sends is paced, not dropped), and when the queue has stayed full
+//! for [`UNREAD_GRACE`] its stream ends with `RESOURCE_EXHAUSTED` (after
+//! the answers already queued) and the instrument is released; the server
+//! logs it. Its
 //! connection and the other streams on it keep working: the stream's pose
 //! reader keeps reading until then, and each stream's receive window is
 //! [`STREAM_RECEIVE_WINDOW_BYTES`], so that poses queued in the HTTP/2 layer
@@ -71,6 +75,12 @@ pub const MAX_ENCODING_MESSAGE_BYTES: usize = 16 * 1024 * 1024;
 /// reading at 1 kHz). A client that pipelines its poses has a round trip's
 /// worth unread at any time (tens at 1 kHz), far below it.
 pub const MAX_UNREAD_ANSWERS: usize = 1024;
+
+/// How long a haptic stream's full answer queue may stay full before its
+/// client is taken to have stopped reading. A flooding client (10 kHz)
+/// fills the queue in a tenth of a second: one whose reader is merely held
+/// up for that long on a loaded machine must not lose its stream.
+pub const UNREAD_GRACE: Duration = Duration::from_millis(500);
 
 /// HTTP/2 receive window of each stream, bytes: the poses a stream's reader
 /// has not taken yet that the HTTP/2 layer holds (about 700 poses). hyper's
@@ -207,16 +217,28 @@ fn instrument_name(metadata: &MetadataMap) -> Result<String, Status> {
         .map_err(|_| Status::invalid_argument(format!("`{INSTRUMENT_METADATA_KEY}` is not ASCII")))
 }
 
-/// Queues one answer of a haptic stream; false when the stream is over: the
-/// client went away, or it left [`MAX_UNREAD_ANSWERS`] answers unread (then
-/// the last slot of the queue, kept for it, carries the status saying so).
+/// Queues one answer of a haptic stream (on the stream's force-loop
+/// thread, which waits while the queue is full); false when the stream is
+/// over: the client went away, or it left [`MAX_UNREAD_ANSWERS`] answers
+/// unread for [`UNREAD_GRACE`] (then the last slot of the queue, kept for
+/// it, carries the status saying so).
 fn answer(
     tx: &tokio::sync::mpsc::Sender<Result<pb::ForceSample, Status>>,
     reply: pb::ForceSample,
     instrument: &str,
 ) -> bool {
-    if tx.capacity() > 1 {
-        return tx.try_send(Ok(reply)).is_ok();
+    let full_since = std::time::Instant::now();
+    loop {
+        if tx.is_closed() {
+            return false;
+        }
+        if tx.capacity() > 1 {
+            return tx.try_send(Ok(reply)).is_ok();
+        }
+        if full_since.elapsed() >= UNREAD_GRACE {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(1));
     }
     tracing::warn!(
         %instrument,

@@ -19,7 +19,8 @@
 //! of the working set: a row that is still there with the same direction
 //! (within [`DIRECTION_TOLERANCE`]) keeps its row of `W`; a new row, or one
 //! whose direction turned farther, or a point row whose weights moved
-//! farther, gets its row computed (one `3 x 3` block per slot) and leaves
+//! farther, gets its row computed (one `3 x 3` block product per node of
+//! the sample and node of the row, then a dot product per slot) and leaves
 //! the factor; a row gone leaves it. A sample
 //! with an unchanged contact set costs one pair of triangular solves. The
 //! gaps always use the rows' exact directions; only `W` may lag the
@@ -147,6 +148,15 @@ pub struct ForceSolver {
     done: Vec<bool>,
     in_use: Vec<bool>,
     stamp: u32,
+    /// Per patch node: the stamp of the sample that listed it, and its
+    /// index in `sample_nodes`.
+    node_stamp: Vec<u32>,
+    node_local: Vec<u32>,
+    /// The patch nodes of this sample's rows, each once.
+    sample_nodes: Vec<u32>,
+    /// `e[k] = sum_a w_a C[k][node_a] d` of the row being computed, over
+    /// `sample_nodes` (m/N times unit: m/N).
+    e: Vec<Vector3<f64>>,
     lcp: ContactSolver,
 }
 
@@ -211,23 +221,30 @@ impl ForceSolver {
         s as u32
     }
 
-    /// `W` between slots `a` and `b`: `d_a^T (sum w_a w_b C[i][j]) d_b`.
-    fn coupling(&self, model: &ForceModel, a: usize, b: usize) -> f64 {
-        let mut v = 0.0;
-        for (&pa, &wa) in self.slot_patch[a].iter().zip(&self.slot_w[a]) {
-            if pa == NONE {
+    /// Lists the patch nodes of the slots seen at `stamp` into
+    /// `sample_nodes` (each once; `node_local` their index), for a patch of
+    /// `patch_nodes` nodes, and sizes `e` to them.
+    fn list_sample_nodes(&mut self, patch_nodes: usize, stamp: u32) {
+        if self.node_stamp.len() < patch_nodes {
+            self.node_stamp.resize(patch_nodes, 0);
+            self.node_local.resize(patch_nodes, 0);
+        }
+        self.sample_nodes.clear();
+        for s in 0..self.n {
+            if self.slot_seen[s] != stamp {
                 continue;
             }
-            let mut cb = Vector3::zeros();
-            for (&pb, &wb) in self.slot_patch[b].iter().zip(&self.slot_w[b]) {
-                if pb == NONE {
-                    continue;
+            for &p in &self.slot_patch[s] {
+                if p != NONE && self.node_stamp[p as usize] != stamp {
+                    self.node_stamp[p as usize] = stamp;
+                    self.node_local[p as usize] = self.sample_nodes.len() as u32;
+                    self.sample_nodes.push(p);
                 }
-                cb += model.patch.block(pa as usize, pb as usize) * (self.slot_dir[b] * wb);
             }
-            v += wa * self.slot_dir[a].dot(&cb);
         }
-        v
+        if self.e.len() < self.sample_nodes.len() {
+            self.e.resize(self.sample_nodes.len(), Vector3::zeros());
+        }
     }
 
     /// Solves the contact problem of `rows` on `model` into `answer`.
@@ -240,7 +257,13 @@ impl ForceSolver {
         if self.frame != Some(model.frame) {
             self.reset(model.frame);
         }
-        self.stamp = self.stamp.wrapping_add(1).max(1);
+        self.stamp = self.stamp.wrapping_add(1);
+        if self.stamp == 0 {
+            // Wrapped: no old stamp may equal a new one.
+            self.slot_seen.fill(0);
+            self.node_stamp.fill(0);
+            self.stamp = 1;
+        }
         let stamp = self.stamp;
         self.dirty.clear();
         self.row_slot.clear();
@@ -321,20 +344,44 @@ impl ForceSolver {
                 self.free_slots.push(s as u32);
             }
         }
-        // Rows of W of the new and turned rows.
+        // Rows of W of the new and turned rows: `W_ds = d_d^T (sum_ab w_a
+        // w_b C[a][b]) d_s`, through the node vectors `e_d[k] = sum_a w_a
+        // C[k][a] d_d` over the sample's nodes (one pass of `3 x 3` blocks
+        // per node instead of one per node pair of every row pair: rows
+        // share their nodes, a vertex's row with the points on its
+        // triangles).
         let (n, cap) = (self.n, self.cap);
         for &d in &self.dirty {
             self.lcp.changed(d as usize);
         }
+        if !self.dirty.is_empty() {
+            self.list_sample_nodes(model.patch.nodes.len(), stamp);
+        }
         for di in 0..self.dirty.len() {
             let d = self.dirty[di] as usize;
+            let dir = self.slot_dir[d];
+            for (k, &pk) in self.sample_nodes.iter().enumerate() {
+                let mut v = Vector3::zeros();
+                for (&pa, &wa) in self.slot_patch[d].iter().zip(&self.slot_w[d]) {
+                    if pa != NONE {
+                        v += model.patch.block_mul(pk as usize, pa as usize, &(dir * wa));
+                    }
+                }
+                self.e[k] = v;
+            }
             for s in 0..n {
                 // Skip slots not in this sample, and pairs with a dirty
                 // slot done before (computed once: W stays symmetric).
                 if self.slot_seen[s] != stamp || (self.is_dirty[s] && self.done[s]) {
                     continue;
                 }
-                let v = self.coupling(model, d, s);
+                let mut v = 0.0;
+                for (&pb, &wb) in self.slot_patch[s].iter().zip(&self.slot_w[s]) {
+                    if pb != NONE {
+                        v += wb
+                            * self.slot_dir[s].dot(&self.e[self.node_local[pb as usize] as usize]);
+                    }
+                }
                 self.w[d * cap + s] = v;
                 self.w[s * cap + d] = v;
             }
