@@ -88,6 +88,7 @@ fn gpu_scene_gives_the_cpu_scenes_contacts() {
             &model,
             &a,
             &FreePositions::Rest(&model.mesh.nodes),
+            &[],
             &Anchors::default(),
             &[pose],
             &mut rows,

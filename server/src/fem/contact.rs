@@ -208,11 +208,16 @@ pub fn validate_rows(
                     "Coulomb friction needs the compliance strategy".into(),
                 ));
             }
-            if rows.get(normal as usize).is_none_or(|n| n.node != r.node) {
+            // A point row's tangent rows hold the anchored tissue point,
+            // which need not be the normal row's point (rows::Anchor).
+            if rows
+                .get(normal as usize)
+                .is_none_or(|n| n.kind != RowKind::Unilateral)
+            {
                 return Err(SolveError::BadConstraint {
                     node: r.node,
                     reason: format!(
-                        "contact row {i}: tangent of row {normal}, which is not a row of the same node"
+                        "contact row {i}: tangent of row {normal}, which is not a unilateral row"
                     ),
                 });
             }

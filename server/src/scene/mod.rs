@@ -375,8 +375,8 @@ impl ContactLaw {
 #[derive(Debug, Clone, Copy, Default, Deserialize, PartialEq, Eq)]
 #[serde(rename_all = "kebab-case")]
 pub enum ContactGeometry {
-    /// `rest` for the linear strategies with a Signorini law, `deformed`
-    /// otherwise (the default).
+    /// `rest` for the linear strategies with frictionless contact,
+    /// `deformed` otherwise (the default).
     #[default]
     Auto,
     /// Linearized contact: candidates, pairs and polygon points from the
@@ -563,8 +563,10 @@ pub struct SphereSpec {
 
 impl Scene {
     /// The contact geometry the scene runs: `contact.geometry`, with `auto`
-    /// resolved (rest for `direct` and `compliance` under a Signorini law,
-    /// deformed otherwise).
+    /// resolved (rest for `direct` and `compliance` with frictionless
+    /// contact, deformed otherwise: friction drags the tissue along the
+    /// plate, millimetres on a slide, and which tissue the plate covers
+    /// must then be found on the dragged shape, not the rest one).
     pub fn contact_geometry(&self) -> ContactGeometry {
         match self.contact.geometry {
             ContactGeometry::Auto => {
@@ -572,7 +574,7 @@ impl Scene {
                     self.solver.strategy,
                     Strategy::Direct | Strategy::Compliance
                 );
-                if linear && self.contact.law != ContactLaw::Paper {
+                if linear && self.contact.law == ContactLaw::Frictionless {
                     ContactGeometry::Rest
                 } else {
                     ContactGeometry::Deformed
@@ -773,11 +775,20 @@ impl Scene {
                     ),
                 ));
             }
-            if self.contact.law == ContactLaw::Paper {
-                return Err(bad(
-                    "contact.geometry".into(),
-                    "the paper's rule projects onto the deformed surface; \"rest\" needs law = \"frictionless\" or \"coulomb\"".into(),
-                ));
+            match self.contact.law {
+                ContactLaw::Paper => {
+                    return Err(bad(
+                        "contact.geometry".into(),
+                        "the paper's rule projects onto the deformed surface; \"rest\" needs law = \"frictionless\"".into(),
+                    ));
+                }
+                ContactLaw::Coulomb => {
+                    return Err(bad(
+                        "contact.geometry".into(),
+                        "friction drags the tissue along the plate (millimetres on a slide), so which tissue the plate covers must be found on the dragged shape; \"rest\" needs law = \"frictionless\" (use \"deformed\")".into(),
+                    ));
+                }
+                ContactLaw::Frictionless => {}
             }
         }
         match (self.contact.law, self.contact.friction_coefficient) {
@@ -927,9 +938,9 @@ mod tests {
     use super::*;
 
     /// The contact geometry: `auto` is the rest shape for the linear
-    /// strategies and the deformed one otherwise; `rest` with a
-    /// large-deformation strategy or the paper's rule is refused, naming
-    /// the field.
+    /// strategies with frictionless contact and the deformed one otherwise;
+    /// `rest` with a large-deformation strategy, with friction or with the
+    /// paper's rule is refused, naming the field.
     #[test]
     fn the_contact_geometry_follows_the_strategy_and_rest_is_refused_where_it_does_not_hold() {
         let cube = include_str!("../../scenes/cube.toml");
@@ -957,9 +968,20 @@ mod tests {
             geometry("compliance", "geometry = \"deformed\""),
             Ok(ContactGeometry::Deformed)
         );
+        assert_eq!(
+            geometry(
+                "compliance",
+                "law = \"coulomb\"\nfriction_coefficient = 0.3"
+            ),
+            Ok(ContactGeometry::Deformed)
+        );
         for (strategy, contact) in [
             ("neo-hookean", "geometry = \"rest\""),
             ("compliance", "law = \"paper\"\ngeometry = \"rest\""),
+            (
+                "compliance",
+                "law = \"coulomb\"\nfriction_coefficient = 0.3\ngeometry = \"rest\"",
+            ),
         ] {
             let err = geometry(strategy, contact).unwrap_err();
             assert!(err.contains("contact.geometry"), "{strategy}: {err}");

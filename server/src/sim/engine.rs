@@ -753,12 +753,16 @@ impl RowRule {
     }
 
     /// The rows of a query's output for `owner`'s pose `pose_of(owner)`,
-    /// with the free positions `free` and the frictional anchors.
+    /// with the free positions `free`, the last solve's displacements `now`
+    /// (m; where a new frictional contact anchors) and the frictional
+    /// anchors.
+    #[allow(clippy::too_many_arguments)]
     pub fn rows(
         &self,
         model: &Model,
         out: &ContactOutput,
         free: &FreePositions<'_>,
+        now: &[Vector3<f64>],
         anchors: &Anchors,
         poses: &[Isometry3<f64>],
         dst: &mut Vec<Row>,
@@ -771,13 +775,23 @@ impl RowRule {
                 rows::from_candidates(
                     &out.candidates,
                     free,
+                    now,
                     self.friction,
                     anchors,
                     poses,
                     &model.fixed_mask,
                     dst,
                 );
-                rows::from_edges(&out.edges, free, &model.fixed_mask, dst);
+                rows::from_edges(
+                    &out.edges,
+                    free,
+                    now,
+                    self.friction,
+                    anchors,
+                    poses,
+                    &model.fixed_mask,
+                    dst,
+                );
             }
         }
     }
@@ -1207,6 +1221,7 @@ impl StepEngine {
             &model,
             contacts,
             &FreePositions::Rest(&model.mesh.nodes),
+            &prev.displacements,
             &self.anchors,
             poses,
             &mut self.rows,
@@ -1366,6 +1381,7 @@ impl StepEngine {
                 &model,
                 post,
                 &FreePositions::Rest(&model.mesh.nodes),
+                &prev.displacements,
                 &self.anchors,
                 poses,
                 &mut post_rows,
@@ -1482,7 +1498,7 @@ impl StepEngine {
         let free = FreePositions::Rest(&model.mesh.nodes);
         let mut post = Vec::new();
         self.rule
-            .rows(model, found, &free, &self.anchors, poses, &mut post);
+            .rows(model, found, &free, u, &self.anchors, poses, &mut post);
         let old = &self.rows[..*n_instrument_rows];
         let by_key: std::collections::HashMap<u64, usize> =
             old.iter().enumerate().map(|(i, r)| (r.key, i)).collect();
@@ -1544,8 +1560,7 @@ impl StepEngine {
             if r.row.kind != RowKind::Unilateral || self.lambda[i] <= 0.0 {
                 continue;
             }
-            let (owner, node) = (r.owner, r.row.node);
-            let Some(pose) = poses.get(owner as usize) else {
+            let Some(pose) = poses.get(r.owner as usize) else {
                 continue;
             };
             let mu = self.rule.friction.unwrap_or(0.0);
@@ -1557,15 +1572,33 @@ impl StepEngine {
                 .sum::<f64>()
                 .sqrt();
             let slipping = lt >= mu * self.lambda[i] * (1.0 - 1e-6);
-            keep.insert((owner, node));
-            if slipping || self.anchors.get(owner, node).is_none() {
-                // Where the vertex is now, on the face plane.
-                let x = model.mesh.nodes[node as usize] + u[node as usize];
+            keep.insert(r.key);
+            if slipping || self.anchors.get(r.key).is_none() {
+                // Where the tissue point is now, on the face plane: a
+                // vertex, or a point row's own point of its triangle.
+                let (x, weights) = if rows::is_point_key(r.key) {
+                    let (nodes, w) = r.triangle;
+                    let x = (0..3).fold(Vector3::zeros(), |x, a| {
+                        let n = nodes[a] as usize;
+                        x + (model.mesh.nodes[n].coords + u[n]) * w[a]
+                    });
+                    (Point3::from(x), w)
+                } else {
+                    let n = r.row.node as usize;
+                    (model.mesh.nodes[n] + u[n], [1.0, 0.0, 0.0])
+                };
                 let on_face = x - r.row.dir * r.row.dir.dot(&(x - r.point));
-                self.anchors.set(owner, node, pose.inverse() * on_face);
+                self.anchors.set(
+                    r.key,
+                    rows::Anchor {
+                        at: pose.inverse() * on_face,
+                        weights,
+                    },
+                );
             }
         }
-        self.anchors.retain(|i, n| keep.contains(&(i, n)));
+        self.anchors.retain(|k| keep.contains(&k));
+        self.anchors.set_poses(poses);
     }
 
     #[allow(clippy::too_many_arguments)]

@@ -139,8 +139,15 @@ impl ForceLoop {
         self.poses.clear();
         self.poses.resize(self.index + 1, *pose);
         self.rows.clear();
-        self.rule
-            .rows(model, out, &free, &fm.anchors, &self.poses, &mut self.rows);
+        self.rule.rows(
+            model,
+            out,
+            &free,
+            &snap.displacements,
+            &fm.anchors,
+            &self.poses,
+            &mut self.rows,
+        );
         self.contact_count = out.contact_vertices() as u32;
         self.contact_count
     }

@@ -17,16 +17,19 @@
 //! [`ForceSolver`] keeps, from one sample to the next of one frame, the
 //! rows it has seen in slots of a dense `W` and the solver's Cholesky factor
 //! of the working set: a row that is still there with the same direction
-//! (within [`DIRECTION_TOLERANCE`]) keeps its row of `W`; a new row, or one
-//! whose direction turned farther, or a point row whose weights moved
-//! farther, gets its row computed (one `3 x 3` block product per node of
-//! the sample and node of the row, then a dot product per slot) and leaves
-//! the factor; a row gone leaves it. A sample
-//! with an unchanged contact set costs one pair of triangular solves. The
-//! gaps always use the rows' exact directions; only `W` may lag the
-//! rotation of a plate, or a polygon point's slide on its triangle, by up
-//! to [`DIRECTION_TOLERANCE`]: an error of that order on the coupling terms
-//! of `W`, amplified where rows nearly depend on each other. Rows whose node has no
+//! (within [`DIRECTION_TOLERANCE`]) and the same weights keeps its row of
+//! `W`; a new row, one whose direction turned farther, or a point row whose
+//! weights changed at all (a polygon point that slid on its triangle), gets
+//! its row computed (one `3 x 3` block product per node of the sample and
+//! node of the row, then a dot product per slot) and leaves the factor; a
+//! row gone leaves it. A sample with an unchanged contact set costs one pair
+//! of triangular solves. The gaps always use the rows' exact directions;
+//! only `W` may lag the rotation of a plate by up to
+//! [`DIRECTION_TOLERANCE`]: an error of that order on the coupling terms of
+//! `W`, amplified where rows nearly depend on each other. (A point's weights
+//! get no such tolerance: rows on one triangle nearly depend on each other,
+//! and a 1e-3 lag in the weights moved the V block insertion's samples by
+//! 2.1% of the peak.) Rows whose node has no
 //! compliance in the patch are reported ([`SampleAnswer::pending`]); the
 //! caller answers them with a penalty and a flag.
 
@@ -291,18 +294,10 @@ impl ForceSolver {
                 Some(&s) => {
                     let su = s as usize;
                     let turned = (self.slot_dir[su] - r.row.dir).norm() > DIRECTION_TOLERANCE;
-                    // A point that slid on its triangle by more than the
-                    // tolerance gets its row again. Rows on one triangle
-                    // nearly depend on each other, so the lag moves the
-                    // answer by more than its size (2.1% of the peak on
-                    // the V block's insertion); recomputing at every
-                    // change made a 10 kHz flood's samples too slow for
-                    // the other client.
+                    // A point that slid on its triangle gets its row again
+                    // (module documentation).
                     let moved = self.slot_patch[su] != p
-                        || self.slot_w[su]
-                            .iter()
-                            .zip(&w)
-                            .any(|(a, b)| (a - b).abs() > DIRECTION_TOLERANCE);
+                        || self.slot_w[su].iter().zip(&w).any(|(a, b)| a != b);
                     if turned || moved {
                         self.slot_dir[su] = r.row.dir;
                         self.slot_patch[su] = p;

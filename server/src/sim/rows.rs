@@ -12,8 +12,11 @@
 //!   tangent rows follow (an orthonormal pair `t1, t2` perpendicular to `n`)
 //!   whose gap is the slip from the contact's anchor `a` (the point of the
 //!   plate the vertex stuck to, kept in the instrument frame, [`Anchors`]):
-//!   `g_t = t . (x_free_v - a) + t . u_v`. A new contact's anchor is its
-//!   face point.
+//!   `g_t = t . (x_free_v - a) + t . u_v`. A new contact anchors where the
+//!   last solve left its tissue point, carried with the plate since then
+//!   (it moves with the plate as its neighbours do). A polygon point's
+//!   tangent rows hold the tissue point it anchored (its weights kept in
+//!   the [`Anchor`]), since the outline slides over the tissue.
 //! * **Paper**: each enforced displacement `U` of node `v` gives three
 //!   bilateral rows along the axes with `g = u_a - U_a`.
 //!
@@ -77,6 +80,14 @@ pub enum FreePositions<'a> {
 }
 
 impl FreePositions<'_> {
+    /// The rest positions, by volume node, m.
+    pub fn rest(&self) -> &[Point3<f64>] {
+        match self {
+            FreePositions::Rest(r) => r,
+            FreePositions::Tangent { rest, .. } => rest,
+        }
+    }
+
     /// The free position of volume node `v`, m.
     pub fn of(&self, v: u32) -> Point3<f64> {
         match self {
@@ -93,36 +104,77 @@ impl FreePositions<'_> {
     }
 }
 
-/// The stick points of frictional contacts, in the instrument frame, by
-/// (instrument, volume node).
+/// Where a frictional contact sticks: the point of the instrument the tissue
+/// point stuck to (instrument frame, m), and which tissue point (barycentric
+/// weights on the row's triangle; `[1, 0, 0]` for a vertex's row).
+///
+/// A point row's tissue point is where the face's outline crosses a
+/// triangle, and it moves over the tissue as the plate moves; its tangent
+/// rows hold the anchored tissue point instead (the weights kept here), so
+/// a sticking contact drags the same tissue along.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Anchor {
+    /// Instrument frame, m.
+    pub at: Point3<f64>,
+    /// Of the tissue point on the row's triangle (a vertex: `[1, 0, 0]`).
+    pub weights: [f64; 3],
+}
+
+/// The stick points of frictional contacts, by the key of their normal row,
+/// and the instruments' poses of the solve that set them.
 #[derive(Debug, Clone, Default, PartialEq)]
-pub struct Anchors(HashMap<(u16, u32), Point3<f64>>);
+pub struct Anchors {
+    by_key: HashMap<u64, Anchor>,
+    poses: Vec<Isometry3<f64>>,
+}
 
 impl Anchors {
-    /// The anchor of `node` on `instrument`, instrument frame.
-    pub fn get(&self, instrument: u16, node: u32) -> Option<Point3<f64>> {
-        self.0.get(&(instrument, node)).copied()
+    /// The anchor of the contact whose normal row has key `key`.
+    pub fn get(&self, key: u64) -> Option<Anchor> {
+        self.by_key.get(&key).copied()
     }
 
     /// Sets an anchor.
-    pub fn set(&mut self, instrument: u16, node: u32, at: Point3<f64>) {
-        self.0.insert((instrument, node), at);
+    pub fn set(&mut self, key: u64, anchor: Anchor) {
+        self.by_key.insert(key, anchor);
     }
 
-    /// Keeps only the anchors `keep` says yes to.
-    pub fn retain(&mut self, mut keep: impl FnMut(u16, u32) -> bool) {
-        self.0.retain(|&(i, n), _| keep(i, n));
+    /// Keeps only the anchors whose key `keep` says yes to.
+    pub fn retain(&mut self, mut keep: impl FnMut(u64) -> bool) {
+        self.by_key.retain(|&k, _| keep(k));
+    }
+
+    /// Records the instruments' poses of the solve that set the anchors.
+    pub fn set_poses(&mut self, poses: &[Isometry3<f64>]) {
+        self.poses.clear();
+        self.poses.extend_from_slice(poses);
+    }
+
+    /// Where a tissue point `x` (scene frame, m) at the anchoring solve is
+    /// once instrument `instrument` has moved from that solve's pose to
+    /// `pose`, carried rigidly with it (`x` itself before any solve).
+    pub fn carried(&self, instrument: u16, x: Point3<f64>, pose: &Isometry3<f64>) -> Point3<f64> {
+        match self.poses.get(instrument as usize) {
+            Some(then) => pose * (then.inverse() * x),
+            None => x,
+        }
     }
 
     /// Number of anchors.
     pub fn len(&self) -> usize {
-        self.0.len()
+        self.by_key.len()
     }
 
     /// No anchors.
     pub fn is_empty(&self) -> bool {
-        self.0.is_empty()
+        self.by_key.is_empty()
     }
+}
+
+/// The key of tangent row `component` (1 or 2) of a point row of key
+/// `normal_key` (bits 62-63; a triangle index stays below 2^30).
+pub fn tangent_key(normal_key: u64, component: u32) -> u64 {
+    normal_key | (u64::from(component & 3) << 62)
 }
 
 /// An orthonormal tangent pair of unit `n` (deterministic: `t1` is
@@ -140,12 +192,35 @@ pub fn tangents(n: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
     (t1, n.cross(&t1))
 }
 
+/// Where a new frictional contact of `instrument` at pose `pose` anchors:
+/// the tissue point `x_now` where the last solve left it (m), carried with
+/// the instrument since that solve ([`Anchors::carried`]: the contact is
+/// taken to have touched then), on the face's plane through `p` with unit
+/// normal `n`. Sticking from there moves the tissue with the plate, as its
+/// neighbours that were already in contact; anchoring where the tissue is
+/// would hold it still against the plate's motion (a friction opposite to
+/// theirs).
+fn touch_point(
+    anchors: &Anchors,
+    instrument: u16,
+    pose: Option<&Isometry3<f64>>,
+    x_now: Point3<f64>,
+    n: &Vector3<f64>,
+    p: &Point3<f64>,
+) -> Point3<f64> {
+    let x = pose.map_or(x_now, |pose| anchors.carried(instrument, x_now, pose));
+    x - n * n.dot(&(x - p))
+}
+
 /// Rows of the Signorini rule from `candidates` (module documentation):
-/// `friction` is the Coulomb coefficient, `poses` the instruments' poses
-/// (for the anchors), `fixed` the fixed volume nodes. Appends to `out`.
+/// `now` the displacements of the last solve (m, for new anchors),
+/// `friction` the Coulomb coefficient, `poses` the instruments' poses (for
+/// the anchors), `fixed` the fixed volume nodes. Appends to `out`.
+#[allow(clippy::too_many_arguments)]
 pub fn from_candidates(
     candidates: &[Candidate],
     free: &FreePositions<'_>,
+    now: &[Vector3<f64>],
     friction: Option<f64>,
     anchors: &Anchors,
     poses: &[Isometry3<f64>],
@@ -173,9 +248,20 @@ pub fn from_candidates(
         });
         if let Some(mu) = friction {
             let anchor = anchors
-                .get(c.instrument, c.volume_node)
-                .and_then(|a| poses.get(c.instrument as usize).map(|p| p * a))
-                .unwrap_or(c.point);
+                .get(key(c.volume_node, c.instrument, face, 0))
+                .and_then(|a| poses.get(c.instrument as usize).map(|p| p * a.at))
+                .unwrap_or_else(|| {
+                    let v = c.volume_node as usize;
+                    let x_now = free.rest()[v] + now.get(v).copied().unwrap_or_default();
+                    touch_point(
+                        anchors,
+                        c.instrument,
+                        poses.get(c.instrument as usize),
+                        x_now,
+                        &c.normal,
+                        &c.point,
+                    )
+                });
             let (t1, t2) = tangents(&c.normal);
             for (comp, t) in [(1u32, t1), (2u32, t2)] {
                 out.push(Row {
@@ -202,30 +288,46 @@ pub fn from_candidates(
 /// of ([`EdgeCandidate`]): a unilateral row on the tissue point, shared out
 /// over the triangle's nodes by its barycentric weights, with the free gap
 /// `n . (sum_a w_a x_free_a - p)` (`p` the plate point). Fixed nodes drop
-/// out of the row (they do not move). Frictionless (no tangent rows).
-/// Appends to `out`.
+/// out of the row (they do not move). With `friction` (the Coulomb
+/// coefficient), two tangent rows on the anchored tissue point ([`Anchor`];
+/// a new contact anchors the row's own tissue point where the last solve
+/// left it, `now` those displacements, m), gap `t . (sum_a w0_a x_free_a -
+/// pose * anchor)`. Appends to `out`.
+#[allow(clippy::too_many_arguments)]
 pub fn from_edges(
     edges: &[EdgeCandidate],
     free: &FreePositions<'_>,
+    now: &[Vector3<f64>],
+    friction: Option<f64>,
+    anchors: &Anchors,
+    poses: &[Isometry3<f64>],
     fixed: &[bool],
     out: &mut Vec<Row>,
 ) {
-    for e in edges {
-        let mut x = nalgebra::Vector3::zeros();
-        let mut nodes = [u32::MAX; 3];
+    // The row's nodes and weights without the fixed nodes, and the free
+    // tissue point, for weights `w` on the triangle's nodes.
+    let on = |nodes: &[u32; 3], w: &[f64; 3]| {
+        let mut x = Vector3::zeros();
+        let mut kept = [u32::MAX; 3];
         let mut weights = [0.0; 3];
         for a in 0..3 {
-            x += free.of(e.nodes[a]).coords * e.weights[a];
-            if !fixed.get(e.nodes[a] as usize).copied().unwrap_or(true) {
-                nodes[a] = e.nodes[a];
-                weights[a] = e.weights[a];
+            x += free.of(nodes[a]).coords * w[a];
+            if !fixed.get(nodes[a] as usize).copied().unwrap_or(true) {
+                kept[a] = nodes[a];
+                weights[a] = w[a];
             }
         }
+        (x, kept, weights)
+    };
+    for e in edges {
+        let (x, nodes, weights) = on(&e.nodes, &e.weights);
         if !weights.iter().any(|&w| w > 0.0) {
             continue;
         }
+        let normal_key = key(e.triangle, e.instrument, face_code(e.face), 64 + e.feature);
+        let normal_index = out.len() as u32;
         out.push(Row {
-            key: key(e.triangle, e.instrument, face_code(e.face), 64 + e.feature),
+            key: normal_key,
             owner: e.instrument,
             row: ContactRow::at_point(
                 nodes,
@@ -237,6 +339,57 @@ pub fn from_edges(
             point: e.point,
             triangle: (e.nodes, e.weights),
         });
+        let Some(mu) = friction else {
+            continue;
+        };
+        let (w0, anchor) = anchors
+            .get(normal_key)
+            .and_then(|a| {
+                poses
+                    .get(e.instrument as usize)
+                    .map(|p| (a.weights, p * a.at))
+            })
+            .unwrap_or_else(|| {
+                let x_now = (0..3).fold(Vector3::zeros(), |x, a| {
+                    let v = e.nodes[a] as usize;
+                    x + (free.rest()[v].coords + now.get(v).copied().unwrap_or_default())
+                        * e.weights[a]
+                });
+                (
+                    e.weights,
+                    touch_point(
+                        anchors,
+                        e.instrument,
+                        poses.get(e.instrument as usize),
+                        Point3::from(x_now),
+                        &e.normal,
+                        &e.point,
+                    ),
+                )
+            });
+        let (x0, nodes0, weights0) = on(&e.nodes, &w0);
+        if !weights0.iter().any(|&w| w > 0.0) {
+            continue;
+        }
+        let (t1, t2) = tangents(&e.normal);
+        for (comp, t) in [(1u32, t1), (2u32, t2)] {
+            out.push(Row {
+                key: tangent_key(normal_key, comp),
+                owner: e.instrument,
+                row: ContactRow::at_point(
+                    nodes0,
+                    weights0,
+                    t,
+                    t.dot(&(x0 - anchor.coords)),
+                    RowKind::Tangent {
+                        normal: normal_index,
+                        mu,
+                    },
+                ),
+                point: e.point,
+                triangle: (e.nodes, w0),
+            });
+        }
     }
 }
 
