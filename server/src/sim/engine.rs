@@ -772,26 +772,16 @@ impl RowRule {
                 rows::from_enforced(&out.enforced, &model.mesh.nodes, &model.fixed_mask, dst)
             }
             _ => {
-                rows::from_candidates(
-                    &out.candidates,
-                    free,
+                let inputs = rows::RowInputs {
+                    free: *free,
                     now,
-                    self.friction,
+                    friction: self.friction,
                     anchors,
                     poses,
-                    &model.fixed_mask,
-                    dst,
-                );
-                rows::from_edges(
-                    &out.edges,
-                    free,
-                    now,
-                    self.friction,
-                    anchors,
-                    poses,
-                    &model.fixed_mask,
-                    dst,
-                );
+                    fixed: &model.fixed_mask,
+                };
+                rows::from_candidates(&out.candidates, &inputs, dst);
+                rows::from_edges(&out.edges, &inputs, dst);
             }
         }
     }

@@ -212,26 +212,38 @@ fn touch_point(
     x - n * n.dot(&(x - p))
 }
 
-/// Rows of the Signorini rule from `candidates` (module documentation):
-/// `now` the displacements of the last solve (m, for new anchors),
-/// `friction` the Coulomb coefficient, `poses` the instruments' poses (for
-/// the anchors), `fixed` the fixed volume nodes. Appends to `out`.
-#[allow(clippy::too_many_arguments)]
-pub fn from_candidates(
-    candidates: &[Candidate],
-    free: &FreePositions<'_>,
-    now: &[Vector3<f64>],
-    friction: Option<f64>,
-    anchors: &Anchors,
-    poses: &[Isometry3<f64>],
-    fixed: &[bool],
-    out: &mut Vec<Row>,
-) {
+/// What the Signorini rule's rows are built from besides the collision
+/// output.
+#[derive(Debug, Clone, Copy)]
+pub struct RowInputs<'a> {
+    /// Where the nodes would be without the contact forces.
+    pub free: FreePositions<'a>,
+    /// The displacements of the last solve, by volume node, m (where a new
+    /// frictional contact anchors).
+    pub now: &'a [Vector3<f64>],
+    /// The Coulomb coefficient (`None`: frictionless).
+    pub friction: Option<f64>,
+    /// The frictional anchors.
+    pub anchors: &'a Anchors,
+    /// The instruments' poses.
+    pub poses: &'a [Isometry3<f64>],
+    /// The fixed volume nodes.
+    pub fixed: &'a [bool],
+}
+
+/// Rows of the Signorini rule from `candidates` (module documentation).
+/// Appends to `out`.
+pub fn from_candidates(candidates: &[Candidate], inputs: &RowInputs<'_>, out: &mut Vec<Row>) {
     for c in candidates {
-        if fixed.get(c.volume_node as usize).copied().unwrap_or(true) {
+        if inputs
+            .fixed
+            .get(c.volume_node as usize)
+            .copied()
+            .unwrap_or(true)
+        {
             continue;
         }
-        let x = free.of(c.volume_node);
+        let x = inputs.free.of(c.volume_node);
         let face = face_code(c.face);
         let normal_index = out.len() as u32;
         out.push(Row {
@@ -246,17 +258,19 @@ pub fn from_candidates(
             point: c.point,
             triangle: NO_TRIANGLE,
         });
-        if let Some(mu) = friction {
-            let anchor = anchors
+        if let Some(mu) = inputs.friction {
+            let anchor = inputs
+                .anchors
                 .get(key(c.volume_node, c.instrument, face, 0))
-                .and_then(|a| poses.get(c.instrument as usize).map(|p| p * a.at))
+                .and_then(|a| inputs.poses.get(c.instrument as usize).map(|p| p * a.at))
                 .unwrap_or_else(|| {
                     let v = c.volume_node as usize;
-                    let x_now = free.rest()[v] + now.get(v).copied().unwrap_or_default();
+                    let x_now =
+                        inputs.free.rest()[v] + inputs.now.get(v).copied().unwrap_or_default();
                     touch_point(
-                        anchors,
+                        inputs.anchors,
                         c.instrument,
-                        poses.get(c.instrument as usize),
+                        inputs.poses.get(c.instrument as usize),
                         x_now,
                         &c.normal,
                         &c.point,
@@ -288,22 +302,11 @@ pub fn from_candidates(
 /// of ([`EdgeCandidate`]): a unilateral row on the tissue point, shared out
 /// over the triangle's nodes by its barycentric weights, with the free gap
 /// `n . (sum_a w_a x_free_a - p)` (`p` the plate point). Fixed nodes drop
-/// out of the row (they do not move). With `friction` (the Coulomb
-/// coefficient), two tangent rows on the anchored tissue point ([`Anchor`];
-/// a new contact anchors the row's own tissue point where the last solve
-/// left it, `now` those displacements, m), gap `t . (sum_a w0_a x_free_a -
-/// pose * anchor)`. Appends to `out`.
-#[allow(clippy::too_many_arguments)]
-pub fn from_edges(
-    edges: &[EdgeCandidate],
-    free: &FreePositions<'_>,
-    now: &[Vector3<f64>],
-    friction: Option<f64>,
-    anchors: &Anchors,
-    poses: &[Isometry3<f64>],
-    fixed: &[bool],
-    out: &mut Vec<Row>,
-) {
+/// out of the row (they do not move). With friction, two tangent rows on
+/// the anchored tissue point ([`Anchor`]; a new contact anchors the row's
+/// own tissue point where the last solve left it), gap `t . (sum_a w0_a
+/// x_free_a - pose * anchor)`. Appends to `out`.
+pub fn from_edges(edges: &[EdgeCandidate], inputs: &RowInputs<'_>, out: &mut Vec<Row>) {
     // The row's nodes and weights without the fixed nodes, and the free
     // tissue point, for weights `w` on the triangle's nodes.
     let on = |nodes: &[u32; 3], w: &[f64; 3]| {
@@ -311,8 +314,8 @@ pub fn from_edges(
         let mut kept = [u32::MAX; 3];
         let mut weights = [0.0; 3];
         for a in 0..3 {
-            x += free.of(nodes[a]).coords * w[a];
-            if !fixed.get(nodes[a] as usize).copied().unwrap_or(true) {
+            x += inputs.free.of(nodes[a]).coords * w[a];
+            if !inputs.fixed.get(nodes[a] as usize).copied().unwrap_or(true) {
                 kept[a] = nodes[a];
                 weights[a] = w[a];
             }
@@ -339,28 +342,31 @@ pub fn from_edges(
             point: e.point,
             triangle: (e.nodes, e.weights),
         });
-        let Some(mu) = friction else {
+        let Some(mu) = inputs.friction else {
             continue;
         };
-        let (w0, anchor) = anchors
+        let (w0, anchor) = inputs
+            .anchors
             .get(normal_key)
             .and_then(|a| {
-                poses
+                inputs
+                    .poses
                     .get(e.instrument as usize)
                     .map(|p| (a.weights, p * a.at))
             })
             .unwrap_or_else(|| {
                 let x_now = (0..3).fold(Vector3::zeros(), |x, a| {
                     let v = e.nodes[a] as usize;
-                    x + (free.rest()[v].coords + now.get(v).copied().unwrap_or_default())
+                    x + (inputs.free.rest()[v].coords
+                        + inputs.now.get(v).copied().unwrap_or_default())
                         * e.weights[a]
                 });
                 (
                     e.weights,
                     touch_point(
-                        anchors,
+                        inputs.anchors,
                         e.instrument,
-                        poses.get(e.instrument as usize),
+                        inputs.poses.get(e.instrument as usize),
                         Point3::from(x_now),
                         &e.normal,
                         &e.point,
