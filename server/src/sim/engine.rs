@@ -1566,17 +1566,12 @@ impl StepEngine {
             if slipping || self.anchors.get(r.key).is_none() {
                 // Where the tissue point is now, on the face plane: a
                 // vertex, or a point row's own point of its triangle.
-                let (x, weights) = if rows::is_point_key(r.key) {
-                    let (nodes, w) = r.triangle;
-                    let x = (0..3).fold(Vector3::zeros(), |x, a| {
-                        let n = nodes[a] as usize;
-                        x + (model.mesh.nodes[n].coords + u[n]) * w[a]
-                    });
-                    (Point3::from(x), w)
+                let (nodes, weights) = if rows::is_point_key(r.key) {
+                    r.triangle
                 } else {
-                    let n = r.row.node as usize;
-                    (model.mesh.nodes[n] + u[n], [1.0, 0.0, 0.0])
+                    ([r.row.node, u32::MAX, u32::MAX], [1.0, 0.0, 0.0])
                 };
+                let x = rows::tissue_point(&model.mesh.nodes, u, &nodes, &weights);
                 let on_face = x - r.row.dir * r.row.dir.dot(&(x - r.point));
                 self.anchors.set(
                     r.key,

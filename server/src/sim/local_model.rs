@@ -296,8 +296,7 @@ impl ForceSolver {
                     let turned = (self.slot_dir[su] - r.row.dir).norm() > DIRECTION_TOLERANCE;
                     // A point that slid on its triangle gets its row again
                     // (module documentation).
-                    let moved = self.slot_patch[su] != p
-                        || self.slot_w[su].iter().zip(&w).any(|(a, b)| a != b);
+                    let moved = self.slot_patch[su] != p || self.slot_w[su] != w;
                     if turned || moved {
                         self.slot_dir[su] = r.row.dir;
                         self.slot_patch[su] = p;

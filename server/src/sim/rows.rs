@@ -212,6 +212,49 @@ fn touch_point(
     x - n * n.dot(&(x - p))
 }
 
+/// A triangle point of weights `w` on volume nodes `nodes`: its free
+/// position (m), and the row's nodes and weights with the fixed nodes left
+/// out (they do not move).
+fn point_on(
+    free: &FreePositions<'_>,
+    fixed: &[bool],
+    nodes: &[u32; 3],
+    w: &[f64; 3],
+) -> (Vector3<f64>, [u32; 3], [f64; 3]) {
+    let mut x = Vector3::zeros();
+    let mut kept = [u32::MAX; 3];
+    let mut weights = [0.0; 3];
+    for a in 0..3 {
+        x += free.of(nodes[a]).coords * w[a];
+        if !fixed.get(nodes[a] as usize).copied().unwrap_or(true) {
+            kept[a] = nodes[a];
+            weights[a] = w[a];
+        }
+    }
+    (x, kept, weights)
+}
+
+/// Where the tissue point of weights `w` on volume nodes `nodes` is after
+/// a solve with displacements `u` (m; a node past the end of `u`, or
+/// `u32::MAX` with weight 0, does not move it): `sum_a w_a (x_rest_a + u_a)`.
+pub fn tissue_point(
+    rest: &[Point3<f64>],
+    u: &[Vector3<f64>],
+    nodes: &[u32; 3],
+    w: &[f64; 3],
+) -> Point3<f64> {
+    let x =
+        nodes
+            .iter()
+            .zip(w)
+            .filter(|&(_, &wa)| wa != 0.0)
+            .fold(Vector3::zeros(), |x, (&n, &wa)| {
+                let n = n as usize;
+                x + (rest[n].coords + u.get(n).copied().unwrap_or_default()) * wa
+            });
+    Point3::from(x)
+}
+
 /// What the Signorini rule's rows are built from besides the collision
 /// output.
 #[derive(Debug, Clone, Copy)]
@@ -264,9 +307,12 @@ pub fn from_candidates(candidates: &[Candidate], inputs: &RowInputs<'_>, out: &m
                 .get(key(c.volume_node, c.instrument, face, 0))
                 .and_then(|a| inputs.poses.get(c.instrument as usize).map(|p| p * a.at))
                 .unwrap_or_else(|| {
-                    let v = c.volume_node as usize;
-                    let x_now =
-                        inputs.free.rest()[v] + inputs.now.get(v).copied().unwrap_or_default();
+                    let x_now = tissue_point(
+                        inputs.free.rest(),
+                        inputs.now,
+                        &[c.volume_node, u32::MAX, u32::MAX],
+                        &[1.0, 0.0, 0.0],
+                    );
                     touch_point(
                         inputs.anchors,
                         c.instrument,
@@ -307,21 +353,7 @@ pub fn from_candidates(candidates: &[Candidate], inputs: &RowInputs<'_>, out: &m
 /// own tissue point where the last solve left it), gap `t . (sum_a w0_a
 /// x_free_a - pose * anchor)`. Appends to `out`.
 pub fn from_edges(edges: &[EdgeCandidate], inputs: &RowInputs<'_>, out: &mut Vec<Row>) {
-    // The row's nodes and weights without the fixed nodes, and the free
-    // tissue point, for weights `w` on the triangle's nodes.
-    let on = |nodes: &[u32; 3], w: &[f64; 3]| {
-        let mut x = Vector3::zeros();
-        let mut kept = [u32::MAX; 3];
-        let mut weights = [0.0; 3];
-        for a in 0..3 {
-            x += inputs.free.of(nodes[a]).coords * w[a];
-            if !inputs.fixed.get(nodes[a] as usize).copied().unwrap_or(true) {
-                kept[a] = nodes[a];
-                weights[a] = w[a];
-            }
-        }
-        (x, kept, weights)
-    };
+    let on = |nodes: &[u32; 3], w: &[f64; 3]| point_on(&inputs.free, inputs.fixed, nodes, w);
     for e in edges {
         let (x, nodes, weights) = on(&e.nodes, &e.weights);
         if !weights.iter().any(|&w| w > 0.0) {
@@ -355,19 +387,14 @@ pub fn from_edges(edges: &[EdgeCandidate], inputs: &RowInputs<'_>, out: &mut Vec
                     .map(|p| (a.weights, p * a.at))
             })
             .unwrap_or_else(|| {
-                let x_now = (0..3).fold(Vector3::zeros(), |x, a| {
-                    let v = e.nodes[a] as usize;
-                    x + (inputs.free.rest()[v].coords
-                        + inputs.now.get(v).copied().unwrap_or_default())
-                        * e.weights[a]
-                });
+                let x_now = tissue_point(inputs.free.rest(), inputs.now, &e.nodes, &e.weights);
                 (
                     e.weights,
                     touch_point(
                         inputs.anchors,
                         e.instrument,
                         inputs.poses.get(e.instrument as usize),
-                        Point3::from(x_now),
+                        x_now,
                         &e.normal,
                         &e.point,
                     ),
@@ -409,16 +436,7 @@ pub fn midway(a: &Row, b: &Row, free: &FreePositions<'_>, fixed: &[bool]) -> Row
     let wb = b.triangle.1;
     let w = [0.0, 1.0, 2.0].map(|k: f64| 0.5 * (wa[k as usize] + wb[k as usize]));
     let point = Point3::from(0.5 * (a.point.coords + b.point.coords));
-    let mut x = Vector3::zeros();
-    let mut nodes = [u32::MAX; 3];
-    let mut weights = [0.0; 3];
-    for k in 0..3 {
-        x += free.of(tri[k]).coords * w[k];
-        if !fixed.get(tri[k] as usize).copied().unwrap_or(true) {
-            nodes[k] = tri[k];
-            weights[k] = w[k];
-        }
-    }
+    let (x, nodes, weights) = point_on(free, fixed, &tri, &w);
     let dir = b.row.dir;
     Row {
         key: b.key,
