@@ -58,9 +58,11 @@ enum Command {
     },
     /// Speed against accuracy of the simulation's configurations on the
     /// scripted Sylvian opening, and stability at the extremes (CSV,
-    /// markdown, PNG plots).
+    /// markdown, PNG plots). Alone it runs the whole study here; `plan`,
+    /// `run` and `merge` run it anywhere, e.g. as a Slurm job array
+    /// (client-cli/slurm/study.sbatch).
     #[cfg(feature = "lab")]
-    Study(fissure_cli::study::StudyArgs),
+    Study(fissure_cli::study::StudyCommand),
     /// Ask a server's grpc.health.v1 whether it is serving; exits non-zero if not.
     Health {
         /// Server URL.
@@ -201,7 +203,7 @@ fn main() -> anyhow::Result<()> {
     let rt = tokio::runtime::Runtime::new().context("starting the async runtime")?;
     match cli.command {
         #[cfg(feature = "lab")]
-        Command::Study(args) => fissure_cli::study::run(&args)?,
+        Command::Study(cmd) => fissure_cli::study::command(&cmd)?,
         #[cfg(feature = "lab")]
         Command::Demo(args) => {
             rt.block_on(fissure_cli::demo::run(&args))?;

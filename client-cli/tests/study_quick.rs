@@ -1,19 +1,54 @@
 //! `fissure study --quick`: the whole pipeline on the coarse phantom, with the
 //! stability results asserted.
 
-use fissure_cli::study::{StudyArgs, run_study};
+use fissure_cli::study::plan::{PlanOptions, Role, StudyPlan};
+use fissure_cli::study::runs::{Outcome, run_range};
+use fissure_cli::study::{StudyArgs, StudyError, merge, record, run_study};
+use std::path::Path;
+
+/// The measured times (the machine's, never equal between two runs).
+const TIMING: [&str; 6] = [
+    "ms_per_step",
+    "collision_ms",
+    "us_per_sample",
+    "us_per_sample_p99",
+    "setup_ms",
+    "total_s",
+];
+
+/// `study.json` of `dir` without the measured times.
+fn values(dir: &Path) -> serde_json::Value {
+    fn strip(v: &mut serde_json::Value) {
+        match v {
+            serde_json::Value::Object(m) => {
+                m.retain(|k, _| !TIMING.contains(&k.as_str()));
+                m.values_mut().for_each(strip);
+            }
+            serde_json::Value::Array(a) => a.iter_mut().for_each(strip),
+            _ => {}
+        }
+    }
+    let text = std::fs::read_to_string(dir.join("study.json")).expect("study.json");
+    let mut v: serde_json::Value = serde_json::from_str(&text).expect("study.json parses");
+    strip(&mut v);
+    v
+}
+
+fn read(path: &Path) -> Vec<u8> {
+    std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
 
 #[test]
 fn quick_study_is_stable_and_consistent() {
     let dir = tempfile::tempdir().expect("temporary folder");
     let args = StudyArgs {
         out: dir.path().to_path_buf(),
-        quick: true,
+        options: PlanOptions {
+            quick: true,
+            ..PlanOptions::default()
+        },
+        resume: false,
         json: false,
-        rate_hz: None,
-        window_s: None,
-        no_grid: false,
-        no_stability: false,
         no_progress: true,
     };
     let res = run_study(&args).expect("the quick study runs");
@@ -88,4 +123,81 @@ fn quick_study_is_stable_and_consistent() {
         let len = std::fs::metadata(&p).map(|m| m.len()).unwrap_or(0);
         assert!(len > 100, "{} missing or empty", p.display());
     }
+
+    // The study is its folder: merging its result files again writes the
+    // same bytes (a merge is a function of the result files).
+    let again = tempfile::tempdir().expect("temporary folder");
+    merge::merge(dir.path(), again.path(), false).expect("the merge of a complete study");
+    for f in ["grid.csv", "stability.csv", "study.json"] {
+        assert!(
+            read(&dir.path().join(f)) == read(&again.path().join(f)),
+            "{f} differs between the study and a merge of its runs"
+        );
+    }
+
+    // A run whose result is gone: the merge refuses, naming it; with
+    // --allow-missing it writes the rest and names it in the outputs.
+    let plan = StudyPlan::read(dir.path()).expect("the study wrote its plan");
+    let (lost, lost_run) = plan
+        .runs
+        .iter()
+        .enumerate()
+        .rfind(|(_, r)| r.role == Role::Stability)
+        .expect("a stability run");
+    std::fs::remove_file(record::result_path(dir.path(), &lost_run.id)).expect("result file");
+    match merge::merge(dir.path(), again.path(), false) {
+        Err(e @ StudyError::Incomplete { .. }) => {
+            let text = e.to_string();
+            assert!(
+                text.contains(&format!("{} (index {lost}, missing)", lost_run.id))
+                    && text.contains(&format!("--array={lost}")),
+                "{text}"
+            );
+        }
+        other => panic!("a merge with a run missing: {other:?}"),
+    }
+    let partial = merge::merge(dir.path(), again.path(), true).expect("--allow-missing merges");
+    assert_eq!(partial.absent.len(), 1);
+    assert_eq!(partial.stability.len(), res.stability.len() - 1);
+    let md = std::fs::read_to_string(again.path().join("study.md")).expect("study.md");
+    assert!(
+        md.contains(&lost_run.id) && md.contains("Incomplete"),
+        "{md}"
+    );
+
+    // Running the study folder again computes only the missing run, and the
+    // study's values come back unchanged.
+    let outcomes = run_range(dir.path(), &plan, 0..plan.runs.len(), false, true).expect("runs");
+    for (i, o) in &outcomes {
+        if *i == lost {
+            assert!(matches!(o, Outcome::Computed { .. }), "{i}: {o:?}");
+        } else {
+            assert_eq!(*o, Outcome::Skipped, "run {i} was computed again");
+        }
+    }
+    let before = values(dir.path());
+    merge::merge(dir.path(), again.path(), false).expect("complete again");
+    assert!(
+        values(again.path()) == before,
+        "the recomputed run changed the study's values"
+    );
+
+    // A run that cannot be set up writes a failure record naming the cause,
+    // and the merge names it failed.
+    let mut broken = plan.clone();
+    broken.runs[lost].config.preset = "no-such-preset".into();
+    let path = StudyPlan::path(dir.path());
+    std::fs::write(&path, serde_json::to_string_pretty(&broken).expect("json")).expect("plan");
+    std::fs::remove_file(record::result_path(dir.path(), &lost_run.id)).expect("result file");
+    let outcomes = run_range(dir.path(), &broken, lost..lost + 1, false, true).expect("runs");
+    let Outcome::Failed(cause) = &outcomes[0].1 else {
+        panic!("a run of an unknown preset: {:?}", outcomes[0]);
+    };
+    assert!(cause.contains("no-such-preset"), "{cause}");
+    let e = merge::merge(dir.path(), again.path(), false).expect_err("a failed run");
+    assert!(
+        e.to_string()
+            .contains(&format!("{} (index {lost}, failed: ", lost_run.id)),
+        "{e}"
+    );
 }

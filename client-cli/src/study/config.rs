@@ -5,10 +5,10 @@
 
 use fissure_server::fem::Strategy;
 use fissure_server::scene::{CollisionMethod, ContactLaw, Scene, SceneError};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// Where and how rays are cast.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Backend {
     /// CPU BVH (the default).
@@ -31,7 +31,7 @@ impl Backend {
 }
 
 /// One configuration.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Config {
     /// Short unique label, e.g. `48k/compliance/150`.
     pub label: String,
@@ -40,7 +40,7 @@ pub struct Config {
     /// Phantom preset.
     pub preset: String,
     /// Solver strategy.
-    #[serde(serialize_with = "ser_strategy")]
+    #[serde(serialize_with = "ser_strategy", deserialize_with = "de_strategy")]
     pub strategy: Strategy,
     /// Relative residual tolerance of the iterative strategies.
     pub tolerance: f64,
@@ -70,6 +70,11 @@ fn ser_law<S: serde::Serializer>(l: &ContactLaw, ser: S) -> Result<S::Ok, S::Err
 
 fn ser_strategy<S: serde::Serializer>(s: &Strategy, ser: S) -> Result<S::Ok, S::Error> {
     ser.serialize_str(s.name())
+}
+
+fn de_strategy<'de, D: serde::Deserializer<'de>>(de: D) -> Result<Strategy, D::Error> {
+    let name = String::deserialize(de)?;
+    name.parse().map_err(serde::de::Error::custom)
 }
 
 /// Centre of the region of interest and of the error region: the middle of

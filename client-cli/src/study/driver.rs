@@ -34,7 +34,6 @@ use fissure_server::sim::engine::{Model, StepEngine};
 use fissure_server::sim::force_loop::ForceLoop;
 use fissure_server::sim::stepped::{Answer, StepDone, SteppedRunner};
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
-use std::collections::HashMap;
 use std::time::Instant;
 
 /// Deformation steps with `k dt <= end` (k >= 1), counted with the same
@@ -164,11 +163,15 @@ pub fn min_det_f(mesh: &TetMesh, u: &[Vector3<f64>]) -> f64 {
     worst
 }
 
-/// Cache of built models by (preset, nodes a face, region of interest): the
-/// phantom is generated once per preset and instrument layout.
+/// Cache of built models, by the scene each was built from: a model is
+/// reused only for an equal scene, since [`Model::build`] reads more of the
+/// scene than the mesh (the material's modulus for the penalty stiffness,
+/// the contact law and strategy for the shape the contact search runs on,
+/// the collision method). A run therefore gets the model a process of its
+/// own would build, bit for bit.
 #[derive(Default)]
 pub struct ModelCache {
-    models: HashMap<(String, u32, Option<u64>), std::sync::Arc<Model>>,
+    models: Vec<(fissure_server::scene::Scene, std::sync::Arc<Model>)>,
 }
 
 impl ModelCache {
@@ -178,14 +181,6 @@ impl ModelCache {
         config: &Config,
         roi: Option<f64>,
     ) -> Result<std::sync::Arc<Model>, RunError> {
-        let key = (
-            config.preset.clone(),
-            config.nodes_per_face,
-            roi.map(f64::to_bits),
-        );
-        if let Some(m) = self.models.get(&key) {
-            return Ok(m.clone());
-        }
         let mut scene = config.scene().map_err(|source| RunError::Scene {
             label: config.label.clone(),
             source,
@@ -195,12 +190,15 @@ impl ModelCache {
             plane_normal: None,
             distance_m: d,
         });
+        if let Some((_, m)) = self.models.iter().find(|(s, _)| *s == scene) {
+            return Ok(m.clone());
+        }
         let model = Model::build(&scene).map_err(|e| RunError::Model {
             label: config.label.clone(),
             message: e.to_string(),
         })?;
         let model = std::sync::Arc::new(model);
-        self.models.insert(key, model.clone());
+        self.models.push((scene, model.clone()));
         Ok(model)
     }
 

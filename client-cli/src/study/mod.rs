@@ -16,6 +16,13 @@
 //!   iterations and its force error, and the checks a user relies on are
 //!   evaluated (and asserted by the CI test of `--quick`).
 //!
+//! The study is a folder: `fissure study plan` writes its runs
+//! ([`plan`]), `fissure study run` computes them one by one or in blocks
+//! ([`runs`], [`record`]), anywhere (a Slurm job array runs one a task:
+//! `client-cli/slurm/study.sbatch`), and `fissure study merge` writes the outputs
+//! from the result files ([`merge`]). `fissure study` alone does the three
+//! in this process.
+//!
 //! Cost control (documented in the report): the nominal window is the
 //! insertion and the opening (0-1.4 s of the 2 s trajectories), force
 //! samples run at `--rate-hz` (200 Hz by default) instead of 1 kHz, and
@@ -24,45 +31,117 @@
 pub mod compare;
 pub mod config;
 pub mod driver;
+pub mod merge;
 pub mod output;
+pub mod plan;
+pub mod record;
+pub mod runs;
 pub mod scenario;
 pub mod stability;
 
 use compare::Errors;
 use config::{Backend, Config};
-use driver::{ModelCache, RunResult};
+use driver::RunResult;
 use fissure_server::fem::Strategy;
 use fissure_server::scene::ContactLaw;
 use indicatif::{ProgressBar, ProgressStyle};
-use scenario::Scenario;
+use plan::{PlanOptions, Shard, StudyPlan};
+use runs::Outcome;
 use serde::Serialize;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-/// Arguments of `fissure study`.
+/// `fissure study`: the whole study in this process, or one of its steps.
 #[derive(Debug, Clone, clap::Args)]
-pub struct StudyArgs {
-    /// Output folder (CSV, markdown, PNG plots).
-    #[arg(long, default_value = "fissure-out/study")]
-    pub out: PathBuf,
-    /// The cheap variant: coarse preset only, short window (CI runs it).
+#[command(args_conflicts_with_subcommands = true)]
+pub struct StudyCommand {
+    /// A step of a study run elsewhere (plan, run, merge); none: the whole
+    /// study here.
+    #[command(subcommand)]
+    pub step: Option<StudyStep>,
+    /// The whole study in this process.
+    #[command(flatten)]
+    pub args: StudyArgs,
+}
+
+/// The steps of a study computed anywhere (e.g. a Slurm job array).
+#[derive(Debug, Clone, clap::Subcommand)]
+pub enum StudyStep {
+    /// Writes the study's runs into a folder (`DIR/plan.json`).
+    Plan(PlanArgs),
+    /// Computes runs of a planned folder, each writing `DIR/runs/<id>.cbor`
+    /// (or, when it fails, `DIR/runs/<id>.failed.json` naming the cause).
+    Run(RunArgs),
+    /// Gathers the result files into the study's outputs (grid.csv,
+    /// stability.csv, study.md, study.json, plots).
+    Merge(MergeArgs),
+}
+
+/// Arguments of `fissure study plan`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct PlanArgs {
+    /// The study folder (created).
     #[arg(long)]
-    pub quick: bool,
+    pub out: PathBuf,
+    /// What to plan.
+    #[command(flatten)]
+    pub options: PlanOptions,
+}
+
+/// Arguments of `fissure study run`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct RunArgs {
+    /// The study folder (written by `fissure study plan`).
+    pub dir: PathBuf,
+    /// The run: its id or its index in the plan (a job array's task index).
+    #[arg(long, conflicts_with = "shard")]
+    pub run: Option<String>,
+    /// A block of runs: shard I of N (0-based), e.g. `--shard 2/8`.
+    /// Neither `--run` nor `--shard`: every run of the plan.
+    #[arg(long)]
+    pub shard: Option<Shard>,
+    /// Compute the runs even when their result files are there.
+    #[arg(long)]
+    pub force: bool,
+    /// No progress bar and no log lines.
+    #[arg(long)]
+    pub no_progress: bool,
+}
+
+/// Arguments of `fissure study merge`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct MergeArgs {
+    /// The study folder.
+    pub dir: PathBuf,
+    /// Where the outputs go (default: the study folder).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Write the outputs of the runs present even when some are missing or
+    /// failed (they are named in study.md and study.json); otherwise the
+    /// merge lists them and exits non-zero.
+    #[arg(long)]
+    pub allow_missing: bool,
     /// Print the rows as JSON on stdout.
     #[arg(long)]
     pub json: bool,
-    /// Force-loop samples per second of simulated time.
+}
+
+/// Arguments of `fissure study` (the whole study in this process).
+#[derive(Debug, Clone, clap::Args)]
+pub struct StudyArgs {
+    /// Output folder (the plan, the result files, CSV, markdown, PNG plots).
+    #[arg(long, default_value = "fissure-out/study")]
+    pub out: PathBuf,
+    /// What to run.
+    #[command(flatten)]
+    pub options: PlanOptions,
+    /// Keep the runs already computed in the output folder for this plan
+    /// (continue an interrupted study) instead of computing them again.
     #[arg(long)]
-    pub rate_hz: Option<f64>,
-    /// Nominal window of the trajectory played, s (at most 2).
+    pub resume: bool,
+    /// Print the rows as JSON on stdout.
     #[arg(long)]
-    pub window_s: Option<f64>,
-    /// Skip the speed-accuracy grid.
-    #[arg(long)]
-    pub no_grid: bool,
-    /// Skip the stability sweep.
-    #[arg(long)]
-    pub no_stability: bool,
+    pub json: bool,
     /// No progress bar.
     #[arg(long)]
     pub no_progress: bool,
@@ -126,12 +205,12 @@ fn percentile(v: &[f64], p: f64) -> f64 {
 }
 
 impl Row {
-    /// The row of a run.
-    pub fn of(run: &RunResult, scenario: &Scenario, errors: Option<Errors>) -> Self {
+    /// The row of a run whose scenario's mean handle speed is `speed_mps`.
+    pub fn of(run: &RunResult, speed_mps: f64, errors: Option<Errors>) -> Self {
         Self {
             config: run.config.clone(),
             backend_used: run.backend_used.clone(),
-            speed_mps: scenario.mean_speed_mps,
+            speed_mps,
             tets: run.tets,
             nodes: run.nodes,
             steps: run.step_t.len(),
@@ -281,7 +360,7 @@ pub struct StudyResult {
     pub stability: Vec<stability::StabilityRow>,
     /// Stability checks.
     pub checks: Vec<stability::Check>,
-    /// Total wall time, s.
+    /// Wall time of the runs, s (their sum, wherever they ran).
     pub total_s: f64,
     /// Nominal window, s; force rate, Hz; deformation interval, s.
     pub window_s: f64,
@@ -291,6 +370,8 @@ pub struct StudyResult {
     pub dt_s: f64,
     /// Whether this was the quick variant.
     pub quick: bool,
+    /// Runs of the plan without a result (merged with `--allow-missing`).
+    pub absent: Vec<merge::Absent>,
 }
 
 /// Errors of a study.
@@ -305,9 +386,49 @@ pub enum StudyError {
     /// Writing the outputs.
     #[error("writing {path}: {message}")]
     Output { path: PathBuf, message: String },
+    /// The plan file is missing, unreadable or of another version.
+    #[error("study plan {path}: {message}")]
+    Plan { path: PathBuf, message: String },
+    /// A result file or failure record is unreadable or not the plan's.
+    #[error("run file {path}: {message}")]
+    Record { path: PathBuf, message: String },
+    /// `--run` names no run of the plan.
+    #[error(
+        "no run {key:?} in the plan ({runs} runs: give an id from plan.json or an index below {runs})"
+    )]
+    UnknownRun { key: String, runs: usize },
+    /// Runs failed.
+    #[error("{} of {runs} runs failed: {}", failed.len(), failed.iter().map(|(id, c)| format!("{id}: {c}")).collect::<Vec<_>>().join("; "))]
+    Failed {
+        runs: usize,
+        failed: Vec<(String, String)>,
+    },
+    /// The merge found runs without a result.
+    #[error("{dir}: {} of {runs} runs have no result: {}", absent.len(), describe_absent(absent))]
+    Incomplete {
+        dir: PathBuf,
+        runs: usize,
+        absent: Vec<merge::Absent>,
+    },
 }
 
-fn progress(total: u64, hidden: bool) -> ProgressBar {
+fn describe_absent(absent: &[merge::Absent]) -> String {
+    let list: Vec<String> = absent
+        .iter()
+        .map(|a| match &a.failure {
+            Some(c) => format!("{} (index {}, failed: {c})", a.id, a.index),
+            None => format!("{} (index {}, missing)", a.id, a.index),
+        })
+        .collect();
+    let indices: Vec<String> = absent.iter().map(|a| a.index.to_string()).collect();
+    format!(
+        "{}; compute them (`fissure study run DIR --run ID`, or on Slurm `sbatch --array={} client-cli/slurm/study.sbatch DIR`) or merge with --allow-missing",
+        list.join(", "),
+        indices.join(",")
+    )
+}
+
+pub(crate) fn progress(total: u64, hidden: bool) -> ProgressBar {
     if hidden {
         return ProgressBar::hidden();
     }
@@ -324,7 +445,7 @@ fn progress(total: u64, hidden: bool) -> ProgressBar {
 
 /// One line per run on stderr when it is not a terminal (a log, CI), where
 /// the progress bar draws nothing: which run starts, and the time so far.
-struct RunLog {
+pub(crate) struct RunLog {
     on: bool,
     started: Instant,
     runs: usize,
@@ -332,7 +453,7 @@ struct RunLog {
 }
 
 impl RunLog {
-    fn new(hidden: bool, runs: usize, started: Instant) -> Self {
+    pub(crate) fn new(hidden: bool, runs: usize, started: Instant) -> Self {
         use std::io::IsTerminal;
         Self {
             on: !hidden && !std::io::stderr().is_terminal(),
@@ -343,7 +464,7 @@ impl RunLog {
     }
 
     /// Run `label` starts: the bar's message, and its line.
-    fn begin(&mut self, pb: &ProgressBar, label: String) {
+    pub(crate) fn begin(&mut self, pb: &ProgressBar, label: String) {
         self.done += 1;
         if self.on {
             eprintln!(
@@ -357,102 +478,129 @@ impl RunLog {
     }
 }
 
-/// Runs the study (without writing anything).
-pub fn run_study(args: &StudyArgs) -> Result<StudyResult, StudyError> {
-    let started = Instant::now();
-    let mut plan = Plan::new(args.quick);
-    if let Some(w) = args.window_s {
-        plan.window_s = w.clamp(0.05, 2.0);
-    }
-    if let Some(r) = args.rate_hz {
-        plan.rate_hz = r.max(1.0);
-    }
-    let scenario = Scenario::sylvian(plan.window_s, 1.0, plan.rate_hz, plan.dt_s)?;
-    let stab_runs = if args.no_stability {
-        Vec::new()
-    } else {
-        plan.stability.configs(plan.dt_s)
-    };
-    let grid_steps = if args.no_grid {
-        0
-    } else {
-        (plan.grid.len() + 1) * scenario.steps()
-    };
-    let stab_steps: usize = stab_runs.iter().map(|(_, s)| s.steps()).sum();
-    let pb = progress(
-        (grid_steps + stab_steps) as u64,
-        args.no_progress || args.json,
-    );
-    let grid_runs = if args.no_grid { 0 } else { plan.grid.len() + 1 };
-    let mut log = RunLog::new(
-        args.no_progress || args.json,
-        grid_runs + stab_runs.len(),
-        started,
-    );
-    let tick = || pb.inc(1);
-    let mut models = ModelCache::default();
-
-    let mut reference_row = None;
-    let mut grid = Vec::new();
-    let mut plots = Vec::new();
-    if !args.no_grid {
-        log.begin(&pb, format!("reference {}", plan.reference.label));
-        let reference = driver::run(&plan.reference, &scenario, &mut models, true, &tick)?;
-        let region = compare::region_vertices(&reference);
-        reference_row = Some(Row::of(
-            &reference,
-            &scenario,
-            Some(compare::compare(&reference, &region, &reference)),
-        ));
-        plots.push((plan.reference.label.clone(), reference.forces_for_plot()));
-        for c in &plan.grid {
-            log.begin(&pb, c.label.clone());
-            let run = driver::run(c, &scenario, &mut models, true, &tick)?;
-            let errors = compare::compare(&reference, &region, &run);
-            grid.push((
-                Row::of(&run, &scenario, Some(errors)),
-                run.forces_for_plot(),
-            ));
+impl RunLog {
+    /// Run `id` ended: a line when it did not compute (skipped, failed).
+    pub(crate) fn end(&mut self, pb: &ProgressBar, id: &str, outcome: &Outcome) {
+        let line = match outcome {
+            Outcome::Computed { .. } => return,
+            Outcome::Skipped => {
+                format!("study: {id}: its result is there already (--force computes it again)")
+            }
+            Outcome::Failed(cause) => format!("study: {id} FAILED: {cause}"),
+        };
+        if self.on {
+            eprintln!("{line}");
+        } else {
+            pb.println(line);
         }
     }
-    let mut stab = Vec::new();
-    if !args.no_stability {
-        for (c, s) in &stab_runs {
-            log.begin(&pb, c.label.clone());
-            let run = driver::run(c, s, &mut models, false, &tick)?;
-            stab.push((Row::of(&run, s, None), run));
-        }
-    }
-    pb.finish_and_clear();
-    let (stab_rows, checks) = stability::evaluate(&plan.stability, stab);
-    let mut grid_rows = Vec::new();
-    for (r, f) in grid {
-        plots.push((r.config.label.clone(), f));
-        grid_rows.push(r);
-    }
-    let result = StudyResult {
-        reference: reference_row,
-        grid: grid_rows,
-        stability: stab_rows,
-        checks,
-        total_s: started.elapsed().as_secs_f64(),
-        window_s: plan.window_s,
-        rate_hz: plan.rate_hz,
-        dt_s: plan.dt_s,
-        quick: args.quick,
-    };
-    output::write_all(&args.out, &result, &plots)?;
-    Ok(result)
 }
 
-/// `fissure study`: runs, writes the outputs, prints the table (or JSON).
-pub fn run(args: &StudyArgs) -> anyhow::Result<()> {
-    let result = run_study(args)?;
-    if args.json {
-        println!("{}", serde_json::to_string_pretty(&result)?);
+/// Runs the whole study in this process: plans it into `args.out`,
+/// computes every run there and merges the result files into the outputs.
+pub fn run_study(args: &StudyArgs) -> Result<StudyResult, StudyError> {
+    let plan = StudyPlan::new(&args.options)?.write(&args.out)?;
+    let hidden = args.no_progress || args.json;
+    let outcomes = runs::run_range(&args.out, &plan, 0..plan.runs.len(), !args.resume, hidden)?;
+    let failed: Vec<(String, String)> = outcomes
+        .into_iter()
+        .filter_map(|(i, o)| match o {
+            Outcome::Failed(cause) => Some((plan.runs[i].id.clone(), cause)),
+            _ => None,
+        })
+        .collect();
+    if !failed.is_empty() {
+        return Err(StudyError::Failed {
+            runs: plan.runs.len(),
+            failed,
+        });
+    }
+    merge::merge(&args.out, &args.out, false)
+}
+
+fn print_result(result: &StudyResult, json: bool, out: &Path) -> anyhow::Result<()> {
+    if json {
+        println!("{}", serde_json::to_string_pretty(result)?);
     } else {
-        println!("{}", output::markdown(&result));
-        println!("outputs in {}", args.out.display());
+        println!("{}", output::markdown(result));
+        println!("outputs in {}", out.display());
     }
     Ok(())
+}
+
+/// `fissure study`: the whole study, or `plan`, `run` or `merge`.
+pub fn command(cmd: &StudyCommand) -> anyhow::Result<()> {
+    match &cmd.step {
+        None => {
+            let result = run_study(&cmd.args)?;
+            print_result(&result, cmd.args.json, &cmd.args.out)
+        }
+        Some(StudyStep::Plan(a)) => {
+            let plan = StudyPlan::new(&a.options)?.write(&a.out)?;
+            let dir = a.out.display();
+            let threads = plan
+                .runs
+                .iter()
+                .map(|r| r.config.threads)
+                .max()
+                .unwrap_or(1);
+            println!(
+                "{} runs planned in {}",
+                plan.runs.len(),
+                StudyPlan::path(&a.out).display()
+            );
+            for (i, r) in plan.runs.iter().enumerate() {
+                println!("  {i:>3}  {}", r.id);
+            }
+            println!(
+                "compute them here:  fissure study run {dir}\n\
+                 or on Slurm:        sbatch --array=0-{} --cpus-per-task={threads} client-cli/slurm/study.sbatch {dir}\n\
+                 then:               fissure study merge {dir}",
+                plan.runs.len().saturating_sub(1)
+            );
+            Ok(())
+        }
+        Some(StudyStep::Run(a)) => {
+            let plan = StudyPlan::read(&a.dir)?;
+            let range = match (&a.run, a.shard) {
+                (Some(key), _) => {
+                    let i = plan.find(key)?;
+                    i..i + 1
+                }
+                (None, Some(s)) => plan.shard(s.index, s.count),
+                (None, None) => 0..plan.runs.len(),
+            };
+            let outcomes = runs::run_range(&a.dir, &plan, range, a.force, a.no_progress)?;
+            let mut failed = Vec::new();
+            for (i, o) in outcomes {
+                let id = &plan.runs[i].id;
+                match o {
+                    Outcome::Computed { wall_s } => println!("{id}: computed in {wall_s:.1} s"),
+                    Outcome::Skipped => println!("{id}: done already"),
+                    Outcome::Failed(cause) => failed.push((id.clone(), cause)),
+                }
+            }
+            if failed.is_empty() {
+                Ok(())
+            } else {
+                Err(StudyError::Failed {
+                    runs: plan.runs.len(),
+                    failed,
+                }
+                .into())
+            }
+        }
+        Some(StudyStep::Merge(a)) => {
+            let out = a.out.clone().unwrap_or_else(|| a.dir.clone());
+            let result = merge::merge(&a.dir, &out, a.allow_missing)?;
+            if !result.absent.is_empty() {
+                eprintln!(
+                    "study merge: {} runs have no result and are left out: {}",
+                    result.absent.len(),
+                    describe_absent(&result.absent)
+                );
+            }
+            print_result(&result, a.json, &out)
+        }
+    }
 }

@@ -122,7 +122,7 @@ pub fn markdown(res: &StudyResult) -> String {
     let mut md = String::new();
     let _ = writeln!(
         md,
-        "Scenario: bundled Sylvian opening, nominal window 0-{:.2} s, deformation step every {} ms, force samples at {} Hz; {} in {:.0} s.\n",
+        "Scenario: bundled Sylvian opening, nominal window 0-{:.2} s, deformation step every {} ms, force samples at {} Hz; {}, the runs took {:.0} s in all.\n",
         res.window_s,
         res.dt_s * 1e3,
         res.rate_hz,
@@ -133,6 +133,23 @@ pub fn markdown(res: &StudyResult) -> String {
         },
         res.total_s
     );
+    if !res.absent.is_empty() {
+        let _ = writeln!(
+            md,
+            "**Incomplete: {} planned runs have no result and are left out:**\n",
+            res.absent.len()
+        );
+        for a in &res.absent {
+            let _ = writeln!(
+                md,
+                "- {} (index {}): {}",
+                a.id,
+                a.index,
+                a.failure.as_deref().unwrap_or("missing")
+            );
+        }
+        let _ = writeln!(md);
+    }
     if !res.grid.is_empty() {
         let _ = writeln!(
             md,
@@ -272,7 +289,7 @@ pub fn write_all(
     forces: &[(String, Vec<InstrumentForces>)],
 ) -> Result<(), StudyError> {
     std::fs::create_dir_all(dir.join("forces")).map_err(|e| io_err(dir, e))?;
-    if !res.grid.is_empty() {
+    if res.reference.is_some() || !res.grid.is_empty() {
         let mut csv = String::from(GRID_HEADER);
         csv.push('\n');
         for r in res.reference.iter().chain(&res.grid) {
@@ -280,6 +297,10 @@ pub fn write_all(
             csv.push('\n');
         }
         write(&dir.join("grid.csv"), &csv)?;
+    }
+    // The Pareto plots need errors: none without the reference (a merge
+    // with --allow-missing whose reference is missing).
+    if res.reference.is_some() && !res.grid.is_empty() {
         let p = dir.join("error-vs-step-time.png");
         pareto_plot(
             res,
@@ -298,6 +319,8 @@ pub fn write_all(
         )
         .save_png(&p)
         .map_err(|e| io_err(&p, e))?;
+    }
+    if !forces.is_empty() {
         let mut all = LinePlot::new(
             "Net force on the left spatula, every configuration",
             Axis::linear("time (s)"),

@@ -13,6 +13,44 @@
 
 use crate::trajectory::{Trajectory, Waypoint};
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
+use serde::{Deserialize, Serialize};
+
+/// What a run plays, as a plan file holds it: the window, the time scale,
+/// the force-loop rate and the deformation interval of
+/// [`Scenario::sylvian`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ScenarioSpec {
+    /// Nominal window of the trajectory played, s.
+    pub window_s: f64,
+    /// Time scale (`> 1` slower).
+    pub time_scale: f64,
+    /// Force samples per second of scaled time.
+    pub rate_hz: f64,
+    /// Deformation interval, s.
+    pub dt_s: f64,
+}
+
+/// End of a run, s of scaled time: the motion, then a hold of three
+/// deformation steps at the last pose (a fast run must still show its end
+/// state).
+fn end_of(window_s: f64, time_scale: f64, dt_s: f64) -> f64 {
+    window_s * time_scale + 3.0 * dt_s
+}
+
+impl ScenarioSpec {
+    /// Deformation steps of a run of this scenario.
+    pub fn steps(&self) -> usize {
+        crate::study::driver::steps_until(
+            end_of(self.window_s, self.time_scale, self.dt_s),
+            self.dt_s,
+        )
+    }
+
+    /// The scenario: the bundled Sylvian opening resampled.
+    pub fn scenario(&self) -> Result<Scenario, crate::trajectory::TrajectoryError> {
+        Scenario::sylvian(self.window_s, self.time_scale, self.rate_hz, self.dt_s)
+    }
+}
 
 /// One instrument's resampled poses.
 #[derive(Debug, Clone)]
@@ -93,9 +131,7 @@ impl Scenario {
         rate_hz: f64,
         dt_s: f64,
     ) -> Self {
-        // The motion, then a hold of three deformation steps at the last pose
-        // (a fast run must still show its end state).
-        let end_s = window_s * time_scale + 3.0 * dt_s;
+        let end_s = end_of(window_s, time_scale, dt_s);
         let n = (end_s * rate_hz).floor().max(1.0) as usize;
         let times: Vec<f64> = (1..=n).map(|j| j as f64 / rate_hz).collect();
         let tracks = trajectories

@@ -25,8 +25,8 @@
 
 use super::Row;
 use super::config::Config;
-use super::driver::RunResult;
-use super::scenario::Scenario;
+use super::scenario::ScenarioSpec;
+use crate::trajectory::TrajectoryError;
 use fissure_server::fem::Strategy;
 use serde::Serialize;
 
@@ -134,60 +134,64 @@ impl Sweep {
     }
 
     /// The runs: per strategy, the nominal run first, then nu, E and speed;
-    /// deformation interval `dt_s`.
-    pub fn configs(&self, dt_s: f64) -> Vec<(Config, Scenario)> {
-        let base = Scenario::sylvian(self.window_s, 1.0, self.rate_hz, dt_s)
-            .expect("bundled trajectories parse");
-        let v0 = base.mean_speed_mps;
+    /// deformation interval `dt_s`. A speed run plays the trajectory scaled
+    /// so that its mean handle speed is the one swept.
+    pub fn configs(&self, dt_s: f64) -> Result<Vec<(Config, ScenarioSpec)>, TrajectoryError> {
+        let base = ScenarioSpec {
+            window_s: self.window_s,
+            time_scale: 1.0,
+            rate_hz: self.rate_hz,
+            dt_s,
+        };
+        let v0 = base.scenario()?.mean_speed_mps;
         let mut out = Vec::new();
         for ss in &self.strategies {
             let nominal = self.nominal(ss.strategy);
-            out.push((
+            let mut push = |config: Config, spec: ScenarioSpec| out.push((config.labelled(), spec));
+            push(
                 Config {
                     sweep: "nominal".into(),
                     ..nominal.clone()
-                }
-                .labelled(),
-                base.clone(),
-            ));
+                },
+                base,
+            );
             for &nu in ss.nus.iter().filter(|&&n| n != nominal.nu) {
-                out.push((
+                push(
                     Config {
                         sweep: "nu".into(),
                         nu,
                         ..nominal.clone()
-                    }
-                    .labelled(),
-                    base.clone(),
-                ));
+                    },
+                    base,
+                );
             }
             for &e in ss.youngs_pa.iter().filter(|&&e| e != nominal.youngs_pa) {
-                out.push((
+                push(
                     Config {
                         sweep: "E".into(),
                         youngs_pa: e,
                         ..nominal.clone()
-                    }
-                    .labelled(),
-                    base.clone(),
-                ));
+                    },
+                    base,
+                );
             }
             for &v in &ss.speeds_mps {
-                let scale = v0 / v;
-                let sc = Scenario::sylvian(self.window_s, scale, self.speed_rate_hz, dt_s)
-                    .expect("bundled trajectories parse");
-                out.push((
+                let time_scale = v0 / v;
+                push(
                     Config {
                         sweep: "speed".into(),
-                        time_scale: scale,
+                        time_scale,
                         ..nominal.clone()
-                    }
-                    .labelled(),
-                    sc,
-                ));
+                    },
+                    ScenarioSpec {
+                        time_scale,
+                        rate_hz: self.speed_rate_hz,
+                        ..base
+                    },
+                );
             }
         }
-        out
+        Ok(out)
     }
 }
 
@@ -225,18 +229,14 @@ fn total_force(r: &Row) -> f64 {
 }
 
 /// Verdicts and checks of the sweep's runs (in [`Sweep::configs`] order).
-pub fn evaluate(sweep: &Sweep, runs: Vec<(Row, RunResult)>) -> (Vec<StabilityRow>, Vec<Check>) {
+pub fn evaluate(sweep: &Sweep, runs: Vec<Row>) -> (Vec<StabilityRow>, Vec<Check>) {
     let mut rows: Vec<StabilityRow> = Vec::new();
     let mut checks = Vec::new();
     if runs.is_empty() {
         return (rows, checks);
     }
     for s in sweep.strategies.iter().map(|ss| ss.strategy) {
-        let mine: Vec<&Row> = runs
-            .iter()
-            .map(|(r, _)| r)
-            .filter(|r| r.config.strategy == s)
-            .collect();
+        let mine: Vec<&Row> = runs.iter().filter(|r| r.config.strategy == s).collect();
         let Some(nominal) = mine.iter().find(|r| r.config.sweep == "nominal") else {
             continue;
         };

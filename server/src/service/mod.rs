@@ -30,10 +30,10 @@
 //! for [`UNREAD_GRACE`] its stream ends with `RESOURCE_EXHAUSTED` (after
 //! the answers already queued) and the instrument is released; the server
 //! logs it. Its
-//! connection and the other streams on it keep working: the stream's pose
-//! reader keeps reading until then, and each stream's receive window is
-//! [`STREAM_RECEIVE_WINDOW_BYTES`], so that poses queued in the HTTP/2 layer
-//! stay within its limits (with the default 1 MiB window, about 3,000
+//! connection and the other streams on it keep working: while the force
+//! loop waits, the stream's pose reader stops once its channel is full, and
+//! each stream's receive window is [`STREAM_RECEIVE_WINDOW_BYTES`], so that
+//! the poses held in the HTTP/2 layer stay within its limits (with the default 1 MiB window, about 3,000
 //! unread 100-byte poses made hyper's HTTP/2 layer end the whole connection
 //! with GOAWAY `ENHANCE_YOUR_CALM`, "too_many_data_frames").
 
@@ -71,8 +71,8 @@ pub const MAX_ENCODING_MESSAGE_BYTES: usize = 16 * 1024 * 1024;
 /// in the server's queue before its stream is ended with
 /// `RESOURCE_EXHAUSTED`: about a second at 1 kHz, beyond what its own HTTP/2
 /// window and the transport's buffers hold (with a 64 KiB window, about
-/// 1,500 answers of 90 bytes: the stream ends after about 2.5 s of not
-/// reading at 1 kHz). A client that pipelines its poses has a round trip's
+/// 1,500 answers of 90 bytes: at 1 kHz the queue is full after about
+/// 2.5 s of not reading, and the stream ends [`UNREAD_GRACE`] later). A client that pipelines its poses has a round trip's
 /// worth unread at any time (tens at 1 kHz), far below it.
 pub const MAX_UNREAD_ANSWERS: usize = 1024;
 

@@ -1,0 +1,116 @@
+//! Gathering a study folder's result files into the study's outputs.
+//!
+//! The merge reads the plan and each run's result file, compares every grid
+//! run with the reference ([`compare`](super::compare)), evaluates the
+//! stability sweep ([`stability::evaluate`](super::stability::evaluate)) and
+//! writes `grid.csv`, `stability.csv`, `study.md`, `study.json` and the
+//! plots ([`output`](super::output)). It is the only path to the outputs:
+//! `fissure study` in one process plans, runs and merges, so a study
+//! computed by a Slurm job array and one computed in one process give the
+//! same files (every value but the measured times, which are the
+//! machine's).
+//!
+//! Runs whose result is missing or that failed are listed; the merge
+//! refuses to write outputs from an incomplete folder unless asked to
+//! (`allow_missing`), and then writes what the present runs give and names
+//! the absent ones in `study.md` and `study.json`.
+
+use super::plan::{Role, StudyPlan};
+use super::record::{FailureRecord, RunRecord};
+use super::{Plan, Row, StudyError, StudyResult, compare, output, stability};
+use serde::Serialize;
+use std::path::Path;
+
+/// A run the merge did not find a result for.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Absent {
+    /// The run's id.
+    pub id: String,
+    /// Its index in the plan (a job array's task index).
+    pub index: usize,
+    /// Why it failed, when it wrote a failure record; `None`: no result yet.
+    pub failure: Option<String>,
+}
+
+/// The absent runs of the plan in `dir`, and the present ones' records.
+pub fn gather(
+    dir: &Path,
+    plan: &StudyPlan,
+) -> Result<(Vec<Option<RunRecord>>, Vec<Absent>), StudyError> {
+    let mut records = Vec::with_capacity(plan.runs.len());
+    let mut absent = Vec::new();
+    for (index, run) in plan.runs.iter().enumerate() {
+        let rec = RunRecord::read(dir, run)?;
+        if rec.is_none() {
+            absent.push(Absent {
+                id: run.id.clone(),
+                index,
+                failure: FailureRecord::read(dir, &run.id)?.map(|f| f.cause),
+            });
+        }
+        records.push(rec);
+    }
+    Ok((records, absent))
+}
+
+/// Merges the study folder `dir` into outputs in `out`.
+pub fn merge(dir: &Path, out: &Path, allow_missing: bool) -> Result<StudyResult, StudyError> {
+    let plan = StudyPlan::read(dir)?;
+    let (records, absent) = gather(dir, &plan)?;
+    if !absent.is_empty() && !allow_missing {
+        return Err(StudyError::Incomplete {
+            dir: dir.to_path_buf(),
+            absent,
+            runs: plan.runs.len(),
+        });
+    }
+    let reference = plan
+        .runs
+        .iter()
+        .zip(&records)
+        .find(|(r, _)| r.role == Role::Reference)
+        .and_then(|(_, rec)| rec.as_ref());
+    let region = reference.map(|r| compare::region_vertices(&r.result));
+    let mut reference_row = None;
+    let mut grid = Vec::new();
+    let mut stab = Vec::new();
+    let mut plots = Vec::new();
+    let mut total_s = 0.0;
+    for (run, rec) in plan.runs.iter().zip(&records) {
+        let Some(rec) = rec else { continue };
+        total_s += rec.wall_s;
+        let errors = match (reference, &region) {
+            (Some(refr), Some(region)) if run.role != Role::Stability => {
+                Some(compare::compare(&refr.result, region, &rec.result))
+            }
+            _ => None,
+        };
+        let row = Row::of(&rec.result, rec.speed_mps, errors);
+        match run.role {
+            Role::Reference => {
+                plots.push((run.config.label.clone(), rec.result.forces_for_plot()));
+                reference_row = Some(row);
+            }
+            Role::Grid => {
+                plots.push((run.config.label.clone(), rec.result.forces_for_plot()));
+                grid.push(row);
+            }
+            Role::Stability => stab.push(row),
+        }
+    }
+    let (stability, checks) = stability::evaluate(&Plan::new(plan.quick).stability, stab);
+    let result = StudyResult {
+        reference: reference_row,
+        grid,
+        stability,
+        checks,
+        total_s,
+        window_s: plan.window_s,
+        rate_hz: plan.rate_hz,
+        dt_s: plan.dt_s,
+        quick: plan.quick,
+        absent,
+    };
+    output::write_all(out, &result, &plots)?;
+    Ok(result)
+}
