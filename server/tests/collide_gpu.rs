@@ -224,7 +224,7 @@ fn sphere(
 #[test]
 fn errors_name_the_bad_input() {
     let positions = vec![Point3::origin(); 3];
-    match gpu::try_new_brute(&[[0, 1, 7]], &positions) {
+    match gpu::GpuBruteForce::try_new(&[[0, 1, 7]], &positions) {
         Err(GpuError::Surface(SurfaceError::VertexOutOfRange {
             triangle: 0,
             vertex: 7,
@@ -234,7 +234,7 @@ fn errors_name_the_bad_input() {
     }
     let mut bad = positions.clone();
     bad[1].y = f64::NAN;
-    match gpu::try_new_bvh(&[[0, 1, 2]], &bad) {
+    match gpu::GpuBvh::try_new(&[[0, 1, 2]], &bad) {
         Err(GpuError::Surface(SurfaceError::NonFinite { vertex: 1 })) => {}
         other => panic!("expected NonFinite, got {:?}", other.err()),
     }

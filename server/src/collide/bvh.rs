@@ -868,7 +868,7 @@ impl RayBackend for Bvh {
     }
 
     fn cast(&mut self, origins: &[Point3<f64>], dirs: &[Vector3<f64>], out: &mut Vec<NodeHits>) {
-        self.cast_ranged_with(origins, dirs, &[], Par::rayon(0), out);
+        BvhView::new(self, Par::rayon(0)).cast(origins, dirs, out);
     }
 
     fn cast_ranged(
@@ -878,6 +878,51 @@ impl RayBackend for Bvh {
         ranges: &[RayRange],
         out: &mut Vec<NodeHits>,
     ) {
-        self.cast_ranged_with(origins, dirs, ranges, Par::rayon(0), out);
+        BvhView::new(self, Par::rayon(0)).cast_ranged(origins, dirs, ranges, out);
+    }
+}
+
+/// A fitted tree as a read-only [`RayBackend`] casting with a chosen
+/// parallelism: one tree published by the deformation loop serves every
+/// force loop at once, each casting sequentially on its own thread. Its
+/// positions are the tree's as last fitted, so `update_positions` has
+/// nothing to do.
+pub struct BvhView<'a> {
+    tree: &'a Bvh,
+    par: Par,
+}
+
+impl<'a> BvhView<'a> {
+    /// `tree`, cast with `par`.
+    pub fn new(tree: &'a Bvh, par: Par) -> Self {
+        Self { tree, par }
+    }
+}
+
+impl RayBackend for BvhView<'_> {
+    fn method(&self) -> &'static str {
+        self.tree.method()
+    }
+
+    fn backend(&self) -> &'static str {
+        self.tree.backend()
+    }
+
+    fn update_positions(&mut self, _positions: &[Point3<f64>]) {}
+
+    fn cast(&mut self, origins: &[Point3<f64>], dirs: &[Vector3<f64>], out: &mut Vec<NodeHits>) {
+        self.tree
+            .cast_ranged_with(origins, dirs, &[], self.par, out);
+    }
+
+    fn cast_ranged(
+        &mut self,
+        origins: &[Point3<f64>],
+        dirs: &[Vector3<f64>],
+        ranges: &[RayRange],
+        out: &mut Vec<NodeHits>,
+    ) {
+        self.tree
+            .cast_ranged_with(origins, dirs, ranges, self.par, out);
     }
 }

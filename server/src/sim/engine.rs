@@ -12,12 +12,12 @@ use super::SimError;
 use super::local_model::ForceModel;
 use super::rows::{self, Anchors, FreePositions, Row, SKULL_OWNER};
 use super::snapshot::{Frame, InstrumentReaction, Snapshot, StepTimings};
+use crate::collide::RayBackend;
 use crate::collide::brute::BruteForce;
-use crate::collide::bvh::Bvh;
+use crate::collide::bvh::{Bvh, BvhView};
 use crate::collide::contact::{self, ContactOutput, ContactRule, DetectOptions, Tool, Workspace};
 use crate::collide::history::{HistoryMode as CollideHistoryMode, Stage};
 use crate::collide::instrument::{Instrument, NodeLayout, Plate, RimNodes};
-use crate::collide::{NodeHits, RayBackend, RayRange};
 use crate::fem::compliance::ColumnPolicy;
 use crate::fem::{self, CompliancePatch, ContactAnswer, ContactRow, DeformationSolver, RowKind};
 use crate::mesh::{BoundarySurface, TetMesh};
@@ -461,42 +461,6 @@ impl SurfaceBvhs {
     }
 }
 
-/// A published tree as a [`RayBackend`] of one query: casts read-only with the
-/// caller's parallelism. Its positions are the snapshot's, fitted by the
-/// deformation loop, so `update_positions` has nothing to do.
-struct SharedBvh<'a> {
-    tree: &'a Bvh,
-    par: Par,
-}
-
-impl RayBackend for SharedBvh<'_> {
-    fn method(&self) -> &'static str {
-        "bvh"
-    }
-
-    fn backend(&self) -> &'static str {
-        "cpu"
-    }
-
-    fn update_positions(&mut self, _positions: &[Point3<f64>]) {}
-
-    fn cast(&mut self, origins: &[Point3<f64>], dirs: &[Vector3<f64>], out: &mut Vec<NodeHits>) {
-        self.tree
-            .cast_ranged_with(origins, dirs, &[], self.par, out);
-    }
-
-    fn cast_ranged(
-        &mut self,
-        origins: &[Point3<f64>],
-        dirs: &[Vector3<f64>],
-        ranges: &[RayRange],
-        out: &mut Vec<NodeHits>,
-    ) {
-        self.tree
-            .cast_ranged_with(origins, dirs, ranges, self.par, out);
-    }
-}
-
 /// The collision stage of one loop: its own backend (fitted to the snapshot it
 /// last saw) unless the snapshot carries a published tree, workspace and
 /// output buffers. `par` is the parallelism of its casts on a published tree:
@@ -572,11 +536,11 @@ impl ContactQuery {
         surface: &Arc<Vec<Point3<f64>>>,
         tree: Option<&'a Arc<Bvh>>,
         par: Par,
-        shared: &'a mut Option<SharedBvh<'a>>,
+        shared: &'a mut Option<BvhView<'a>>,
     ) -> &'a mut dyn RayBackend {
         if backend.is_none() {
             if let Some(tree) = tree {
-                return shared.insert(SharedBvh { tree, par });
+                return shared.insert(BvhView::new(tree, par));
             }
         }
         let backend = backend.get_or_insert_with(|| ray_backend(scene, model, surface));

@@ -3,7 +3,8 @@
 use nalgebra::{Point3, Vector3};
 
 use super::GpuError;
-use super::lbvh::{Lbvh, LbvhNode};
+use super::kernel::{CastKernel, upload};
+use super::lbvh::Lbvh;
 use super::runtime::{Device, Frame, Params, grid, validate};
 use crate::collide::{NodeHits, RayBackend};
 
@@ -22,22 +23,25 @@ pub enum RefitMode {
 /// stack along the whole line (both directions) and keeps the candidate lists
 /// per side; answers decided in f64 on the host (see the parent module's doc).
 pub struct GpuBvh {
-    dev: Device,
-    frame: Frame,
+    /// The cast over `[triangles in tree order, nodes]`.
+    kernel: CastKernel,
+    refit: Refit,
+}
+
+/// The tree and how its boxes follow the positions.
+struct Refit {
     bvh: Lbvh,
-    refit_mode: RefitMode,
-    cast_pipeline: wgpu::ComputePipeline,
-    refit_pipeline: wgpu::ComputePipeline,
-    params: wgpu::Buffer,
-    tris: wgpu::Buffer,
-    nodes: wgpu::Buffer,
-    cast_group: wgpu::BindGroup,
+    mode: RefitMode,
+    pipeline: wgpu::ComputePipeline,
     /// One uniform block and bind group per level for the refit passes.
-    refit_groups: Vec<(wgpu::Buffer, wgpu::BindGroup)>,
+    groups: Vec<(wgpu::Buffer, wgpu::BindGroup)>,
     /// Positions changed since the last refit.
     stale: bool,
     pos_f32: Vec<[f32; 4]>,
 }
+
+/// Where the node buffer is among the kernel's surface buffers.
+const NODES: usize = 1;
 
 impl GpuBvh {
     /// Builds the BVH from the rest surface (`triangles` index `positions`, m) and
@@ -56,29 +60,12 @@ impl GpuBvh {
                 [v[0], v[1], v[2], t]
             })
             .collect();
-        let tris = dev.storage(
-            "bvh triangles",
-            (tri_words.len() * 16) as u64,
-            wgpu::BufferUsages::empty(),
-        );
-        if !tri_words.is_empty() {
-            dev.queue
-                .write_buffer(&tris, 0, bytemuck::cast_slice(&tri_words));
-        }
-        let nodes = dev.storage(
-            "bvh nodes",
-            (bvh.nodes.len() * size_of::<LbvhNode>()) as u64,
-            wgpu::BufferUsages::empty(),
-        );
-        if !bvh.nodes.is_empty() {
-            dev.queue
-                .write_buffer(&nodes, 0, bytemuck::cast_slice(&bvh.nodes));
-        }
-        let params = dev.uniform("bvh params", &Params::default());
+        let tris = upload(&dev, "bvh triangles", &tri_words);
+        let nodes = upload(&dev, "bvh nodes", &bvh.nodes);
         let module = dev.module("bvh", include_str!("shaders/bvh.wgsl"));
         let cast_pipeline = dev.pipeline(&module, "cast_bvh");
         let refit_pipeline = dev.pipeline(&module, "refit_level");
-        let refit_groups = bvh
+        let groups = bvh
             .levels
             .iter()
             .map(|&(first, count)| {
@@ -98,105 +85,90 @@ impl GpuBvh {
                 (buf, group)
             })
             .collect();
-        let cast_group = Self::bind(&dev, &cast_pipeline, &params, &frame, &tris, &nodes);
         Ok(Self {
-            dev,
-            frame,
-            bvh,
-            refit_mode: RefitMode::default(),
-            cast_pipeline,
-            refit_pipeline,
-            params,
-            tris,
-            nodes,
-            cast_group,
-            refit_groups,
-            stale: true,
-            pos_f32: Vec::with_capacity(positions.len()),
+            kernel: CastKernel::new(dev, frame, cast_pipeline, vec![tris, nodes], "bvh"),
+            refit: Refit {
+                bvh,
+                mode: RefitMode::default(),
+                pipeline: refit_pipeline,
+                groups,
+                stale: true,
+                pos_f32: Vec::with_capacity(positions.len()),
+            },
         })
-    }
-
-    fn bind(
-        dev: &Device,
-        pipeline: &wgpu::ComputePipeline,
-        params: &wgpu::Buffer,
-        frame: &Frame,
-        tris: &wgpu::Buffer,
-        nodes: &wgpu::Buffer,
-    ) -> wgpu::BindGroup {
-        let buffers = [
-            params,
-            &frame.positions_buf,
-            tris,
-            nodes,
-            &frame.rays_buf,
-            &frame.out_buf,
-        ];
-        dev.bind_buffers("bvh cast", pipeline, &buffers)
     }
 
     /// Name of the adapter the kernels run on (`wgpu::AdapterInfo::name`).
     pub fn adapter_name(&self) -> &str {
-        &self.dev.info.name
+        &self.kernel.adapter_info().name
     }
 
     /// The adapter's full description.
     pub fn adapter_info(&self) -> &wgpu::AdapterInfo {
-        &self.dev.info
+        self.kernel.adapter_info()
     }
 
     /// Ray sides answered by the f64 brute force on the host since creation.
     pub fn fallbacks(&self) -> u64 {
-        self.frame.fallbacks
+        self.kernel.fallbacks()
     }
 
     /// Chooses where boxes are refitted (default [`RefitMode::Gpu`]).
     pub fn set_refit_mode(&mut self, mode: RefitMode) {
-        self.refit_mode = mode;
-        self.stale = true;
+        self.refit.mode = mode;
+        self.refit.stale = true;
     }
 
     /// The tree (topology from the rest surface; boxes as of the last host refit).
     pub fn tree(&self) -> &Lbvh {
-        &self.bvh
+        &self.refit.bvh
     }
 
     /// Refits now (otherwise done by the next `cast`) and waits for it: lets a
     /// benchmark time the refit alone.
     pub fn refit_now(&mut self) {
-        let mut encoder = self
+        let k = &self.kernel;
+        let mut encoder = k
             .dev
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("refit"),
             });
-        self.encode_refit(&mut encoder);
-        self.dev.queue.submit([encoder.finish()]);
-        if let Err(e) = self.dev.device.poll(wgpu::PollType::wait_indefinitely()) {
+        self.refit
+            .encode(&k.dev, &k.frame, &k.surface[NODES], &mut encoder);
+        k.dev.queue.submit([encoder.finish()]);
+        if let Err(e) = k.dev.device.poll(wgpu::PollType::wait_indefinitely()) {
             tracing::error!(error = %e, "GPU refit wait failed");
         }
     }
+}
 
-    fn encode_refit(&mut self, encoder: &mut wgpu::CommandEncoder) {
+impl Refit {
+    /// Encodes the refit of the boxes to the frame's positions, if they
+    /// changed since the last one.
+    fn encode(
+        &mut self,
+        dev: &Device,
+        frame: &Frame,
+        nodes: &wgpu::Buffer,
+        encoder: &mut wgpu::CommandEncoder,
+    ) {
         if !self.stale {
             return;
         }
         self.stale = false;
-        match self.refit_mode {
+        match self.mode {
             RefitMode::Cpu => {
                 self.pos_f32.clear();
-                let c = self.frame.centre;
-                self.pos_f32.extend(self.frame.positions.iter().map(|p| {
+                let c = frame.centre;
+                self.pos_f32.extend(frame.positions.iter().map(|p| {
                     let q = p.coords - c;
                     [q.x as f32, q.y as f32, q.z as f32, 0.0]
                 }));
-                self.bvh.refit(&self.frame.triangles, &self.pos_f32);
+                self.bvh.refit(&frame.triangles, &self.pos_f32);
                 if !self.bvh.nodes.is_empty() {
-                    self.dev.queue.write_buffer(
-                        &self.nodes,
-                        0,
-                        bytemuck::cast_slice(&self.bvh.nodes),
-                    );
+                    dev.queue
+                        .write_buffer(nodes, 0, bytemuck::cast_slice(&self.bvh.nodes));
                 }
             }
             RefitMode::Gpu => {
@@ -204,10 +176,8 @@ impl GpuBvh {
                     label: Some("refit"),
                     timestamp_writes: None,
                 });
-                pass.set_pipeline(&self.refit_pipeline);
-                for (&(_, count), (_, group)) in
-                    self.bvh.levels.iter().zip(&self.refit_groups).rev()
-                {
+                pass.set_pipeline(&self.pipeline);
+                for (&(_, count), (_, group)) in self.bvh.levels.iter().zip(&self.groups).rev() {
                     pass.set_bind_group(0, group, &[]);
                     let (x, y) = grid((count as usize).div_ceil(64));
                     debug_assert_eq!(y, 1);
@@ -215,50 +185,6 @@ impl GpuBvh {
                 }
             }
         }
-    }
-
-    fn run(&mut self, origins: &[Point3<f64>], dirs: &[Vector3<f64>]) -> Result<(), String> {
-        let n = origins.len();
-        if self.frame.reserve_rays(&self.dev, n) {
-            self.cast_group = Self::bind(
-                &self.dev,
-                &self.cast_pipeline,
-                &self.params,
-                &self.frame,
-                &self.tris,
-                &self.nodes,
-            );
-        }
-        let (m_err, box_pad) = self.frame.upload_rays(&self.dev, origins, dirs);
-        let params = Params {
-            n_rays: n as u32,
-            n_tris: self.frame.triangles.len() as u32,
-            n_nodes: self.bvh.nodes.len() as u32,
-            m_err,
-            box_pad,
-            ..Params::default()
-        };
-        self.dev
-            .queue
-            .write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
-        let mut encoder = self
-            .dev
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("bvh") });
-        self.encode_refit(&mut encoder);
-        {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("bvh cast"),
-                timestamp_writes: None,
-            });
-            pass.set_pipeline(&self.cast_pipeline);
-            pass.set_bind_group(0, &self.cast_group, &[]);
-            let (x, y) = grid(n.div_ceil(64));
-            pass.dispatch_workgroups(x, y, 1);
-        }
-        self.frame.encode_readback(&mut encoder, n);
-        self.dev.queue.submit([encoder.finish()]);
-        self.frame.read_candidates(&self.dev, n)
     }
 }
 
@@ -272,19 +198,27 @@ impl RayBackend for GpuBvh {
     }
 
     fn update_positions(&mut self, positions: &[Point3<f64>]) {
-        if self.frame.set_positions(&self.dev, positions) {
-            self.stale = true;
+        let k = &mut self.kernel;
+        if k.frame.set_positions(&k.dev, positions) {
+            self.refit.stale = true;
         }
     }
 
     fn cast(&mut self, origins: &[Point3<f64>], dirs: &[Vector3<f64>], out: &mut Vec<NodeHits>) {
-        let n = origins.len().min(dirs.len());
-        let (origins, dirs) = (&origins[..n], &dirs[..n]);
-        if n == 0 {
-            out.clear();
-            return;
-        }
-        let run = self.run(origins, dirs);
-        self.frame.answer(run, "bvh", origins, dirs, out);
+        let params = Params {
+            n_nodes: self.refit.bvh.nodes.len() as u32,
+            ..Params::default()
+        };
+        let refit = &mut self.refit;
+        // One invocation a ray, 64 a workgroup; the refit goes first in the
+        // same submission.
+        self.kernel.cast(
+            origins,
+            dirs,
+            out,
+            params,
+            |n| n.div_ceil(64),
+            |dev, frame, surface, encoder| refit.encode(dev, frame, &surface[NODES], encoder),
+        );
     }
 }

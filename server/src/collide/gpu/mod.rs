@@ -74,6 +74,7 @@
 
 mod brute;
 mod bvh;
+mod kernel;
 mod lbvh;
 mod runtime;
 
@@ -135,20 +136,4 @@ pub fn backend_or_cpu(
             cpu()
         }
     }
-}
-
-/// Short form of [`GpuBruteForce::try_new`].
-pub fn try_new_brute(
-    triangles: &[[u32; 3]],
-    positions: &[nalgebra::Point3<f64>],
-) -> Result<GpuBruteForce, GpuError> {
-    GpuBruteForce::try_new(triangles, positions)
-}
-
-/// Short form of [`GpuBvh::try_new`].
-pub fn try_new_bvh(
-    triangles: &[[u32; 3]],
-    positions: &[nalgebra::Point3<f64>],
-) -> Result<GpuBvh, GpuError> {
-    GpuBvh::try_new(triangles, positions)
 }
