@@ -214,11 +214,18 @@ impl Compliance {
         }
         frame.finish(&model.pattern, &lift, &mut values, &mut rhs);
         let mut factor = SparseLlt::new(&model.pattern)?;
-        factor.factorize(&model.pattern, &values).map_err(|e| {
-            SolveError::Factorization(format!(
-                "{e}; the fixed supports must prevent every rigid motion for this strategy"
-            ))
-        })?;
+        factor
+            .factorize(&model.pattern, &values)
+            .map_err(|e| match e {
+                SolveError::NotPositiveDefinite { matrix, pivot, .. } => {
+                    SolveError::NotPositiveDefinite {
+                        matrix,
+                        pivot,
+                        hint: "; the fixed supports must prevent every rigid motion for this strategy",
+                    }
+                }
+                other => other,
+            })?;
         let rec_nodes: Vec<u32> = match recover {
             Recover::All => (0..n_nodes as u32).collect(),
             Recover::Surface => {
@@ -628,8 +635,12 @@ impl Compliance {
             MemStack::new(&mut self.chol_buf),
             Default::default(),
         )
-        .map_err(|e| {
-            SolveError::Factorization(format!("compliance block: {e:?} (redundant constraints?)"))
+        .map_err(|e| match e {
+            llt::factor::LltError::NonPositivePivot { index } => SolveError::NotPositiveDefinite {
+                matrix: "the compliance block",
+                pivot: Some(index),
+                hint: " (redundant constraints?)",
+            },
         })?;
         self.prepared = true;
         Ok(())

@@ -332,8 +332,9 @@ pub fn solve_by_active_set<S: DeformationSolver + ?Sized>(
                 None => {
                     let svd = a.svd(true, true);
                     let eps = 1e-10 * svd.singular_values.max();
-                    svd.solve(&b, eps).map_err(|e| {
-                        SolveError::Factorization(format!("point rows of a contact solve: {e}"))
+                    svd.solve(&b, eps).map_err(|reason| SolveError::Singular {
+                        matrix: "the point rows of a contact solve",
+                        reason,
                     })?
                 }
             };

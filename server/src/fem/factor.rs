@@ -43,7 +43,10 @@ impl SparseLlt {
             Default::default(),
             Default::default(),
         )
-        .map_err(|e| SolveError::Factorization(format!("symbolic analysis: {e:?}")))?;
+        .map_err(|source| SolveError::Sparse {
+            matrix: "the stiffness (symbolic analysis)",
+            source,
+        })?;
         let factor_buf = MemBuffer::new(
             symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()),
         );
@@ -135,8 +138,14 @@ impl SparseLlt {
                 MemStack::new(&mut self.factor_buf),
                 Default::default(),
             )
-            .map_err(|e| {
-                SolveError::Factorization(format!("{e:?} (matrix not positive definite)"))
+            .map_err(|e| match e {
+                faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot { index } => {
+                    SolveError::NotPositiveDefinite {
+                        matrix: "the stiffness",
+                        pivot: Some(index),
+                        hint: "",
+                    }
+                }
             })?;
         self.factored = true;
         Ok(())

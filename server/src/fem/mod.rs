@@ -129,9 +129,36 @@ pub enum SolveError {
     /// An input value is NaN or infinite.
     #[error("non-finite input: {0}")]
     NonFinite(String),
-    /// The factorization failed (the stiffness is not positive definite).
-    #[error("factorization failed: {0}")]
-    Factorization(String),
+    /// A matrix that must be symmetric positive definite is not: its
+    /// Cholesky factorization met a non-positive pivot (`pivot`, when the
+    /// factorization names it).
+    #[error("{matrix} is not positive definite{}{hint}", pivot.map_or(String::new(), |p| format!(" (pivot {p} is not positive)")))]
+    NotPositiveDefinite {
+        /// Which matrix.
+        matrix: &'static str,
+        /// The pivot that failed.
+        pivot: Option<usize>,
+        /// What usually causes it here.
+        hint: &'static str,
+    },
+    /// The sparse factorization's own resources failed (index overflow, out
+    /// of memory).
+    #[error("factorization of {matrix}: {source}")]
+    Sparse {
+        /// Which matrix.
+        matrix: &'static str,
+        /// What faer reported.
+        #[source]
+        source: faer::sparse::FaerError,
+    },
+    /// A least-norm solve of a singular system failed.
+    #[error("{matrix}: {reason}")]
+    Singular {
+        /// Which system.
+        matrix: &'static str,
+        /// What the decomposition reported.
+        reason: &'static str,
+    },
     /// An iterative solve did not reach its tolerance.
     #[error("did not converge after {iterations} iterations (residual {residual:e})")]
     NotConverged { iterations: u32, residual: f64 },

@@ -30,16 +30,11 @@ pub enum SurfaceError {
     /// No triangles.
     #[error("the surface has no triangles")]
     Empty,
-    /// A triangle refers to a vertex that does not exist.
-    #[error("triangle {triangle} refers to vertex {vertex}, but there are {vertices} vertices")]
-    IndexOutOfRange {
-        triangle: usize,
-        vertex: u32,
-        vertices: usize,
-    },
-    /// A vertex coordinate is NaN or infinite.
-    #[error("vertex {vertex} has a non-finite coordinate")]
-    NonFinite { vertex: usize },
+    /// A triangle refers to a vertex that does not exist, or a vertex
+    /// coordinate is NaN or infinite (the engine's one check of a surface's
+    /// indices and values).
+    #[error(transparent)]
+    Values(#[from] fissure_proto::surface::SurfaceError),
     /// A triangle repeats a vertex or has zero area.
     #[error("triangle {triangle} is degenerate (repeated vertex or zero area)")]
     DegenerateTriangle { triangle: usize },
@@ -105,20 +100,8 @@ pub fn check_surface(vertices: &[Point3<f64>], triangles: &[[u32; 3]]) -> Result
     if triangles.is_empty() {
         return Err(SurfaceError::Empty);
     }
-    if let Some(vertex) = vertices
-        .iter()
-        .position(|p| !p.coords.iter().all(|c| c.is_finite()))
-    {
-        return Err(SurfaceError::NonFinite { vertex });
-    }
+    fissure_proto::surface::check_surface(triangles, vertices)?;
     for (triangle, t) in triangles.iter().enumerate() {
-        if let Some(&vertex) = t.iter().find(|&&v| v as usize >= vertices.len()) {
-            return Err(SurfaceError::IndexOutOfRange {
-                triangle,
-                vertex,
-                vertices: vertices.len(),
-            });
-        }
         let [a, b, c] = t.map(|v| vertices[v as usize]);
         if t[0] == t[1]
             || t[1] == t[2]
@@ -585,11 +568,13 @@ mod tests {
         f[0][1] = 999;
         assert!(matches!(
             check_surface(&v, &f),
-            Err(SurfaceError::IndexOutOfRange {
-                triangle: 0,
-                vertex: 999,
-                ..
-            })
+            Err(SurfaceError::Values(
+                fissure_proto::surface::SurfaceError::VertexOutOfRange {
+                    triangle: 0,
+                    vertex: 999,
+                    ..
+                }
+            ))
         ));
         f[0][1] = f[0][0];
         assert!(matches!(
@@ -599,7 +584,9 @@ mod tests {
         v[2].x = f64::NAN;
         assert!(matches!(
             check_surface(&v, &f),
-            Err(SurfaceError::NonFinite { vertex: 2 })
+            Err(SurfaceError::Values(
+                fissure_proto::surface::SurfaceError::NonFinite { vertex: 2 }
+            ))
         ));
         assert!(matches!(check_surface(&v, &[]), Err(SurfaceError::Empty)));
     }

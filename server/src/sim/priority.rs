@@ -65,7 +65,7 @@ pub fn leave_realtime() -> Result<(), String> {
             NormalThreadSchedulePolicy, ThreadSchedulePolicy, set_thread_priority_and_policy,
             thread_native_id, thread_schedule_policy,
         };
-        let policy = thread_schedule_policy().map_err(|e| format!("{e:?}"))?;
+        let policy = thread_schedule_policy().map_err(|e| e.to_string())?;
         if !matches!(policy, ThreadSchedulePolicy::Realtime(_)) {
             return Ok(());
         }
@@ -79,7 +79,7 @@ pub fn leave_realtime() -> Result<(), String> {
             thread_priority::ThreadPriority::Crossplatform(value),
             ThreadSchedulePolicy::Normal(NormalThreadSchedulePolicy::Other),
         )
-        .map_err(|e| format!("{e:?}"))?;
+        .map_err(|e| e.to_string())?;
         rustix::process::setpriority_process(Some(rustix::thread::gettid()), 0)
             .map_err(|e| e.to_string())
     }
@@ -120,7 +120,7 @@ pub fn raise_current_thread(priority: u8) -> Result<bool, String> {
             ThreadSchedulePolicy::Realtime(RealtimeThreadSchedulePolicy::Fifo),
         )
         .map(|()| true)
-        .map_err(|e| format!("{e:?}"))
+        .map_err(|e| e.to_string())
     }
     #[cfg(not(target_os = "linux"))]
     Err("real-time priorities are only set on Linux".into())
