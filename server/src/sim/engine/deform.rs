@@ -1,0 +1,126 @@
+//! The deformation stage: the FEM solver of the scene's strategy and the
+//! penalty measure of a row.
+
+use super::*;
+
+/// The deformation stage: the FEM solver of the scene's strategy.
+pub struct Deformer {
+    solver: Box<dyn DeformationSolver>,
+    answer: ContactAnswer,
+    fem_rows: Vec<ContactRow>,
+    patch: CompliancePatch,
+}
+
+impl std::fmt::Debug for Deformer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Deformer")
+            .field("solver", &self.solver.name())
+            .finish_non_exhaustive()
+    }
+}
+
+impl Deformer {
+    /// Builds (and factorizes) the solver the scene asks for. `columns`
+    /// says how a solve gets compliance columns it lacks (`hook` runs first
+    /// on the background thread of [`ColumnPolicy::Defer`]).
+    pub fn new(
+        scene: &Scene,
+        model: &Model,
+        columns: ColumnPolicy,
+        hook: Option<Arc<dyn Fn() + Send + Sync>>,
+    ) -> Result<Self, SimError> {
+        let strategy = scene.solver.strategy;
+        let material = fem::Material {
+            youngs_modulus_pa: scene.material.youngs_modulus_pa,
+            poisson_ratio: scene.material.poisson_ratio,
+        };
+        let mut options = fem::SolverOptions::default();
+        options.iterative.tolerance = scene.solver.tolerance;
+        options.iterative.max_outer = scene.solver.max_iterations;
+        options.foundation = model.foundation.clone();
+        let mut solver = fem::build_solver(strategy, &model.mesh, material, &model.fixed, &options)
+            .map_err(SimError::Solver)?;
+        solver.set_column_policy(columns, hook);
+        Ok(Self {
+            solver,
+            answer: ContactAnswer::default(),
+            fem_rows: Vec::new(),
+            patch: CompliancePatch::default(),
+        })
+    }
+
+    /// The strategy's name.
+    pub fn strategy(&self) -> &'static str {
+        self.solver.name()
+    }
+
+    /// Back to rest (an unconstrained solve gives zero displacement and resets
+    /// warm starts).
+    pub fn reset(&mut self) {
+        let _ = self.solver.solve(&[]);
+        self.answer = ContactAnswer::default();
+    }
+
+    /// Solves the contact problem of `rows`, warm-started from `warm` (one
+    /// multiplier per row, or empty). On success the multipliers are in
+    /// [`Self::answer`] and the displacements in [`Self::displacements`].
+    pub fn solve(&mut self, rows: &[Row], warm: &[f64]) -> Result<(), fem::SolveError> {
+        self.fem_rows.clear();
+        self.fem_rows.extend(rows.iter().map(|r| r.row));
+        self.answer.multipliers.clear();
+        if warm.len() == rows.len() {
+            self.answer.multipliers.extend_from_slice(warm);
+        }
+        self.solver.solve_contact(&self.fem_rows, &mut self.answer)
+    }
+
+    /// The last contact solve's answer.
+    pub fn answer(&self) -> &ContactAnswer {
+        &self.answer
+    }
+
+    /// Every node's displacement after the last successful solve, m.
+    pub fn displacements(&self) -> &[Vector3<f64>] {
+        self.solver
+            .last_solution()
+            .map(|s| s.displacements.as_slice())
+            .unwrap_or(&[])
+    }
+
+    /// Solver iterations of the last solve.
+    pub fn iterations(&self) -> u32 {
+        self.solver.last_solution().map_or(0, |s| s.iterations)
+    }
+
+    /// The compliance patch over `nodes`, if the strategy has one.
+    pub fn patch(&mut self, nodes: &[u32]) -> Option<CompliancePatch> {
+        if self.solver.compliance_patch(nodes, &mut self.patch) {
+            Some(std::mem::take(&mut self.patch))
+        } else {
+            None
+        }
+    }
+
+    /// Asks for the compliance of `nodes` ahead of contact.
+    pub fn prefetch(&mut self, nodes: &[u32]) {
+        self.solver.prefetch(nodes);
+    }
+}
+
+/// The penalty answer of a row whose node has no compliance yet
+/// (flagged): `lambda = k max(0, -g)` for a unilateral row (`-k g` for a
+/// bilateral one) at the gap `g = g_free + d . u` of the displacements `u`
+/// the tissue has now, with the node's penalty stiffness `k`.
+pub fn penalty(model: &Model, row: &Row, u: &[Vector3<f64>]) -> f64 {
+    let k = row
+        .row
+        .nodes()
+        .map(|(n, _)| model.penalty_n_per_m[n as usize])
+        .fold(0.0, f64::max);
+    let g = row.row.gap_free_m + row.row.normal_motion(u);
+    match row.row.kind {
+        RowKind::Unilateral => k * (-g).max(0.0),
+        RowKind::Bilateral => -k * g,
+        _ => 0.0,
+    }
+}

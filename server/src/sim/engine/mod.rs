@@ -1,0 +1,743 @@
+//! The engine a scene asks for, composed from the library stages: the model
+//! (mesh, surface, instruments), the collision stage of each loop, the
+//! contact rows, and the deformation stage (the contact problem's solve,
+//! the compliance patch the force loops solve on).
+//!
+//! "Model only what a scene requires": the skull's rows exist only when the
+//! scene names it; each instrument's rays are cast only for that
+//! instrument; the force loop of an instrument queries that instrument
+//! alone.
+//!
+//! [`model`] builds the model, [`query`] is the collision stage, [`rules`]
+//! makes the contact rows, [`deform`] is the deformation stage; this module
+//! composes them into the step ([`StepEngine`]).
+
+use super::SimError;
+use super::local_model::ForceModel;
+use super::rows::{self, Anchors, FreePositions, Row, SKULL_OWNER};
+use super::snapshot::{Frame, InstrumentReaction, Snapshot, StepTimings};
+use crate::collide::RayBackend;
+use crate::collide::brute::BruteForce;
+use crate::collide::bvh::{Bvh, BvhView};
+use crate::collide::contact::{self, ContactOutput, ContactRule, DetectOptions, Tool, Workspace};
+use crate::collide::history::{HistoryMode as CollideHistoryMode, Stage};
+use crate::collide::instrument::{Instrument, NodeLayout, Plate, RimNodes};
+use crate::fem::compliance::ColumnPolicy;
+use crate::fem::{self, CompliancePatch, ContactAnswer, ContactRow, DeformationSolver, RowKind};
+use crate::mesh::{BoundarySurface, TetMesh};
+use crate::scene::{
+    CollisionBackend, CollisionMethod, ContactGeometry, ContactLaw, HistoryMode, LayoutKind,
+    ModelSpec, Region, Scene, ShapeKind,
+};
+use faer::Par;
+use nalgebra::{Isometry3, Point3, Vector3};
+use std::sync::Arc;
+use std::time::Instant;
+
+/// Contact history flags of one instrument.
+pub type History = crate::collide::history::History;
+
+pub mod deform;
+pub mod model;
+pub mod query;
+pub mod rules;
+
+pub use deform::*;
+pub use model::*;
+pub use query::*;
+pub use rules::*;
+
+/// What one deformation step did, beyond the snapshot it publishes.
+#[derive(Debug, Clone, Default)]
+pub struct StepReport {
+    /// Rows of the contact problem.
+    pub rows: usize,
+    /// Rows answered by a penalty (their compliance is not computed yet).
+    pub pending: usize,
+    /// Solver iterations.
+    pub iterations: u32,
+    /// Skull rounds (solves) of the step.
+    pub rounds: u32,
+    /// The contact solver's check of its answer.
+    pub check: fem::lcp::Report,
+    /// Nodes of the published compliance patch.
+    pub patch_nodes: usize,
+}
+
+/// The deformation step of a scene: collision of every instrument, the
+/// contact rows, the solve, and the snapshot the force loops read. Used by
+/// the free-running deformation thread and by the stepped runner alike.
+pub struct StepEngine {
+    scene: Scene,
+    model: Arc<Model>,
+    deformer: Deformer,
+    query: ContactQuery,
+    /// The contact search's own collision stage (its own backend, fitted
+    /// to each solved shape).
+    search: ContactQuery,
+    bvhs: Option<SurfaceBvhs>,
+    paper_history: Vec<History>,
+    anchors: Anchors,
+    rule: RowRule,
+    skull: Option<SkullRows>,
+    next_frame: u64,
+    rows: Vec<Row>,
+    warm: Vec<f64>,
+    extra: Vec<u32>,
+    lambda: Vec<f64>,
+}
+
+impl std::fmt::Debug for StepEngine {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("StepEngine")
+            .field("scene", &self.scene.name)
+            .field("next_frame", &self.next_frame)
+            .finish_non_exhaustive()
+    }
+}
+
+/// Most solves of one step while the skull finds new nodes leaving it.
+const SKULL_ROUNDS: u32 = 8;
+
+/// Most contact searches on a step's solved shape (rounds of the contact
+/// geometry's fixed point).
+const CONTACT_SEARCHES: u32 = 8;
+
+/// The contact geometry has converged when a search on the solved shape
+/// finds the problem's rows with point weights (barycentric, 1) within
+/// this of the problem's.
+const GEOMETRY_TOLERANCE: f64 = 1e-6;
+
+impl StepEngine {
+    /// The step of `scene` over `model` (factorizes the solver). `columns`
+    /// and `hook` as in [`Deformer::new`]; `query` casts on the scene's
+    /// backend unless the caller gives one.
+    pub fn new(
+        scene: &Scene,
+        model: Arc<Model>,
+        columns: ColumnPolicy,
+        hook: Option<Arc<dyn Fn() + Send + Sync>>,
+        backend: Option<Box<dyn RayBackend>>,
+    ) -> Result<Self, SimError> {
+        let deformer = Deformer::new(scene, &model, columns, hook)?;
+        let query = match backend {
+            Some(b) => ContactQuery::with_backend(scene, b),
+            None => ContactQuery::new(scene, Par::rayon(0)),
+        };
+        // The search casts on a CPU tree of its own (every backend gives the
+        // same answers).
+        let search = ContactQuery::with_backend(
+            scene,
+            Box::new(
+                Bvh::new(&model.surface.triangles, &model.rest_surface)
+                    .expect("surface checked at load"),
+            ),
+        );
+        // A linearized contact searches the model's rest tree: no tree is
+        // published, nor refitted.
+        let bvhs = if model.contact_rest.is_none() {
+            SurfaceBvhs::new(scene, &model)
+        } else {
+            None
+        };
+        let paper_history = (0..model.instruments.len())
+            .map(|i| model.new_history(i))
+            .collect();
+        Ok(Self {
+            scene: scene.clone(),
+            deformer,
+            query,
+            search,
+            bvhs,
+            paper_history,
+            anchors: Anchors::default(),
+            rule: RowRule::of(scene),
+            skull: SkullRows::of(scene),
+            next_frame: 0,
+            rows: Vec::new(),
+            warm: Vec::new(),
+            extra: Vec::new(),
+            lambda: Vec::new(),
+            model,
+        })
+    }
+
+    /// The model.
+    pub fn model(&self) -> &Arc<Model> {
+        &self.model
+    }
+
+    /// The solver strategy's name.
+    pub fn strategy(&self) -> &'static str {
+        self.deformer.strategy()
+    }
+
+    /// The rest state as the next frame (at `sim_time_s`), with the
+    /// histories, anchors and solver back to rest.
+    pub fn rest(&mut self, sim_time_s: f64) -> Snapshot {
+        self.deformer.reset();
+        for (i, h) in self.paper_history.iter_mut().enumerate() {
+            *h = self.model.new_history(i);
+        }
+        self.anchors = Anchors::default();
+        let frame = self.next_frame;
+        self.next_frame += 1;
+        let mut snap = self.model.rest_snapshot(&self.scene, frame, sim_time_s);
+        snap.surface_bvh = self.bvhs.as_mut().map(|b| b.fit(&snap.surface));
+        // A strategy with a compliance operator answers contacts before the
+        // first step too (with penalties until its columns exist).
+        if self.deformer.patch(&[]).is_some() {
+            if let Some(fm) = Arc::get_mut(&mut snap.force_model) {
+                fm.has_patch = true;
+            }
+        }
+        snap
+    }
+
+    /// One deformation step at `sim_time_s` from `prev`: instrument `i` at
+    /// `poses[i]` with the force loop's history `histories[i]` (force-rate
+    /// mode; `None`: an instrument at home, or the paper's mode, uses the
+    /// step's own history).
+    pub fn step(
+        &mut self,
+        prev: &Snapshot,
+        sim_time_s: f64,
+        poses: &[Isometry3<f64>],
+        histories: Vec<Option<History>>,
+    ) -> (Snapshot, Option<StepReport>) {
+        let started = Instant::now();
+        let model = self.model.clone();
+        let frame = self.next_frame;
+        self.next_frame += 1;
+        let paper_mode = self.scene.collision.history == HistoryMode::Paper;
+        let own: Vec<bool> = histories
+            .iter()
+            .map(|h| paper_mode || h.is_none())
+            .collect();
+        let mut step_histories: Vec<History> = histories
+            .into_iter()
+            .enumerate()
+            .map(|(i, h)| match h {
+                Some(h) if !paper_mode => h,
+                _ => self.paper_history[i].clone(),
+            })
+            .collect();
+        let t0 = Instant::now();
+        let contacts = tracing::debug_span!("collision").in_scope(|| {
+            self.query
+                .query_all(&model, prev, poses, &mut step_histories)
+        });
+        let mut after = step_histories.clone();
+        for (i, h) in step_histories.into_iter().enumerate() {
+            if own[i] {
+                self.paper_history[i] = h;
+            }
+        }
+        let collision_us = t0.elapsed().as_secs_f64() * 1e6;
+        let t1 = Instant::now();
+        // Rows: the instruments', then the skull's.
+        self.rows.clear();
+        self.rule.rows(
+            &model,
+            contacts,
+            &FreePositions::Rest(&model.mesh.nodes),
+            &prev.displacements,
+            &self.anchors,
+            poses,
+            &mut self.rows,
+        );
+        let last = prev.force_model.clone();
+        let mut n_instrument_rows = self.rows.len();
+        // What the snapshot needs of the collision output.
+        let counts: Vec<(u32, u32)> = (0..model.instruments.len())
+            .map(|k| {
+                let pairs = contacts.pairs_of(k as u16).count() as u32;
+                let culled = contacts
+                    .cancelled
+                    .iter()
+                    .filter(|p| p.instrument as usize == k)
+                    .count() as u32;
+                (pairs, culled)
+            })
+            .collect();
+        let nearby = contacts.nearby.clone();
+        if let Some(skull) = &self.skull {
+            skull.rows(&model, &prev.displacements, &[], &mut self.rows);
+        }
+        // Warm start from the last step's multipliers, by key.
+        self.warm.clear();
+        self.warm.extend(
+            self.rows
+                .iter()
+                .map(|r| last.step_multiplier(r.key).unwrap_or(0.0)),
+        );
+        let mut rounds = 0;
+        let mut searches = 0;
+        let result = loop {
+            rounds += 1;
+            if let Err(e) = self.deformer.solve(&self.rows, &self.warm) {
+                break Err(e);
+            }
+            // Skull nodes leaving the sphere join the problem.
+            if let Some(skull) = &self.skull {
+                let u = self.deformer.displacements();
+                skull.violations(
+                    &model,
+                    u,
+                    &self.rows,
+                    1e-9 * skull.band_m.max(1e-6),
+                    &mut self.extra,
+                );
+                if !self.extra.is_empty() && rounds < SKULL_ROUNDS {
+                    let extra = std::mem::take(&mut self.extra);
+                    let u = self.deformer.displacements().to_vec();
+                    skull.rows(&model, &u, &extra, &mut self.rows);
+                    self.extra = extra;
+                    self.warm = self.deformer.answer().multipliers.clone();
+                    self.warm.resize(self.rows.len(), 0.0);
+                    continue;
+                }
+            }
+            // Contact search on the solved shape: rows a query at the
+            // step's poses finds there that the solution violates (tissue
+            // the plate now pierces elsewhere) join the problem.
+            // (None for a linearized contact: its rows do not depend on
+            // the shape.)
+            if model.contact_rest.is_none() && searches < CONTACT_SEARCHES {
+                searches += 1;
+                if self.search_solved(&model, poses, &after, &mut n_instrument_rows) {
+                    continue;
+                }
+            }
+            break Ok(());
+        };
+        let solve_us = t1.elapsed().as_secs_f64() * 1e6;
+        let timings = |total: f64| StepTimings {
+            collision_us,
+            solve_us,
+            total_us: total,
+        };
+        if let Err(e) = result {
+            tracing::warn!(frame, error = %e, "deformation step failed; keeping the last good state");
+            let mut summary = (*prev.frame_summary).clone();
+            summary.frame = frame;
+            summary.sim_time_s = sim_time_s;
+            summary.timings = timings(started.elapsed().as_secs_f64() * 1e6);
+            summary.solver_error = Some(e.to_string());
+            let mut fm = (*prev.force_model).clone();
+            fm.frame = frame;
+            return (
+                Snapshot {
+                    frame,
+                    sim_time_s,
+                    published: Instant::now(),
+                    surface: prev.surface.clone(),
+                    displacements: prev.displacements.clone(),
+                    surface_bvh: prev.surface_bvh.clone(),
+                    force_model: Arc::new(fm),
+                    paper_history: prev.paper_history.clone(),
+                    solver_error: Some(e.to_string()),
+                    frame_summary: Arc::new(summary),
+                },
+                None,
+            );
+        }
+        let answer = self.deformer.answer();
+        self.lambda.clear();
+        self.lambda.extend_from_slice(&answer.multipliers);
+        for (k, h) in self.paper_history.iter_mut().enumerate() {
+            if own[k] {
+                h.set_seeds(rows::seeds_of(
+                    &self.rows,
+                    &self.lambda,
+                    k as u16,
+                    &model.surface.triangles,
+                    &model.from_volume,
+                ));
+            }
+        }
+        // Rows whose node has no compliance yet: a penalty at the tissue's
+        // present shape.
+        for &p in &answer.pending {
+            self.lambda[p as usize] = penalty(&model, &self.rows[p as usize], &prev.displacements);
+        }
+        let pending = answer.pending.clone();
+        let check = answer.report;
+        let iterations = self.deformer.iterations();
+        let displacements = Arc::new(self.deformer.displacements().to_vec());
+        if self.rule.friction.is_some() {
+            self.update_anchors(&model, poses, &displacements, n_instrument_rows);
+        }
+        // The new surface and its tree; the force loops query it, so the
+        // patch covers the rows a query at the step's poses finds on it too.
+        let mut surface = Vec::with_capacity(model.rest_surface.len());
+        for (s, &v) in model.surface.to_volume.iter().enumerate() {
+            surface.push(model.rest_surface[s] + displacements[v as usize]);
+        }
+        let surface = Arc::new(surface);
+        let surface_bvh =
+            tracing::debug_span!("refit").in_scope(|| self.bvhs.as_mut().map(|b| b.fit(&surface)));
+        let mut patch_nodes: Vec<u32> = self
+            .rows
+            .iter()
+            .flat_map(|r| r.row.nodes().map(|(n, _)| n))
+            .collect();
+        let mut ahead = Vec::new();
+        let band2 = 2.0 * self.scene.contact.band_m;
+        for n in &nearby {
+            if n.distance_m <= band2 {
+                patch_nodes.push(n.volume_node);
+            } else {
+                ahead.push(n.volume_node);
+            }
+        }
+        // (A linearized contact finds the same rows on any shape.)
+        if model.contact_rest.is_none() {
+            let post =
+                self.query
+                    .query_all_on(&model, &surface, surface_bvh.as_ref(), poses, &mut after);
+            let mut post_rows = Vec::new();
+            self.rule.rows(
+                &model,
+                post,
+                &FreePositions::Rest(&model.mesh.nodes),
+                &prev.displacements,
+                &self.anchors,
+                poses,
+                &mut post_rows,
+            );
+            patch_nodes.extend(post_rows.iter().flat_map(|r| r.row.nodes().map(|(n, _)| n)));
+            for n in &post.nearby {
+                if n.distance_m <= band2 {
+                    patch_nodes.push(n.volume_node);
+                } else {
+                    ahead.push(n.volume_node);
+                }
+            }
+        }
+        // And one ring of surface neighbours: a plate's outline that moves
+        // within the interval crosses triangles beyond the vertices the
+        // step found, and a polygon point there names all three.
+        patch_nodes.sort_unstable();
+        patch_nodes.dedup();
+        let found = patch_nodes.len();
+        for i in 0..found {
+            let s = model.from_volume[patch_nodes[i] as usize];
+            if s != u32::MAX {
+                patch_nodes.extend(
+                    model
+                        .surface_neighbours
+                        .row(s as usize)
+                        .iter()
+                        .map(|&w| model.surface.to_volume[w as usize]),
+                );
+            }
+        }
+        patch_nodes.sort_unstable();
+        patch_nodes.dedup();
+        patch_nodes.retain(|&v| !model.fixed_mask[v as usize]);
+        let patch = self.deformer.patch(&patch_nodes);
+        ahead.sort_unstable();
+        ahead.dedup();
+        ahead.retain(|&v| !model.fixed_mask[v as usize]);
+        self.deformer.prefetch(&ahead);
+        let has_patch = patch.is_some();
+        let patch = Arc::new(patch.unwrap_or_default());
+        let mut patch_index = vec![u32::MAX; model.mesh.nodes.len()];
+        for (i, &v) in patch.nodes.iter().enumerate() {
+            patch_index[v as usize] = i as u32;
+        }
+        let report = StepReport {
+            rows: self.rows.len(),
+            pending: pending.len(),
+            iterations,
+            rounds,
+            check,
+            patch_nodes: patch.nodes.len(),
+        };
+        let total_us = started.elapsed().as_secs_f64() * 1e6;
+        let snap = self.snapshot(
+            frame,
+            sim_time_s,
+            &counts,
+            poses,
+            surface,
+            surface_bvh,
+            displacements,
+            ForcePatch {
+                patch,
+                patch_index: Arc::new(patch_index),
+                has_patch,
+            },
+            &pending,
+            timings(total_us),
+        );
+        (snap, Some(report))
+    }
+
+    /// The contact geometry's fixed point, one round of [`Self::step`]:
+    /// queries the solved shape at `poses` (with copies of the histories
+    /// after the step's query) and, unless its instrument rows are the
+    /// problem's (same keys, point weights within
+    /// [`GEOMETRY_TOLERANCE`]), makes them the problem's, each point row
+    /// half-way to the problem's row of its key ([`rows::midway`]: a
+    /// corner's tissue point moves with the shape it pushes, and the plain
+    /// iteration can swing between two shapes); the skull's rows follow.
+    /// Returns whether the rows changed; `n_instrument_rows` counts the
+    /// instrument rows at the front.
+    fn search_solved(
+        &mut self,
+        model: &Model,
+        poses: &[Isometry3<f64>],
+        histories: &[History],
+        n_instrument_rows: &mut usize,
+    ) -> bool {
+        let u = self.deformer.displacements();
+        let surface: Vec<Point3<f64>> = model
+            .surface
+            .to_volume
+            .iter()
+            .enumerate()
+            .map(|(s, &v)| model.rest_surface[s] + u[v as usize])
+            .collect();
+        let surface = Arc::new(surface);
+        let mut h = histories.to_vec();
+        let multipliers = &self.deformer.answer().multipliers;
+        for (k, hk) in h.iter_mut().enumerate() {
+            hk.set_seeds(rows::seeds_of(
+                &self.rows,
+                multipliers,
+                k as u16,
+                &model.surface.triangles,
+                &model.from_volume,
+            ));
+        }
+        let found = self
+            .search
+            .query_all_on(model, &surface, None, poses, &mut h);
+        let free = FreePositions::Rest(&model.mesh.nodes);
+        let mut post = Vec::new();
+        self.rule
+            .rows(model, found, &free, u, &self.anchors, poses, &mut post);
+        let old = &self.rows[..*n_instrument_rows];
+        let by_key: std::collections::HashMap<u64, usize> =
+            old.iter().enumerate().map(|(i, r)| (r.key, i)).collect();
+        let mut same = post.len() == old.len();
+        for r in post.iter_mut() {
+            match by_key.get(&r.key) {
+                Some(&i) => {
+                    let o = &old[i];
+                    if r.row.is_point() || o.row.is_point() {
+                        let dw = (0..3)
+                            .map(|k| (r.triangle.1[k] - o.triangle.1[k]).abs())
+                            .fold(0.0, f64::max);
+                        if dw > GEOMETRY_TOLERANCE {
+                            same = false;
+                            *r = rows::midway(o, r, &free, &model.fixed_mask);
+                        }
+                    }
+                }
+                None => same = false,
+            }
+        }
+        if same {
+            return false;
+        }
+        let multipliers = &self.deformer.answer().multipliers;
+        let old_lambda: std::collections::HashMap<u64, f64> = self
+            .rows
+            .iter()
+            .zip(multipliers)
+            .map(|(r, &l)| (r.key, l))
+            .collect();
+        let skull: Vec<Row> = self.rows[*n_instrument_rows..].to_vec();
+        self.rows.clear();
+        rows::append(&mut self.rows, &post);
+        *n_instrument_rows = self.rows.len();
+        rows::append(&mut self.rows, &skull);
+        self.warm.clear();
+        self.warm.extend(
+            self.rows
+                .iter()
+                .map(|r| old_lambda.get(&r.key).copied().unwrap_or(0.0)),
+        );
+        true
+    }
+
+    /// Friction: a contact that slipped sticks where it ended; one that
+    /// stuck keeps its anchor (a new one anchors where it touched); an
+    /// open one forgets its anchor.
+    fn update_anchors(
+        &mut self,
+        model: &Model,
+        poses: &[Isometry3<f64>],
+        u: &[Vector3<f64>],
+        n_instrument_rows: usize,
+    ) {
+        let mut keep = std::collections::HashSet::new();
+        let rows = &self.rows[..n_instrument_rows];
+        for (i, r) in rows.iter().enumerate() {
+            if r.row.kind != RowKind::Unilateral || self.lambda[i] <= 0.0 {
+                continue;
+            }
+            let Some(pose) = poses.get(r.owner as usize) else {
+                continue;
+            };
+            let mu = self.rule.friction.unwrap_or(0.0);
+            let lt: f64 = rows
+                .iter()
+                .zip(&self.lambda)
+                .filter(|(t, _)| matches!(t.row.kind, RowKind::Tangent { normal, .. } if normal as usize == i))
+                .map(|(_, l)| l * l)
+                .sum::<f64>()
+                .sqrt();
+            let slipping = lt >= mu * self.lambda[i] * (1.0 - 1e-6);
+            keep.insert(r.key);
+            if slipping || self.anchors.get(r.key).is_none() {
+                // Where the tissue point is now, on the face plane: a
+                // vertex, or a point row's own point of its triangle.
+                let (nodes, weights) = if rows::is_point_key(r.key) {
+                    r.triangle
+                } else {
+                    ([r.row.node, u32::MAX, u32::MAX], [1.0, 0.0, 0.0])
+                };
+                let x = rows::tissue_point(&model.mesh.nodes, u, &nodes, &weights);
+                let on_face = x - r.row.dir * r.row.dir.dot(&(x - r.point));
+                self.anchors.set(
+                    r.key,
+                    rows::Anchor {
+                        at: pose.inverse() * on_face,
+                        weights,
+                    },
+                );
+            }
+        }
+        self.anchors.retain(|k| keep.contains(&k));
+        self.anchors.set_poses(poses);
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn snapshot(
+        &mut self,
+        frame: u64,
+        sim_time_s: f64,
+        counts: &[(u32, u32)],
+        poses: &[Isometry3<f64>],
+        surface: Arc<Vec<Point3<f64>>>,
+        surface_bvh: Option<Arc<Bvh>>,
+        displacements: Arc<Vec<Vector3<f64>>>,
+        patch: ForcePatch,
+        pending: &[u32],
+        timings: StepTimings,
+    ) -> Snapshot {
+        let model = &self.model;
+        let max_d = model
+            .surface
+            .to_volume
+            .iter()
+            .map(|&v| displacements[v as usize].norm())
+            .fold(0.0, f64::max);
+        let mut step_force = Vec::with_capacity(self.scene.instruments.len());
+        let instruments = self
+            .scene
+            .instruments
+            .iter()
+            .enumerate()
+            .map(|(k, spec)| {
+                let handle = poses[k].translation.vector;
+                let (force, torque) =
+                    rows::owner_force(&self.rows, &self.lambda, k as u16, &handle);
+                step_force.push((force, torque));
+                let mut touching: Vec<u32> = self
+                    .rows
+                    .iter()
+                    .zip(&self.lambda)
+                    .filter(|(r, l)| r.owner as usize == k && **l != 0.0)
+                    .map(|(r, _)| r.row.node)
+                    .collect();
+                touching.sort_unstable();
+                touching.dedup();
+                let mut waiting: Vec<u32> = pending
+                    .iter()
+                    .map(|&p| &self.rows[p as usize])
+                    .filter(|r| r.owner as usize == k)
+                    .map(|r| r.row.node)
+                    .collect();
+                waiting.sort_unstable();
+                waiting.dedup();
+                let q = poses[k].rotation.quaternion();
+                InstrumentReaction {
+                    name: spec.name.clone(),
+                    force_n: force,
+                    torque_nm: torque,
+                    pairs: counts[k].0,
+                    culled: counts[k].1,
+                    contact_vertices: touching.len() as u32,
+                    pending_vertices: waiting.len() as u32,
+                    position_m: handle,
+                    orientation: [q.w, q.i, q.j, q.k],
+                }
+            })
+            .collect();
+        let rigid = super::motion::RigidPart::of(
+            &model.rest_surface,
+            &surface,
+            tips_centre(&self.scene, poses),
+        );
+        let positions = surface
+            .iter()
+            .map(|p| [p.x as f32, p.y as f32, p.z as f32])
+            .collect();
+        let force_model = ForceModel::new(
+            frame,
+            patch.patch,
+            patch.patch_index,
+            self.rows.clone(),
+            self.lambda.clone(),
+            self.anchors.clone(),
+            patch.has_patch,
+            step_force,
+        );
+        Snapshot {
+            frame,
+            sim_time_s,
+            published: Instant::now(),
+            surface,
+            displacements,
+            surface_bvh,
+            force_model: Arc::new(force_model),
+            paper_history: self.paper_history.clone(),
+            solver_error: None,
+            frame_summary: Arc::new(Frame {
+                frame,
+                sim_time_s,
+                positions: Arc::new(positions),
+                instruments,
+                timings,
+                solver_error: None,
+                max_displacement_m: max_d,
+                rigid,
+            }),
+        }
+    }
+}
+
+/// The mean of the instruments' tips (`+z` of the plate frame at its
+/// length from the handle), m: the fissure's centre while they work in it.
+fn tips_centre(scene: &Scene, poses: &[Isometry3<f64>]) -> Point3<f64> {
+    let n = poses.len().max(1) as f64;
+    let sum: Vector3<f64> = scene
+        .instruments
+        .iter()
+        .zip(poses)
+        .map(|(spec, pose)| (pose * Point3::new(0.0, 0.0, spec.length_m)).coords)
+        .sum();
+    Point3::from(sum / n)
+}
+
+/// A step's compliance patch with its index.
+struct ForcePatch {
+    patch: Arc<CompliancePatch>,
+    patch_index: Arc<Vec<u32>>,
+    has_patch: bool,
+}

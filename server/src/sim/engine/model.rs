@@ -1,0 +1,338 @@
+//! The model of a scene: the mesh, its surface, the fixed set, the
+//! instruments (built from the scene's shapes and layouts) and the rest-shape
+//! contact search's tree.
+
+use super::*;
+
+/// The immutable model of a scene.
+#[derive(Debug)]
+pub struct Model {
+    /// The tetrahedral mesh at rest, m.
+    pub mesh: TetMesh,
+    /// Its boundary surface.
+    pub surface: BoundarySurface,
+    /// Rest positions of the surface vertices, m.
+    pub rest_surface: Vec<Point3<f64>>,
+    /// Fixed volume nodes.
+    pub fixed: Vec<u32>,
+    /// The instruments, in scene order.
+    pub instruments: Vec<Instrument>,
+    /// Per volume node: fixed.
+    pub fixed_mask: Vec<bool>,
+    /// Per volume node: the stiffness of a contact answered before the
+    /// node's compliance is computed, N/m (Young's modulus times the mean
+    /// length of the node's surface edges: the order of a point load's
+    /// stiffness on a half-space over one element; 0 inside).
+    pub penalty_n_per_m: Vec<f64>,
+    /// With a region of interest: each node's index in the uncropped model,
+    /// and that model's node count.
+    pub to_full: Option<(Vec<u32>, usize)>,
+    /// Per volume node: its surface vertex, `u32::MAX` inside.
+    pub from_volume: Vec<u32>,
+    /// The elastic foundation's springs, when the scene has one.
+    pub foundation: Option<fem::foundation::Foundation>,
+    /// Per surface vertex, its neighbours on the surface.
+    pub surface_neighbours: crate::mesh::adjacency::Csr,
+    /// The rest surface the contact search runs on, when the scene's
+    /// contact geometry is the rest shape ([`ContactGeometry::Rest`]).
+    pub contact_rest: Option<RestContact>,
+    history_mode: CollideHistoryMode,
+}
+
+/// The shape of a linearized contact search: the rest surface and, for
+/// scenes that cast on the CPU BVH, its tree, built once and shared by the
+/// deformation step and every force loop (no refit, ever).
+#[derive(Debug)]
+pub struct RestContact {
+    /// Rest positions of the surface vertices, m.
+    pub surface: Arc<Vec<Point3<f64>>>,
+    /// A BVH over them (CPU BVH scenes).
+    pub tree: Option<Arc<Bvh>>,
+}
+
+fn build_instrument(
+    spec: &crate::scene::InstrumentSpec,
+    max_depth_m: f64,
+) -> Result<Instrument, SimError> {
+    let plate = match spec.shape {
+        ShapeKind::Flat => Plate::flat(spec.thickness_m, spec.width_m, spec.length_m),
+        ShapeKind::Trapezoid => Plate::trapezoid(
+            spec.thickness_m,
+            spec.base_width_m.unwrap_or(spec.width_m),
+            spec.width_m,
+            spec.length_m,
+        ),
+        ShapeKind::Curved => Plate::curved(
+            spec.thickness_m,
+            spec.width_m,
+            spec.length_m,
+            spec.bend_radius_m.unwrap_or(f64::INFINITY),
+        ),
+    };
+    let per_face = spec.nodes_per_face as usize;
+    let layout = match spec.layout {
+        LayoutKind::WholeFace => NodeLayout::WholeFace { per_face },
+        LayoutKind::Tip => NodeLayout::Tip {
+            per_face,
+            fraction: 0.3,
+        },
+    };
+    let rim = spec.rim.then(|| RimNodes {
+        per_side: ((spec.length_m / spec.width_m * 3.0).round() as usize).clamp(4, 64),
+        tip: 5,
+        tip_reach: spec.thickness_m.max(0.002),
+    });
+    let mut instrument =
+        Instrument::new(plate, layout, rim).map_err(|source| SimError::Instrument {
+            name: spec.name.clone(),
+            source,
+        })?;
+    instrument.cap_reach(max_depth_m);
+    Ok(instrument)
+}
+
+impl Model {
+    /// Builds the mesh, the surface, the fixed set and the instruments.
+    pub fn build(scene: &Scene) -> Result<Self, SimError> {
+        scene.check_built(&scene.name)?;
+        let mut landmarks = None;
+        let mesh = match &scene.model {
+            ModelSpec::Cube { size_m, cells } => crate::mesh::blocks::cube(*size_m, *cells),
+            ModelSpec::VValley => crate::mesh::blocks::v_valley(),
+            ModelSpec::UValley => crate::mesh::blocks::u_valley(),
+            ModelSpec::Phantom { preset, proven } => {
+                let p = crate::mesh::phantom::preset_meshed(preset, *proven)?;
+                landmarks = Some(p.landmarks);
+                p.mesh
+            }
+            ModelSpec::File { path, scale } => crate::mesh::io::read_model(path, *scale)?,
+        };
+        let mut regions = Vec::with_capacity(scene.fixed.len());
+        for r in &scene.fixed {
+            regions.push(match r {
+                Region::Landmark { landmark } => match (landmark.as_str(), &landmarks) {
+                    ("brain-stem", Some(l)) => Region::Sphere {
+                        centre_m: l.brain_stem.centre.coords.into(),
+                        radius_m: l.brain_stem.radius,
+                    },
+                    _ => {
+                        return Err(SimError::UnknownLandmark {
+                            landmark: landmark.clone(),
+                        });
+                    }
+                },
+                other => other.clone(),
+            });
+        }
+        let fixed: Vec<u32> = (0..mesh.nodes.len() as u32)
+            .filter(|&n| {
+                let p = mesh.nodes[n as usize];
+                regions.iter().any(|r| r.contains([p.x, p.y, p.z]))
+            })
+            .collect();
+        let (mesh, fixed, to_full) = match &scene.roi {
+            None => (mesh, fixed, None),
+            Some(roi) => {
+                let centre = nalgebra::Point3::from(roi.centre_m);
+                let at = match roi.plane_normal {
+                    None => fem::roi::RoiCentre::Point(centre),
+                    Some(n) => fem::roi::RoiCentre::Plane {
+                        point: centre,
+                        normal: Vector3::from(n).normalize(),
+                    },
+                };
+                let crop = fem::roi::crop(&mesh, at, roi.distance_m, &fixed)
+                    .map_err(SimError::RegionOfInterest)?;
+                tracing::info!(
+                    tets = crop.mesh.tets.len(),
+                    of = mesh.tets.len(),
+                    cut_nodes = crop.cut_nodes.len(),
+                    "region of interest cropped"
+                );
+                (
+                    crop.mesh,
+                    crop.fixed,
+                    Some((crop.to_full, mesh.nodes.len())),
+                )
+            }
+        };
+        if fixed.is_empty() {
+            return Err(SimError::Floating);
+        }
+        let surface = mesh.boundary();
+        let mut rest_surface = Vec::new();
+        surface.gather(&mesh.nodes, &mut rest_surface);
+        let instruments = scene
+            .instruments
+            .iter()
+            .map(|spec| build_instrument(spec, scene.collision.max_depth_m))
+            .collect::<Result<_, _>>()?;
+        let history_mode = match scene.collision.history {
+            HistoryMode::ForceRate => CollideHistoryMode::ForceRate,
+            HistoryMode::Paper => CollideHistoryMode::PaperFaithful,
+        };
+        let mut fixed_mask = vec![false; mesh.nodes.len()];
+        for &n in &fixed {
+            fixed_mask[n as usize] = true;
+        }
+        let mut edge_sum = vec![0.0; mesh.nodes.len()];
+        let mut edge_count = vec![0u32; mesh.nodes.len()];
+        for t in &surface.triangles {
+            for a in 0..3 {
+                let (i, j) = (t[a] as usize, t[(a + 1) % 3] as usize);
+                let (vi, vj) = (surface.to_volume[i] as usize, surface.to_volume[j] as usize);
+                let len = (mesh.nodes[vi] - mesh.nodes[vj]).norm();
+                for v in [vi, vj] {
+                    edge_sum[v] += len;
+                    edge_count[v] += 1;
+                }
+            }
+        }
+        let e = scene.material.youngs_modulus_pa;
+        let penalty_n_per_m = edge_sum
+            .iter()
+            .zip(&edge_count)
+            .map(|(&s, &c)| if c > 0 { e * s / c as f64 } else { 0.0 })
+            .collect();
+        let foundation = scene
+            .foundation
+            .as_ref()
+            .map(|f| {
+                let to_full = to_full.as_ref().map(|t| t.0.as_slice());
+                crate::scene::region::foundation(
+                    f,
+                    &mesh,
+                    &surface,
+                    &fixed_mask,
+                    landmarks.as_ref(),
+                    to_full,
+                )
+            })
+            .transpose()?;
+        let mut from_volume = vec![u32::MAX; mesh.nodes.len()];
+        for (s, &v) in surface.to_volume.iter().enumerate() {
+            from_volume[v as usize] = s as u32;
+        }
+        let contact_rest = (scene.contact_geometry() == ContactGeometry::Rest).then(|| {
+            let tree = (scene.collision.method == CollisionMethod::Bvh
+                && scene.collision.backend == CollisionBackend::Cpu)
+                .then(|| {
+                    Arc::new(
+                        Bvh::new(&surface.triangles, &rest_surface).expect("surface checked above"),
+                    )
+                });
+            RestContact {
+                surface: Arc::new(rest_surface.clone()),
+                tree,
+            }
+        });
+        let surface_neighbours = crate::mesh::adjacency::surface_vertex_neighbours(
+            &surface.triangles,
+            rest_surface.len(),
+        );
+        Ok(Self {
+            from_volume,
+            surface_neighbours,
+            contact_rest,
+            mesh,
+            surface,
+            rest_surface,
+            fixed,
+            instruments,
+            fixed_mask,
+            penalty_n_per_m,
+            to_full,
+            foundation,
+            history_mode,
+        })
+    }
+
+    /// The collision stage's view of the surface at `positions` (m).
+    pub fn contact_query<'a>(&'a self, positions: &'a [Point3<f64>]) -> contact::ContactQuery<'a> {
+        contact::ContactQuery {
+            positions,
+            rest: &self.rest_surface,
+            triangles: &self.surface.triangles,
+            to_volume: &self.surface.to_volume,
+            solved: None,
+        }
+    }
+
+    /// The surface (and its tree) a contact search at `snap` runs on: the
+    /// rest shape for a linearized contact, else the snapshot's.
+    pub fn contact_shape<'a>(
+        &'a self,
+        snap: &'a Snapshot,
+    ) -> (&'a Arc<Vec<Point3<f64>>>, Option<&'a Arc<Bvh>>) {
+        match &self.contact_rest {
+            Some(r) => (&r.surface, r.tree.as_ref()),
+            None => (&snap.surface, snap.surface_bvh.as_ref()),
+        }
+    }
+
+    /// All flags off for instrument `i`.
+    pub fn new_history(&self, i: usize) -> History {
+        History::new(&self.instruments[i], self.history_mode)
+    }
+
+    /// Rim source nodes of instrument `i`.
+    pub fn rim_node_count(&self, i: usize) -> usize {
+        self.instruments[i].len() - 2 * self.instruments[i].per_face
+    }
+
+    /// The rest state as frame `frame`, no contact.
+    pub fn rest_snapshot(&self, scene: &Scene, frame: u64, sim_time_s: f64) -> Snapshot {
+        let positions: Vec<[f32; 3]> = self
+            .rest_surface
+            .iter()
+            .map(|p| [p.x as f32, p.y as f32, p.z as f32])
+            .collect();
+        let instruments = scene
+            .instruments
+            .iter()
+            .map(|s| InstrumentReaction {
+                name: s.name.clone(),
+                force_n: Vector3::zeros(),
+                torque_nm: Vector3::zeros(),
+                pairs: 0,
+                culled: 0,
+                contact_vertices: 0,
+                pending_vertices: 0,
+                position_m: Vector3::from(s.home_position_m),
+                orientation: s.home_orientation,
+            })
+            .collect();
+        Snapshot {
+            frame,
+            sim_time_s,
+            published: Instant::now(),
+            surface: Arc::new(self.rest_surface.clone()),
+            displacements: Arc::new(vec![Vector3::zeros(); self.mesh.nodes.len()]),
+            surface_bvh: None,
+            force_model: Arc::new(ForceModel::new(
+                frame,
+                Arc::default(),
+                Arc::default(),
+                Vec::new(),
+                Vec::new(),
+                Anchors::default(),
+                false,
+                vec![(Vector3::zeros(), Vector3::zeros()); scene.instruments.len()],
+            )),
+            paper_history: (0..self.instruments.len())
+                .map(|i| self.new_history(i))
+                .collect(),
+            solver_error: None,
+            frame_summary: Arc::new(Frame {
+                frame,
+                sim_time_s,
+                positions: Arc::new(positions),
+                instruments,
+                timings: StepTimings::default(),
+                solver_error: None,
+                max_displacement_m: 0.0,
+                rigid: crate::sim::motion::RigidPart::default(),
+            }),
+        }
+    }
+}

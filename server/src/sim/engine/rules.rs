@@ -1,0 +1,168 @@
+//! How a scene's contact law makes rows ([`RowRule`]) and the skull's rows
+//! ([`SkullRows`]).
+
+use super::*;
+
+/// How a scene's contact law makes rows.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RowRule {
+    /// The law.
+    pub law: ContactLaw,
+    /// The Coulomb coefficient (Coulomb only).
+    pub friction: Option<f64>,
+}
+
+impl RowRule {
+    /// The rule of `scene`.
+    pub fn of(scene: &Scene) -> Self {
+        Self {
+            law: scene.contact.law,
+            friction: match scene.contact.law {
+                ContactLaw::Coulomb => scene.contact.friction_coefficient,
+                _ => None,
+            },
+        }
+    }
+
+    /// The rows of a query's output for `owner`'s pose `pose_of(owner)`,
+    /// with the free positions `free`, the last solve's displacements `now`
+    /// (m; where a new frictional contact anchors) and the frictional
+    /// anchors.
+    #[allow(clippy::too_many_arguments)]
+    pub fn rows(
+        &self,
+        model: &Model,
+        out: &ContactOutput,
+        free: &FreePositions<'_>,
+        now: &[Vector3<f64>],
+        anchors: &Anchors,
+        poses: &[Isometry3<f64>],
+        dst: &mut Vec<Row>,
+    ) {
+        match self.law {
+            ContactLaw::Paper => {
+                rows::from_enforced(&out.enforced, &model.mesh.nodes, &model.fixed_mask, dst)
+            }
+            _ => {
+                let inputs = rows::RowInputs {
+                    free: *free,
+                    now,
+                    friction: self.friction,
+                    anchors,
+                    poses,
+                    fixed: &model.fixed_mask,
+                };
+                rows::from_candidates(&out.candidates, &inputs, dst);
+                rows::from_edges(&out.edges, &inputs, dst);
+            }
+        }
+    }
+}
+
+/// The skull spheres as contact rows (DESIGN.md section 3b's machinery):
+/// each surface node within `band_m` of leaving the containing sphere (or
+/// of entering the excluding one) at its current position `x` gets a
+/// unilateral row along the radial direction `r = (x - c) / |x - c|`,
+/// linearised there: the containing sphere pushes inward (`dir = -r`, gap
+/// `R - r . (X + u - c)`), the excluding one outward (`dir = r`, gap
+/// `r . (X + u - c) - R`).
+#[derive(Debug, Clone)]
+pub struct SkullRows {
+    skull: fem::skull::Skull,
+    pub(super) band_m: f64,
+}
+
+impl SkullRows {
+    /// The skull of `scene`, if it has one.
+    pub fn of(scene: &Scene) -> Option<Self> {
+        let skull = scene.skull.as_ref()?;
+        let sphere = |s: &crate::scene::SphereSpec| fem::skull::Sphere {
+            centre: Point3::from(s.centre_m),
+            radius: s.radius_m,
+        };
+        Some(Self {
+            skull: fem::skull::Skull {
+                containing: skull.containing.as_ref().map(sphere),
+                excluding: skull.excluding.as_ref().map(sphere),
+            },
+            band_m: scene.contact.band_m,
+        })
+    }
+
+    /// Rows of the surface nodes within the band of a sphere at
+    /// displacements `u` (and of every node in `also`), appended to `dst`.
+    pub fn rows(&self, model: &Model, u: &[Vector3<f64>], also: &[u32], dst: &mut Vec<Row>) {
+        let mut done = std::collections::HashSet::new();
+        for &v in model.surface.to_volume.iter().chain(also) {
+            if model.fixed_mask[v as usize] || !done.insert(v) {
+                continue;
+            }
+            let rest = model.mesh.nodes[v as usize];
+            let x = rest + u[v as usize];
+            for (code, sphere, containing) in [
+                (0u8, self.skull.containing, true),
+                (1u8, self.skull.excluding, false),
+            ] {
+                let Some(s) = sphere else { continue };
+                let d = x - s.centre;
+                let dist = d.norm();
+                let r = if dist > 0.0 { d / dist } else { Vector3::z() };
+                let near = if containing {
+                    dist > s.radius - self.band_m
+                } else {
+                    dist < s.radius + self.band_m
+                };
+                if !near && !also.contains(&v) {
+                    continue;
+                }
+                let (dir, gap) = if containing {
+                    (-r, s.radius - r.dot(&(rest - s.centre)))
+                } else {
+                    (r, r.dot(&(rest - s.centre)) - s.radius)
+                };
+                dst.push(Row {
+                    key: rows::key(v, SKULL_OWNER, 7, code as u32),
+                    owner: SKULL_OWNER,
+                    row: ContactRow::at_node(v, dir, gap, RowKind::Unilateral),
+                    point: s.centre + r * s.radius,
+                    triangle: rows::NO_TRIANGLE,
+                });
+            }
+        }
+    }
+
+    /// Surface nodes that violate a sphere at displacements `u` by more
+    /// than `tol_m` and have no skull row in `have`.
+    pub fn violations(
+        &self,
+        model: &Model,
+        u: &[Vector3<f64>],
+        have: &[Row],
+        tol_m: f64,
+        out: &mut Vec<u32>,
+    ) {
+        out.clear();
+        let held: std::collections::HashSet<u32> = have
+            .iter()
+            .filter(|r| r.owner == SKULL_OWNER)
+            .map(|r| r.row.node)
+            .collect();
+        for &v in &model.surface.to_volume {
+            if model.fixed_mask[v as usize] || held.contains(&v) {
+                continue;
+            }
+            let x = model.mesh.nodes[v as usize] + u[v as usize];
+            let out_of = self
+                .skull
+                .containing
+                .is_some_and(|s| (x - s.centre).norm() > s.radius + tol_m);
+            let into = self
+                .skull
+                .excluding
+                .is_some_and(|s| (x - s.centre).norm() < s.radius - tol_m);
+            if out_of || into {
+                out.push(v);
+            }
+        }
+    }
+}
