@@ -200,4 +200,13 @@ fn quick_study_is_stable_and_consistent() {
             .contains(&format!("{} (index {lost}, failed: ", lost_run.id)),
         "{e}"
     );
+
+    // Runs read the shared inputs from the folder: without its trajectory a
+    // run fails naming the file.
+    std::fs::remove_file(dir.path().join(&plan.inputs.left)).expect("the left trajectory");
+    let outcomes = run_range(dir.path(), &plan, lost..lost + 1, true, true).expect("runs");
+    let Outcome::Failed(cause) = &outcomes[0].1 else {
+        panic!("a run without its inputs: {:?}", outcomes[0]);
+    };
+    assert!(cause.contains("sylvian-open-left.csv"), "{cause}");
 }

@@ -150,7 +150,13 @@ impl Config {
 
     /// The sylvian scene edited to this configuration.
     pub fn scene(&self) -> Result<Scene, SceneError> {
-        let (mut scene, _) = Scene::load("sylvian")?;
+        self.scene_in("sylvian")
+    }
+
+    /// The scene `source` (a bundled name or a file) edited to this
+    /// configuration.
+    pub fn scene_in(&self, source: &str) -> Result<Scene, SceneError> {
+        let (mut scene, _) = Scene::load(source)?;
         // Held at the brain stem only, as the study was measured: a
         // foundation of fixed stiffness would make the force no longer
         // linear in E (one of the study's checks).

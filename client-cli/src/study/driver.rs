@@ -175,13 +175,15 @@ pub struct ModelCache {
 }
 
 impl ModelCache {
-    /// The model of `config` (built on first use); `roi` crops it.
+    /// The model of `config` on the scene `source` (built on first use);
+    /// `roi` crops it.
     fn get_with(
         &mut self,
         config: &Config,
+        source: &str,
         roi: Option<f64>,
     ) -> Result<std::sync::Arc<Model>, RunError> {
-        let mut scene = config.scene().map_err(|source| RunError::Scene {
+        let mut scene = config.scene_in(source).map_err(|source| RunError::Scene {
             label: config.label.clone(),
             source,
         })?;
@@ -202,9 +204,14 @@ impl ModelCache {
         Ok(model)
     }
 
-    /// The whole model of `config` (no region of interest).
-    pub fn get(&mut self, config: &Config) -> Result<std::sync::Arc<Model>, RunError> {
-        self.get_with(config, None)
+    /// The whole model of `config` on the scene `source` (no region of
+    /// interest).
+    pub fn get(
+        &mut self,
+        config: &Config,
+        source: &str,
+    ) -> Result<std::sync::Arc<Model>, RunError> {
+        self.get_with(config, source, None)
     }
 }
 
@@ -219,8 +226,8 @@ pub fn run(
     on_step: &(dyn Fn() + Sync),
 ) -> Result<RunResult, RunError> {
     let t0 = Instant::now();
-    let full = models.get(config)?;
-    let model = models.get_with(config, config.roi_m)?;
+    let full = models.get(config, &scenario.scene)?;
+    let model = models.get_with(config, &scenario.scene, config.roi_m)?;
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(config.threads.max(1))
         .build()
@@ -240,10 +247,12 @@ fn run_in_pool(
     on_step: &(dyn Fn() + Sync),
     t0: Instant,
 ) -> Result<RunResult, RunError> {
-    let mut scene = config.scene().map_err(|source| RunError::Scene {
-        label: config.label.clone(),
-        source,
-    })?;
+    let mut scene = config
+        .scene_in(&scenario.scene)
+        .map_err(|source| RunError::Scene {
+            label: config.label.clone(),
+            source,
+        })?;
     scene.roi = config.roi_m.map(|d| RoiSpec {
         centre_m: FISSURE_CENTRE_M,
         plane_normal: None,

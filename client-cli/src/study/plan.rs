@@ -7,17 +7,18 @@
 //! id, a role (the reference, a grid run, a stability run), the
 //! configuration and the scenario it plays. The id starts with the run's
 //! index, zero-padded (`03-coarse_lin_n30_cpu-brute`), so that a job
-//! array's task index names its run. The shared inputs are the bundled
-//! trajectories and phantom presets of the `fissure` that wrote the plan:
-//! the plan records its version, and a `fissure` of another version refuses
-//! to run or merge it.
+//! array's task index names its run. The shared inputs are written beside
+//! it (`DIR/inputs/`: the scene the configurations edit and the two
+//! trajectories) and every run reads them from there; the phantom presets
+//! are the `fissure`'s own, so the plan records its version, and a `fissure`
+//! of another version refuses to run or merge it.
 //!
 //! Runs read their configuration from the file, never from the code that
 //! planned it, so a run computed in this process and one computed by a job
 //! array solve the same problem bit for bit.
 
 use super::config::Config;
-use super::scenario::ScenarioSpec;
+use super::scenario::{Inputs, ScenarioSpec};
 use super::{Plan, StudyError};
 use serde::{Deserialize, Serialize};
 use std::ops::Range;
@@ -25,8 +26,12 @@ use std::path::{Path, PathBuf};
 
 /// The plan file of a study folder.
 pub const PLAN_FILE: &str = "plan.json";
+/// The folder of the shared inputs, inside a study folder.
+pub const INPUTS_DIR: &str = "inputs";
 /// The plan file's format tag.
 pub const PLAN_FORMAT: &str = "fissure-study-plan/1";
+/// The bundled scene the study's configurations edit.
+const SCENE: &str = "sylvian";
 
 /// What a run is for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -71,6 +76,8 @@ pub struct StudyPlan {
     pub rate_hz: f64,
     /// Deformation interval, s.
     pub dt_s: f64,
+    /// The shared inputs every run reads, relative to the study folder.
+    pub inputs: Inputs,
     /// The runs, in order: the reference and the grid, then the stability sweep.
     pub runs: Vec<PlannedRun>,
 }
@@ -133,6 +140,7 @@ impl StudyPlan {
             }
         }
         let width = runs.len().saturating_sub(1).to_string().len().max(2);
+        let bundled = Inputs::bundled();
         Ok(Self {
             format: PLAN_FORMAT.into(),
             fissure_version: env!("CARGO_PKG_VERSION").into(),
@@ -140,6 +148,11 @@ impl StudyPlan {
             window_s: plan.window_s,
             rate_hz: plan.rate_hz,
             dt_s: plan.dt_s,
+            inputs: Inputs {
+                scene: format!("{INPUTS_DIR}/{SCENE}.toml"),
+                left: format!("{INPUTS_DIR}/{}.csv", bundled.left),
+                right: format!("{INPUTS_DIR}/{}.csv", bundled.right),
+            },
             runs: runs
                 .into_iter()
                 .enumerate()
@@ -159,10 +172,30 @@ impl StudyPlan {
         dir.join(PLAN_FILE)
     }
 
-    /// Writes the plan into `dir` (created) and reads it back: what the runs
-    /// compute is what the file says.
+    /// Writes the plan and the shared inputs (the bundled scene and
+    /// trajectories the runs read) into `dir` (created), and reads the plan
+    /// back: what the runs compute is what the files say.
     pub fn write(&self, dir: &Path) -> Result<Self, StudyError> {
         std::fs::create_dir_all(dir.join(super::record::RUNS_DIR)).map_err(|e| io_err(dir, e))?;
+        std::fs::create_dir_all(dir.join(INPUTS_DIR)).map_err(|e| io_err(dir, e))?;
+        let bundled = Inputs::bundled();
+        let scene = fissure_server::scene::EMBEDDED
+            .iter()
+            .find(|(n, _)| *n == SCENE)
+            .map(|(_, text)| *text)
+            .expect("the study's scene is bundled");
+        super::record::write_atomically(&dir.join(&self.inputs.scene), scene.as_bytes())?;
+        for (name, file) in [
+            (&bundled.left, &self.inputs.left),
+            (&bundled.right, &self.inputs.right),
+        ] {
+            let text = crate::trajectory::BUNDLED
+                .iter()
+                .find(|b| b.0 == name.as_str())
+                .map(|b| b.3)
+                .expect("the study's trajectories are bundled");
+            super::record::write_atomically(&dir.join(file), text.as_bytes())?;
+        }
         let path = Self::path(dir);
         let json = serde_json::to_string_pretty(self).map_err(|e| io_err(&path, e))?;
         super::record::write_atomically(&path, json.as_bytes())?;
@@ -203,6 +236,16 @@ impl StudyPlan {
             });
         }
         Ok(plan)
+    }
+
+    /// The shared inputs, as paths under `dir`.
+    pub fn inputs_in(&self, dir: &Path) -> Inputs {
+        let under = |f: &str| dir.join(f).display().to_string();
+        Inputs {
+            scene: under(&self.inputs.scene),
+            left: under(&self.inputs.left),
+            right: under(&self.inputs.right),
+        }
     }
 
     /// The index of the run named `key`: its id, or its index.
@@ -339,6 +382,22 @@ mod tests {
         .expect("the quick plan");
         let back = plan.write(dir.path()).expect("written");
         assert_eq!(back.runs.len(), plan.runs.len());
+        // The shared inputs are there and read as the bundled ones.
+        let inputs = back.inputs_in(dir.path());
+        let (scene, _) = fissure_server::scene::Scene::load(&inputs.scene).expect("the scene");
+        assert_eq!(
+            scene,
+            fissure_server::scene::Scene::load("sylvian").unwrap().0
+        );
+        let spec = back.runs[0].scenario;
+        let (a, b) = (
+            spec.scenario_in(&inputs).expect("the trajectories"),
+            spec.scenario().expect("the bundled ones"),
+        );
+        assert_eq!((a.times, a.end_s), (b.times, b.end_s));
+        for (x, y) in a.tracks.iter().zip(&b.tracks) {
+            assert_eq!(x.poses, y.poses, "{}", x.instrument);
+        }
         assert_eq!(back, StudyPlan::read(dir.path()).expect("read"));
         let mut old = back.clone();
         old.fissure_version = "0.0.1".into();

@@ -54,7 +54,7 @@ pub fn run_one(
     }
     let started = Instant::now();
     let computed = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-        let scenario = run.scenario.scenario()?;
+        let scenario = run.scenario.scenario_in(&plan.inputs_in(dir))?;
         let result = driver::run(&run.config, &scenario, models, run.keep_surface, on_step)?;
         Ok::<_, StudyError>((scenario.mean_speed_mps, result))
     }));

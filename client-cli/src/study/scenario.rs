@@ -37,7 +37,48 @@ fn end_of(window_s: f64, time_scale: f64, dt_s: f64) -> f64 {
     window_s * time_scale + 3.0 * dt_s
 }
 
+/// The files a study's runs read: the scene and the two trajectories
+/// (bundled names, or files such as a study folder's `inputs/`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Inputs {
+    /// The scene the configurations edit.
+    pub scene: String,
+    /// The left spatula's trajectory.
+    pub left: String,
+    /// The right spatula's trajectory.
+    pub right: String,
+}
+
+impl Inputs {
+    /// The bundled scene and trajectories.
+    pub fn bundled() -> Self {
+        Self {
+            scene: "sylvian".into(),
+            left: "sylvian-open-left".into(),
+            right: "sylvian-open-right".into(),
+        }
+    }
+}
+
 impl ScenarioSpec {
+    /// The scenario over `inputs`.
+    pub fn scenario_in(
+        &self,
+        inputs: &Inputs,
+    ) -> Result<Scenario, crate::trajectory::TrajectoryError> {
+        let left = Trajectory::load(&inputs.left)?;
+        let right = Trajectory::load(&inputs.right)?;
+        let mut s = Scenario::new(
+            &[("left".into(), left), ("right".into(), right)],
+            self.window_s,
+            self.time_scale,
+            self.rate_hz,
+            self.dt_s,
+        );
+        s.scene.clone_from(&inputs.scene);
+        Ok(s)
+    }
+
     /// Deformation steps of a run of this scenario.
     pub fn steps(&self) -> usize {
         crate::study::driver::steps_until(
@@ -76,6 +117,8 @@ pub struct Scenario {
     pub mean_speed_mps: f64,
     /// End of the run, s (scaled time).
     pub end_s: f64,
+    /// The scene the configurations edit: a bundled name or a file.
+    pub scene: String,
 }
 
 /// Position and orientation of a trajectory at nominal time `t` (s), clamped
@@ -154,6 +197,7 @@ impl Scenario {
             time_scale,
             mean_speed_mps,
             end_s,
+            scene: "sylvian".into(),
         }
     }
 
