@@ -148,7 +148,7 @@ others_after="$(cd "$work/cancel/runs" && sha256sum ./*.cbor | grep -v "$cancell
 }
 # The same plan computed in one process.
 mkdir -p "$work/cancel-one"
-cp "$work/cancel/plan.json" "$work/cancel-one/"
+cp -r "$work/cancel/plan.json" "$work/cancel/inputs" "$work/cancel-one/"
 "$FISSURE" study run "$work/cancel-one" --no-progress >/dev/null
 "$FISSURE" study merge "$work/cancel-one" >/dev/null
 python3 "$here/compare_outputs.py" --files grid.csv,study.json "$work/cancel-one" "$work/cancel"

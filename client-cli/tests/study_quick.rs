@@ -209,4 +209,19 @@ fn quick_study_is_stable_and_consistent() {
         panic!("a run without its inputs: {:?}", outcomes[0]);
     };
     assert!(cause.contains("sylvian-open-left.csv"), "{cause}");
+
+    // A folder holding only the plan (copied without its inputs or runs
+    // folder) records each run's failure, making the runs folder.
+    let bare = tempfile::tempdir().expect("temp dir");
+    std::fs::copy(dir.path().join("plan.json"), bare.path().join("plan.json"))
+        .expect("copy the plan");
+    let outcomes = run_range(bare.path(), &plan, 0..1, false, true).expect("runs");
+    let Outcome::Failed(cause) = &outcomes[0].1 else {
+        panic!("a run of a folder without inputs: {:?}", outcomes[0]);
+    };
+    assert!(cause.contains("inputs"), "{cause}");
+    let record = record::FailureRecord::read(bare.path(), &plan.runs[0].id)
+        .expect("readable")
+        .expect("the failure is recorded");
+    assert_eq!(&record.cause, cause);
 }

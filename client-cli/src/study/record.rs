@@ -29,7 +29,8 @@ pub const RUNS_DIR: &str = "runs";
 pub const RECORD_FORMAT: &str = "fissure-study-run/1";
 
 /// Writes `bytes` to `path` through a temporary file in the same folder and
-/// a rename: readers see the old file or the whole new one.
+/// a rename (making the folder when it is absent): readers see the old file
+/// or the whole new one.
 pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), StudyError> {
     let err = |e: std::io::Error| StudyError::Output {
         path: path.to_path_buf(),
@@ -39,6 +40,9 @@ pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), StudyError> {
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
+    if let Some(parent) = path.parent() {
+        std::fs::create_dir_all(parent).map_err(err)?;
+    }
     let tmp = path.with_file_name(format!(".{name}.tmp-{}", std::process::id()));
     std::fs::write(&tmp, bytes).map_err(err)?;
     std::fs::rename(&tmp, path).map_err(err)
@@ -212,9 +216,6 @@ impl RunRecord {
         };
         let mut bytes = Vec::new();
         ciborium::into_writer(&stored, &mut bytes).map_err(|e| bad(&path, e))?;
-        if let Some(runs) = path.parent() {
-            std::fs::create_dir_all(runs).map_err(|e| bad(runs, e))?;
-        }
         write_atomically(&path, &bytes)?;
         let failed = failure_path(dir, &self.id);
         match std::fs::remove_file(&failed) {
