@@ -114,9 +114,7 @@ impl Client {
                 tx.send(pb::PoseSample::new(t_s, i, POSITION_M, ORIENTATION))
                     .await
                     .context("the haptic stream closed")?;
-                rx.message()
-                    .await?
-                    .context("the haptic stream ended")?;
+                rx.message().await?.context("the haptic stream ended")?;
             }
             Client::Udp(sock) => {
                 sock.send(&encode_pose(0, i, t_s, POSITION_M, ORIENTATION))
@@ -168,12 +166,20 @@ impl Client {
     }
 }
 
-async fn open_client(path: &str, url: &str, bridge_addr: Option<std::net::SocketAddr>) -> anyhow::Result<Client> {
+async fn open_client(
+    path: &str,
+    url: &str,
+    bridge_addr: Option<std::net::SocketAddr>,
+) -> anyhow::Result<Client> {
     Ok(match path {
         "grpc" => {
             let mut client = connect(url).await?;
             let (tx, rx) = tokio::sync::mpsc::channel(16);
-            let req = haptic_request(tokio_stream::wrappers::ReceiverStream::new(rx), "left", None)?;
+            let req = haptic_request(
+                tokio_stream::wrappers::ReceiverStream::new(rx),
+                "left",
+                None,
+            )?;
             let rx = client.haptic(req).await?.into_inner();
             Client::Grpc {
                 tx,
@@ -240,7 +246,9 @@ fn drive(
 /// Times every path.
 pub async fn run(args: &BridgeBenchArgs) -> anyhow::Result<BridgeBenchReport> {
     let paths: Vec<String> = if args.path.is_empty() {
-        ["grpc", "udp", "igtl", "igtl+surface"].map(String::from).to_vec()
+        ["grpc", "udp", "igtl", "igtl+surface"]
+            .map(String::from)
+            .to_vec()
     } else {
         args.path.clone()
     };
@@ -274,7 +282,10 @@ pub async fn run(args: &BridgeBenchArgs) -> anyhow::Result<BridgeBenchReport> {
                     surface_device: (path == "igtl+surface").then(|| "fissure_surface".into()),
                     ..IgtlOptions::default()
                 };
-                (None, Some(IgtlBridge::start(&url, &left, None, &options).await?))
+                (
+                    None,
+                    Some(IgtlBridge::start(&url, &left, None, &options).await?),
+                )
             }
             _ => (None, None),
         };

@@ -15,7 +15,10 @@ fn every_malformed_message_of_the_corpus_is_refused_with_its_cause() {
     entries.sort();
     let (mut ok, mut bad) = (0, 0);
     for path in &entries {
-        let name = path.file_name().and_then(|n| n.to_str()).expect("a file name");
+        let name = path
+            .file_name()
+            .and_then(|n| n.to_str())
+            .expect("a file name");
         let bytes = std::fs::read(path).expect("readable");
         let result = parse_message(&bytes);
         if name.starts_with("ok-") {

@@ -99,10 +99,7 @@ fn compile(dir: &Path, name: &str, source: &Path) -> anyhow::Result<Option<PathB
     let tools = include.join("igtlClientSocket.h").exists()
         && source.exists()
         && Command::new("g++").arg("--version").output().is_ok();
-    if !peer_available(
-        "g++, libopenigtlink-dev or openigtlink-examples",
-        tools,
-    )? {
+    if !peer_available("g++, libopenigtlink-dev or openigtlink-examples", tools)? {
         return Ok(None);
     }
     let out = dir.join(name);
@@ -192,8 +189,14 @@ async fn pyigtl_poses_drive_the_instrument_and_sensor_and_polydata_come_back() -
     let polys = report["polydata"].as_array().expect("polydata");
     assert!(!polys.is_empty(), "no POLYDATA came: {report}");
     let first = &polys[0];
-    assert_eq!(first["npoints"].as_u64(), Some(surface.to_volume.len() as u64));
-    assert_eq!(first["npolygons"].as_u64(), Some(surface.triangles.len() as u64));
+    assert_eq!(
+        first["npoints"].as_u64(),
+        Some(surface.to_volume.len() as u64)
+    );
+    assert_eq!(
+        first["npolygons"].as_u64(),
+        Some(surface.triangles.len() as u64)
+    );
     assert_eq!(first["first_cell"][0].as_u64(), Some(3));
     for p in &polys[1..] {
         assert_eq!(p["npolygons"].as_u64(), Some(0), "topology sent again: {p}");
@@ -218,7 +221,11 @@ async fn pyigtl_poses_drive_the_instrument_and_sensor_and_polydata_come_back() -
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn reference_library_client_unpacks_every_answer_with_its_crc() -> anyhow::Result<()> {
     let dir = tempfile::tempdir()?;
-    let Some(exe) = compile(dir.path(), "sensor_client", &tests_dir().join("sensor_client.cxx"))?
+    let Some(exe) = compile(
+        dir.path(),
+        "sensor_client",
+        &tests_dir().join("sensor_client.cxx"),
+    )?
     else {
         return Ok(());
     };
@@ -264,9 +271,7 @@ async fn reference_library_client_unpacks_every_answer_with_its_crc() -> anyhow:
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn reference_tracker_client_at_1khz_gets_an_answer_for_every_pose() -> anyhow::Result<()> {
     let dir = tempfile::tempdir()?;
-    let src = Path::new(
-        "/usr/share/doc/openigtlink-examples/examples/Tracker/TrackerClient.cxx",
-    );
+    let src = Path::new("/usr/share/doc/openigtlink-examples/examples/Tracker/TrackerClient.cxx");
     let Some(exe) = compile(dir.path(), "TrackerClient", src)? else {
         return Ok(());
     };
@@ -357,36 +362,58 @@ async fn malformed_messages_are_dropped_counted_and_named() -> anyhow::Result<()
     s.write_all(&bad_crc).await?;
     // A scaled matrix.
     let mut scaled = Vec::new();
-    write_message(&mut scaled, type_field("TRANSFORM"), name_field("left").unwrap(), 0, |o| {
-        transform_content(
-            &Transform {
-                rotation: [[2.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-                translation: [0.0; 3],
-            },
-            o,
-        )
-    });
+    write_message(
+        &mut scaled,
+        type_field("TRANSFORM"),
+        name_field("left").unwrap(),
+        0,
+        |o| {
+            transform_content(
+                &Transform {
+                    rotation: [[2.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+                    translation: [0.0; 3],
+                },
+                o,
+            )
+        },
+    );
     s.write_all(&scaled).await?;
     // A type not read.
     let mut get_status = Vec::new();
-    write_message(&mut get_status, type_field("GET_STATUS"), [0; 20], 0, |_| {});
+    write_message(
+        &mut get_status,
+        type_field("GET_STATUS"),
+        [0; 20],
+        0,
+        |_| {},
+    );
     s.write_all(&get_status).await?;
     // An unmapped device.
-    s.write_all(&transform_message("Pointer", 0, [0.0; 3])).await?;
+    s.write_all(&transform_message("Pointer", 0, [0.0; 3]))
+        .await?;
     let (h, body) = read_kind(&mut s, "STATUS").await?;
     assert_eq!(h.device(), "Pointer");
-    let Body::Status(st) = body else { panic!("{body:?}") };
+    let Body::Status(st) = body else {
+        panic!("{body:?}")
+    };
     assert_eq!((st.code, st.error_name.as_str()), (4, "UNKNOWN_DEVICE"));
     assert!(st.message.contains("Pointer"), "{st:?}");
     // A valid pose: answered, its timestamp echoed.
     let ts = s_to_timestamp(12.5);
-    s.write_all(&transform_message("left", ts, [0.0, 0.0, 200.0])).await?;
+    s.write_all(&transform_message("left", ts, [0.0, 0.0, 200.0]))
+        .await?;
     let (h, body) = read_kind(&mut s, "SENSOR").await?;
     assert_eq!((h.device(), h.timestamp), ("left_force", ts));
-    let Body::Sensor(f) = body else { panic!("{body:?}") };
+    let Body::Sensor(f) = body else {
+        panic!("{body:?}")
+    };
     assert_eq!(f.data, vec![0.0; 3]);
     let stats = bridge.stats();
-    assert_eq!((stats.bad, stats.ignored, stats.not_forwarded), (2, 1, 1), "{stats:?}");
+    assert_eq!(
+        (stats.bad, stats.ignored, stats.not_forwarded),
+        (2, 1, 1),
+        "{stats:?}"
+    );
     // A header of version 7: the framing is lost, the connection closes.
     let mut v7 = transform_message("left", 0, [0.0; 3]);
     v7[0..2].copy_from_slice(&7u16.to_be_bytes());

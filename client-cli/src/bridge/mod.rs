@@ -213,11 +213,10 @@ impl BridgeArgs {
         let registration = match &self.igtl_registration {
             Some(r) => igtl::Registration::parse(r, self.igtl_unit_m)
                 .map_err(|e| anyhow::anyhow!("--igtl-registration: {e}"))?,
-            None => igtl::Registration::parse(
-                "1 0 0 0  0 1 0 0  0 0 1 0  0 0 0 1",
-                self.igtl_unit_m,
-            )
-            .map_err(|e| anyhow::anyhow!("--igtl-unit-m: {e}"))?,
+            None => {
+                igtl::Registration::parse("1 0 0 0  0 1 0 0  0 0 1 0  0 0 0 1", self.igtl_unit_m)
+                    .map_err(|e| anyhow::anyhow!("--igtl-unit-m: {e}"))?
+            }
         };
         Ok(Some(igtl::IgtlOptions {
             listen: self.igtl_listen,
@@ -462,10 +461,16 @@ async fn run_igtl(args: &BridgeArgs, options: &igtl::IgtlOptions) -> anyhow::Res
     )
     .await?;
     if let Some(a) = bridge.local_addr {
-        eprintln!("OpenIGTLink: listening on TCP {a}, bridging to {}", args.server);
+        eprintln!(
+            "OpenIGTLink: listening on TCP {a}, bridging to {}",
+            args.server
+        );
     }
     if let Some(c) = &options.connect {
-        eprintln!("OpenIGTLink: connecting to {c}, bridging to {}", args.server);
+        eprintln!(
+            "OpenIGTLink: connecting to {c}, bridging to {}",
+            args.server
+        );
     }
     let limit = async {
         match args.duration_s {

@@ -17,7 +17,7 @@
 #include "igtlSensorMessage.h"
 #include "igtlStatusMessage.h"
 #include "igtlTransformMessage.h"
-#include "igtlUnit.h"
+#include "igtl_unit.h"
 
 int main(int argc, char* argv[])
 {
@@ -31,13 +31,18 @@ int main(int argc, char* argv[])
     std::fprintf(stderr, "cannot connect\n");
     return 1;
   }
-  igtl::Unit::Pointer newton = igtl::Unit::New();
-  newton->Init();
-  newton->Append(igtl::Unit::SI_DERIVED_NEWTON, 1);
-  igtl::Unit::Pointer newton_meter = igtl::Unit::New();
-  newton_meter->Init();
-  newton_meter->Append(igtl::Unit::SI_DERIVED_NEWTON, 1);
-  newton_meter->Append(igtl::Unit::SI_BASE_METER, 1);
+  // Reference units packed by the library's C API (igtl_unit_pack). The C++
+  // igtl::Unit of libOpenIGTLink 1.11 keeps only the last unit appended
+  // (N m packs as m), so it is not used here.
+  igtl_unit_data un;
+  igtl_unit_init(&un);
+  un.unit[0] = IGTL_UNIT_SI_DERIVED_NEWTON;
+  un.exp[0] = 1;
+  igtl_unit_data unm = un;
+  unm.unit[1] = IGTL_UNIT_SI_BASE_METER;
+  unm.exp[1] = 1;
+  const igtl_unit newton = igtl_unit_pack(&un);
+  const igtl_unit newton_meter = igtl_unit_pack(&unm);
 
   int sensors = 0, crc_failures = 0, unit_mismatches = 0, statuses = 0;
   int polydata = 0, polydata_points = 0, polydata_polygons_first = -1, others = 0;
@@ -80,12 +85,15 @@ int main(int argc, char* argv[])
         }
         const std::string dev = s->GetDeviceName();
         const bool force = dev.size() > 6 && dev.compare(dev.size() - 6, 6, "_force") == 0;
-        igtl::igtlUnit want = force ? newton->Pack() : newton_meter->Pack();
+        const igtl_unit want = force ? newton : newton_meter;
         if (s->GetUnit() != want || s->GetLength() != 3) unit_mismatches++;
         if (force) last_force_z = s->GetValue(2);
-        igtl::TimeStamp::Pointer got = igtl::TimeStamp::New();
-        s->GetTimeStamp(got);
-        if (got->GetTimeStamp() != ts->GetTimeStamp()) timestamp_mismatches++;
+        // The header's 32.32 timestamp, bit for bit (the library's
+        // nanosecond conversion alone moves it by up to 3 ns).
+        unsigned int sent_sec, sent_frac, got_sec, got_frac;
+        tm->GetTimeStamp(&sent_sec, &sent_frac);
+        s->GetTimeStamp(&got_sec, &got_frac);
+        if (sent_sec != got_sec || sent_frac != got_frac) timestamp_mismatches++;
         sensors++;
         answers++;
       } else if (type == "STATUS") {

@@ -253,7 +253,7 @@ pub fn timestamp_to_s(ts: u64) -> f64 {
 
 /// Seconds (0 up to 2^32) to 32.32 fixed point (clamped; NaN gives 0).
 pub fn s_to_timestamp(t_s: f64) -> u64 {
-    if !(t_s > 0.0) {
+    if t_s.is_nan() || t_s <= 0.0 {
         return 0;
     }
     let secs = t_s.floor().min(u32::MAX as f64);
@@ -532,7 +532,9 @@ pub fn parse_transform(c: &[u8]) -> Result<Transform, IgtlError> {
         }
     }
     let m = nalgebra::Matrix3::from_fn(|r, c| rotation[r][c] as f64);
-    let err = (m.transpose() * m - nalgebra::Matrix3::identity()).abs().max();
+    let err = (m.transpose() * m - nalgebra::Matrix3::identity())
+        .abs()
+        .max();
     let det = m.determinant();
     if err > 1e-3 || (det - 1.0).abs() > 1e-3 {
         return Err(IgtlError::NotRotation(err, det));
@@ -660,10 +662,7 @@ impl Unit {
         for (i, u) in units.iter_mut().enumerate() {
             let field = (p >> ((5 - i) * 10)) & 0x3ff;
             let e = (field & 0xf) as i8;
-            *u = (
-                (field >> 4) as u8,
-                if e >= 8 { e - 16 } else { e },
-            );
+            *u = ((field >> 4) as u8, if e >= 8 { e - 16 } else { e });
         }
         Self {
             prefix: (p >> 60) as u8,
@@ -721,10 +720,9 @@ pub fn parse_status(c: &[u8]) -> Result<StatusMsg, IgtlError> {
         });
     }
     let text = &c[STATUS_FIXED_LEN..];
-    let end = text
-        .iter()
-        .position(|&b| b == 0)
-        .ok_or(IgtlError::Status("the status string has no terminating NUL"))?;
+    let end = text.iter().position(|&b| b == 0).ok_or(IgtlError::Status(
+        "the status string has no terminating NUL",
+    ))?;
     let name = &c[10..30];
     let name_end = name.iter().position(|&b| b == 0).unwrap_or(name.len());
     Ok(StatusMsg {
@@ -822,8 +820,25 @@ pub fn parse_polydata(c: &[u8]) -> Result<PolyData, IgtlError> {
         });
     }
     let h: [u32; 10] = std::array::from_fn(|i| u32_at(c, 4 * i));
-    let [npoints, nvert, svert, nlines, slines, npoly, spoly, nstrips, sstrips, nattr] = h;
-    let fixed = [npoints as u64 * 12, svert as u64, slines as u64, spoly as u64, sstrips as u64];
+    let [
+        npoints,
+        nvert,
+        svert,
+        nlines,
+        slines,
+        npoly,
+        spoly,
+        nstrips,
+        sstrips,
+        nattr,
+    ] = h;
+    let fixed = [
+        npoints as u64 * 12,
+        svert as u64,
+        slines as u64,
+        spoly as u64,
+        sstrips as u64,
+    ];
     let mut at = POLYDATA_HEADER_LEN as u64;
     for s in fixed {
         at += s;
@@ -885,7 +900,9 @@ pub fn parse_polydata(c: &[u8]) -> Result<PolyData, IgtlError> {
     let mut attributes = Vec::with_capacity(nattr as usize);
     for (i, ((kind, components, n), name)) in heads.into_iter().zip(names).enumerate() {
         if !matches!(kind, 0x00..=0x04 | 0x10..=0x14) {
-            return Err(polydata_err(format!("attribute {i}: unknown type {kind:#04x}")));
+            return Err(polydata_err(format!(
+                "attribute {i}: unknown type {kind:#04x}"
+            )));
         }
         let values = n as u64 * components as u64;
         if at as u64 + values * 4 > c.len() as u64 {
@@ -893,7 +910,9 @@ pub fn parse_polydata(c: &[u8]) -> Result<PolyData, IgtlError> {
                 "attribute {i} ({name}): {n} x {components} values past the end of the body"
             )));
         }
-        let data = (0..values as usize).map(|k| f32_at(c, at + 4 * k)).collect();
+        let data = (0..values as usize)
+            .map(|k| f32_at(c, at + 4 * k))
+            .collect();
         at += values as usize * 4;
         attributes.push(Attribute {
             kind,
@@ -904,7 +923,9 @@ pub fn parse_polydata(c: &[u8]) -> Result<PolyData, IgtlError> {
         });
     }
     if at > c.len() {
-        return Err(polydata_err("the attribute names run past the end of the body"));
+        return Err(polydata_err(
+            "the attribute names run past the end of the body",
+        ));
     }
     if at != c.len() {
         return Err(polydata_err(format!(
@@ -1033,7 +1054,10 @@ mod tests {
         assert_eq!(f32_at(&b, HEADER_LEN + 4), 1.0);
         assert_eq!(f32_at(&b, HEADER_LEN + 36), 10.0);
         let (h, body) = parse_message(&b).unwrap();
-        assert_eq!((h.type_str(), h.device(), h.timestamp_s()), ("TRANSFORM", "Tracker", 2.5));
+        assert_eq!(
+            (h.type_str(), h.device(), h.timestamp_s()),
+            ("TRANSFORM", "Tracker", 2.5)
+        );
         assert_eq!(body, Body::Transform(t));
     }
 
@@ -1049,7 +1073,10 @@ mod tests {
         position_content(&p, &mut c);
         let short = parse_position(&c[..24]).unwrap();
         assert!((short.quaternion[3] - 0.8).abs() < 1e-6);
-        assert_eq!(parse_position(&c[..12]).unwrap().quaternion, [0.0, 0.0, 0.0, 1.0]);
+        assert_eq!(
+            parse_position(&c[..12]).unwrap().quaternion,
+            [0.0, 0.0, 0.0, 1.0]
+        );
         assert_eq!(
             parse_position(&c[..20]),
             Err(IgtlError::ContentLength {
@@ -1066,18 +1093,23 @@ mod tests {
             sensor_content(0, Unit::newton().pack(), &[0.5, -1.0, 2.0], o)
         });
         let (_, body) = parse_message(&b).unwrap();
-        let Body::Sensor(s) = body else { panic!("{body:?}") };
+        let Body::Sensor(s) = body else {
+            panic!("{body:?}")
+        };
         assert_eq!(s.data, vec![0.5, -1.0, 2.0]);
         assert_eq!(Unit::unpack(s.unit), Unit::newton());
         // Newton: unit 0x0B exponent 1 in the first field (bits 59-50).
         assert_eq!(Unit::newton().pack(), (0x0B << 4 | 1) << 50);
         let nm = Unit::newton_meter();
         assert_eq!(Unit::unpack(nm.pack()), nm);
+        // The reference C library's `igtl_unit_pack` of the same units.
+        assert_eq!(nm.pack(), 0x02C4_1100_0000_0000);
         let neg = Unit {
             prefix: 0xB,
             units: [(1, -2), (3, 7), (0, 0), (0, 0), (0, 0), (0, 0)],
         };
         assert_eq!(Unit::unpack(neg.pack()), neg);
+        assert_eq!(neg.pack(), 0xB078_3700_0000_0000);
         let mut c = Vec::new();
         sensor_content(0, 0, &[1.0, 2.0], &mut c);
         assert_eq!(
@@ -1109,21 +1141,29 @@ mod tests {
         c.pop();
         assert_eq!(
             parse_status(&c),
-            Err(IgtlError::Status("the status string has no terminating NUL"))
+            Err(IgtlError::Status(
+                "the status string has no terminating NUL"
+            ))
         );
     }
 
     #[test]
     fn polydata_round_trip_with_polygons_and_strips() {
-        let points = [0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 1.0, 1.0, 0.5];
+        let points = [
+            0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 1.0, 1.0, 0.5,
+        ];
         let polys = Cells::triangles(&[[0, 1, 2], [1, 3, 2]]);
         let strips = Cells {
             count: 1,
             data: vec![4, 0, 1, 2, 3],
         };
-        let b = msg("POLYDATA", "brain", 0, |o| polydata_content(&points, &polys, &strips, o));
+        let b = msg("POLYDATA", "brain", 0, |o| {
+            polydata_content(&points, &polys, &strips, o)
+        });
         let (_, body) = parse_message(&b).unwrap();
-        let Body::PolyData(p) = body else { panic!("{body:?}") };
+        let Body::PolyData(p) = body else {
+            panic!("{body:?}")
+        };
         assert_eq!(p.points.len(), 4);
         assert_eq!(p.points[3], [1.0, 1.0, 0.5]);
         assert_eq!(p.polygons, polys);
@@ -1176,7 +1216,10 @@ mod tests {
     fn malformed_headers_are_refused_with_their_cause() {
         let b = valid_transform();
         for n in 0..HEADER_LEN {
-            assert_eq!(parse_header(&b[..n]), Err(IgtlError::ShortHeader { got: n }));
+            assert_eq!(
+                parse_header(&b[..n]),
+                Err(IgtlError::ShortHeader { got: n })
+            );
         }
         for v in [0u16, 3, 0xffff] {
             let mut x = b.clone();
@@ -1228,10 +1271,16 @@ mod tests {
         assert!(matches!(parse_message(&x), Err(IgtlError::Crc { .. })));
         // Unknown types are named.
         let u = msg("GET_STATUS", "", 0, |_| {});
-        assert_eq!(parse_message(&u), Err(IgtlError::UnknownType("GET_STATUS".into())));
+        assert_eq!(
+            parse_message(&u),
+            Err(IgtlError::UnknownType("GET_STATUS".into()))
+        );
         // A TRANSFORM of the wrong size or with a scaled rotation.
         let t = msg("TRANSFORM", "x", 0, |o| o.extend_from_slice(&[0; 44]));
-        assert!(matches!(parse_message(&t), Err(IgtlError::ContentLength { got: 44, .. })));
+        assert!(matches!(
+            parse_message(&t),
+            Err(IgtlError::ContentLength { got: 44, .. })
+        ));
         let t = msg("TRANSFORM", "x", 0, |o| {
             transform_content(
                 &Transform {
@@ -1251,7 +1300,10 @@ mod tests {
                 o,
             )
         });
-        assert!(matches!(parse_message(&t), Err(IgtlError::NotFinite { .. })));
+        assert!(matches!(
+            parse_message(&t),
+            Err(IgtlError::NotFinite { .. })
+        ));
     }
 
     #[test]
@@ -1279,7 +1331,10 @@ mod tests {
         x[HEADER_LEN + 4..HEADER_LEN + 8].copy_from_slice(&1000u32.to_be_bytes());
         let crc = crc64(&x[HEADER_LEN..]);
         x[50..58].copy_from_slice(&crc.to_be_bytes());
-        assert!(matches!(parse_message(&x), Err(IgtlError::ExtendedHeader(_))));
+        assert!(matches!(
+            parse_message(&x),
+            Err(IgtlError::ExtendedHeader(_))
+        ));
     }
 
     fn polydata_with(h: [u32; 10], rest: &[u8]) -> Vec<u8> {
@@ -1294,8 +1349,13 @@ mod tests {
     #[test]
     fn huge_or_inconsistent_polydata_is_refused_without_allocating() {
         // Four billion points declared in a 40-byte body.
-        let c = polydata_with([u32::MAX, 0, 0, 0, 0, u32::MAX, u32::MAX, 0, 0, u32::MAX], &[]);
-        assert!(matches!(parse_polydata(&c), Err(IgtlError::PolyData(m)) if m.contains("need more than")));
+        let c = polydata_with(
+            [u32::MAX, 0, 0, 0, 0, u32::MAX, u32::MAX, 0, 0, u32::MAX],
+            &[],
+        );
+        assert!(
+            matches!(parse_polydata(&c), Err(IgtlError::PolyData(m)) if m.contains("need more than"))
+        );
         // One point; a triangle using point 5.
         let mut rest = vec![0u8; 12];
         for v in [3u32, 0, 0, 5] {
@@ -1304,7 +1364,9 @@ mod tests {
         let c = polydata_with([1, 0, 0, 0, 0, 1, 16, 0, 0, 0], &rest);
         assert_eq!(
             parse_polydata(&c),
-            Err(IgtlError::PolyData("POLYGONS: cell 0 uses point 5 of 1".into()))
+            Err(IgtlError::PolyData(
+                "POLYGONS: cell 0 uses point 5 of 1".into()
+            ))
         );
         // A cell whose length runs past its array.
         let mut rest = vec![0u8; 12];
@@ -1312,22 +1374,35 @@ mod tests {
             rest.extend_from_slice(&v.to_be_bytes());
         }
         let c = polydata_with([1, 0, 0, 0, 0, 1, 16, 0, 0, 0], &rest);
-        assert!(matches!(parse_polydata(&c), Err(IgtlError::PolyData(m)) if m.contains("past the end")));
+        assert!(
+            matches!(parse_polydata(&c), Err(IgtlError::PolyData(m)) if m.contains("past the end"))
+        );
         // A cell count that disagrees with the array.
         let mut rest = vec![0u8; 12];
         for v in [1u32, 0] {
             rest.extend_from_slice(&v.to_be_bytes());
         }
         let c = polydata_with([1, 0, 0, 0, 0, 2, 8, 0, 0, 0], &rest);
-        assert!(matches!(parse_polydata(&c), Err(IgtlError::PolyData(m)) if m.contains("2 declared")));
+        assert!(
+            matches!(parse_polydata(&c), Err(IgtlError::PolyData(m)) if m.contains("2 declared"))
+        );
         // Sizes not a multiple of four, trailing bytes.
         let c = polydata_with([0, 0, 3, 0, 0, 0, 0, 0, 0, 0], &[0, 0, 0]);
-        assert!(matches!(parse_polydata(&c), Err(IgtlError::PolyData(m)) if m.contains("whole number")));
+        assert!(
+            matches!(parse_polydata(&c), Err(IgtlError::PolyData(m)) if m.contains("whole number"))
+        );
         let c = polydata_with([0; 10], &[0]);
-        assert!(matches!(parse_polydata(&c), Err(IgtlError::PolyData(m)) if m.contains("left after")));
+        assert!(
+            matches!(parse_polydata(&c), Err(IgtlError::PolyData(m)) if m.contains("left after"))
+        );
         // A NaN point.
-        let c = polydata_with([1, 0, 0, 0, 0, 0, 0, 0, 0, 0], &f32::NAN.to_be_bytes().repeat(3));
-        assert!(matches!(parse_polydata(&c), Err(IgtlError::PolyData(m)) if m.contains("not finite")));
+        let c = polydata_with(
+            [1, 0, 0, 0, 0, 0, 0, 0, 0, 0],
+            &f32::NAN.to_be_bytes().repeat(3),
+        );
+        assert!(
+            matches!(parse_polydata(&c), Err(IgtlError::PolyData(m)) if m.contains("not finite"))
+        );
     }
 
     /// Every prefix and every single-byte change of valid messages parses or
@@ -1338,7 +1413,12 @@ mod tests {
         let messages = [
             valid_transform(),
             msg("POLYDATA", "b", 0, |o| {
-                polydata_content(&points, &Cells::triangles(&[[0, 1, 2]]), &Cells::default(), o)
+                polydata_content(
+                    &points,
+                    &Cells::triangles(&[[0, 1, 2]]),
+                    &Cells::default(),
+                    o,
+                )
             }),
             msg("SENSOR", "s", 0, |o| sensor_content(0, 0, &[1.0], o)),
         ];

@@ -126,7 +126,7 @@ pub enum RegistrationError {
 impl Registration {
     /// Parses 16 numbers (separated by commas and/or blanks), row major.
     pub fn parse(s: &str, unit_m: f64) -> Result<Self, RegistrationError> {
-        if !(unit_m > 0.0 && unit_m.is_finite()) {
+        if unit_m.is_nan() || unit_m <= 0.0 || unit_m.is_infinite() {
             return Err(RegistrationError::Unit(unit_m));
         }
         let v = s
@@ -168,7 +168,7 @@ impl Registration {
 
     /// A sender orientation in the scene frame.
     pub fn orientation(&self, q: &UnitQuaternion<f64>) -> UnitQuaternion<f64> {
-        UnitQuaternion::from_matrix(&self.rotation) * q
+        rotation_quaternion(&self.rotation) * q
     }
 
     /// A scene vector (force, torque) in the sender's frame.
@@ -182,6 +182,15 @@ impl Registration {
         let s = self.rotation.transpose() * (Vector3::from(p_m) / self.unit_m - self.translation);
         [s.x, s.y, s.z]
     }
+}
+
+/// The quaternion of a rotation matrix (orthonormal within the codec's
+/// 1e-3), in closed form and normalised. (nalgebra's `from_matrix` is an
+/// iteration to machine precision that can take milliseconds on the f32
+/// matrices of a tracker.)
+pub fn rotation_quaternion(m: &Matrix3<f64>) -> UnitQuaternion<f64> {
+    let q = UnitQuaternion::from_rotation_matrix(&nalgebra::Rotation3::from_matrix_unchecked(*m));
+    UnitQuaternion::new_normalize(q.into_inner())
 }
 
 /// Options of the OpenIGTLink side of a bridge.
@@ -314,7 +323,10 @@ impl IgtlCounters {
     fn bad(&self, peer: SocketAddr, e: &IgtlError) {
         let bad = self.bad.fetch_add(1, Ordering::Relaxed);
         if bad < 10 || bad.is_power_of_two() {
-            tracing::warn!("OpenIGTLink message from {peer} dropped: {e} ({} so far)", bad + 1);
+            tracing::warn!(
+                "OpenIGTLink message from {peer} dropped: {e} ({} so far)",
+                bad + 1
+            );
         }
     }
 }
@@ -362,7 +374,10 @@ impl LaneClock {
         let t_s = if header_s > 0.0 {
             header_s - *self.epoch_s.get_or_insert(header_s)
         } else {
-            self.start.get_or_insert_with(Instant::now).elapsed().as_secs_f64()
+            self.start
+                .get_or_insert_with(Instant::now)
+                .elapsed()
+                .as_secs_f64()
         };
         (t_s, self.sequence)
     }
@@ -468,11 +483,18 @@ impl Answers<Pending> for IgtlAnswers {
             );
             statuses += 1;
         }
-        let tx = self.peers.lock().expect("peers lock").get(&to.peer).cloned();
+        let tx = self
+            .peers
+            .lock()
+            .expect("peers lock")
+            .get(&to.peer)
+            .cloned();
         match tx.map(|tx| tx.try_send(out)) {
             Some(Ok(())) => {
                 self.counters.answered.fetch_add(1, Ordering::Relaxed);
-                self.counters.statuses.fetch_add(statuses, Ordering::Relaxed);
+                self.counters
+                    .statuses
+                    .fetch_add(statuses, Ordering::Relaxed);
             }
             _ => {
                 self.counters.dropped.fetch_add(1, Ordering::Relaxed);
@@ -513,7 +535,9 @@ impl IgtlBridge {
         }
         for (device, instrument) in &options.map {
             let Some(i) = names.iter().position(|n| n == instrument) else {
-                bail!("--igtl-map {device}={instrument}: no such instrument is bridged ({names:?})");
+                bail!(
+                    "--igtl-map {device}={instrument}: no such instrument is bridged ({names:?})"
+                );
             };
             map.insert(device.clone(), i);
         }
@@ -600,10 +624,18 @@ impl IgtlBridge {
                 .await
                 .with_context(|| format!("binding OpenIGTLink TCP {addr}"))?;
             local_addr = Some(listener.local_addr()?);
-            tasks.push(tokio::spawn(accept_loop(listener, shared.clone(), stopped.clone())));
+            tasks.push(tokio::spawn(accept_loop(
+                listener,
+                shared.clone(),
+                stopped.clone(),
+            )));
         }
         if let Some(to) = &options.connect {
-            tasks.push(tokio::spawn(connect_loop(to.clone(), shared.clone(), stopped.clone())));
+            tasks.push(tokio::spawn(connect_loop(
+                to.clone(),
+                shared.clone(),
+                stopped.clone(),
+            )));
         }
         Ok(Self {
             local_addr,
@@ -714,7 +746,9 @@ async fn connect_loop(
         match conn {
             Ok(stream) => {
                 failing = false;
-                let from = stream.peer_addr().unwrap_or_else(|_| ([0, 0, 0, 0], 0).into());
+                let from = stream
+                    .peer_addr()
+                    .unwrap_or_else(|_| ([0, 0, 0, 0], 0).into());
                 tracing::info!("OpenIGTLink: connected to {to} ({from})");
                 serve_peer(stream, from, shared.clone(), stopped.clone()).await;
                 if *stopped.borrow() {
@@ -724,7 +758,9 @@ async fn connect_loop(
             }
             Err(e) => {
                 if !failing {
-                    tracing::warn!("OpenIGTLink: cannot connect to {to}: {e}; retrying every second");
+                    tracing::warn!(
+                        "OpenIGTLink: cannot connect to {to}: {e}; retrying every second"
+                    );
                 }
                 failing = true;
             }
@@ -748,7 +784,11 @@ async fn serve_peer(
     shared.counters.connections.fetch_add(1, Ordering::Relaxed);
     let id = shared.next_peer.fetch_add(1, Ordering::Relaxed);
     let (tx, rx) = tokio::sync::mpsc::channel::<Vec<u8>>(PEER_QUEUE);
-    shared.peers.lock().expect("peers lock").insert(id, tx.clone());
+    shared
+        .peers
+        .lock()
+        .expect("peers lock")
+        .insert(id, tx.clone());
     let (read, write) = stream.into_split();
     let writer = tokio::spawn(write_loop(write, rx, shared.clone(), from));
     let end = tokio::select! {
@@ -798,7 +838,9 @@ async fn read_loop(
         if kind != "TRANSFORM" && kind != "POSITION" {
             counters.ignored.fetch_add(1, Ordering::Relaxed);
             if ignored_types.len() < 64 && ignored_types.insert(kind.to_owned()) {
-                tracing::info!("OpenIGTLink peer {from}: {kind} messages are not read by the bridge");
+                tracing::info!(
+                    "OpenIGTLink peer {from}: {kind} messages are not read by the bridge"
+                );
             }
             continue;
         }
@@ -806,7 +848,7 @@ async fn read_loop(
         let (position, q) = match parsed {
             Ok(Body::Transform(t)) => {
                 let m = Matrix3::from_fn(|r, c| t.rotation[r][c] as f64);
-                (t.translation.map(|x| x as f64), UnitQuaternion::from_matrix(&m))
+                (t.translation.map(|x| x as f64), rotation_quaternion(&m))
             }
             Ok(Body::Position(p)) => {
                 let [x, y, z, w] = p.quaternion.map(|x| x as f64);
@@ -821,7 +863,10 @@ async fn read_loop(
                     );
                     continue;
                 }
-                (p.position.map(|x| x as f64), UnitQuaternion::from_quaternion(q))
+                (
+                    p.position.map(|x| x as f64),
+                    UnitQuaternion::from_quaternion(q),
+                )
             }
             Ok(_) => continue,
             Err(e) => {
@@ -836,8 +881,14 @@ async fn read_loop(
                 tracing::warn!(
                     "OpenIGTLink peer {from}: device {device:?} maps to no bridged instrument (--igtl-map DEVICE=INSTRUMENT)"
                 );
-                send_status(shared, tx, &h, status_code::NOT_FOUND, "UNKNOWN_DEVICE",
-                    &format!("device {device:?} maps to no bridged instrument"));
+                send_status(
+                    shared,
+                    tx,
+                    &h,
+                    status_code::NOT_FOUND,
+                    "UNKNOWN_DEVICE",
+                    &format!("device {device:?} maps to no bridged instrument"),
+                );
             }
             continue;
         };
@@ -860,8 +911,17 @@ async fn read_loop(
             counters.forwarded.fetch_add(1, Ordering::Relaxed);
         } else {
             counters.not_forwarded.fetch_add(1, Ordering::Relaxed);
-            send_status(shared, tx, &h, status_code::BUSY, "LANE_FULL",
-                &format!("instrument {:?}: its stream is full or closed", shared.lanes.name(lane)));
+            send_status(
+                shared,
+                tx,
+                &h,
+                status_code::BUSY,
+                "LANE_FULL",
+                &format!(
+                    "instrument {:?}: its stream is full or closed",
+                    shared.lanes.name(lane)
+                ),
+            );
         }
     }
 }
