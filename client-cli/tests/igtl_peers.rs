@@ -432,3 +432,43 @@ async fn malformed_messages_are_dropped_counted_and_named() -> anyhow::Result<()
     assert_eq!(stats.answered, 1);
     server.stop().await
 }
+
+/// `--igtl-connect`: the bridge is the client of an OpenIGTLink server (as
+/// of PLUS); poses the server sends are answered on that connection, and
+/// when the server drops the connection the bridge connects again.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn connect_mode_serves_an_igtl_server_and_reconnects() -> anyhow::Result<()> {
+    let server = start_server(false).await?;
+    let plus = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
+    let options = IgtlOptions {
+        connect: Some(plus.local_addr()?.to_string()),
+        map: [("StylusToReference".to_owned(), "left".to_owned())].into(),
+        surface_device: None,
+        ..IgtlOptions::default()
+    };
+    let bridge = IgtlBridge::start(&server.url, &["left".to_owned()], None, &options).await?;
+    assert!(bridge.local_addr.is_none());
+    for round in 0..2u64 {
+        let (mut s, _) = tokio::time::timeout(Duration::from_secs(20), plus.accept()).await??;
+        for i in 1..=5u64 {
+            let ts = s_to_timestamp(100.0 + (round * 10 + i) as f64 * 1e-3);
+            s.write_all(&transform_message(
+                "StylusToReference",
+                ts,
+                [0.0, 0.0, 200.0],
+            ))
+            .await?;
+            let (h, _) = read_kind(&mut s, "SENSOR").await?;
+            assert_eq!((h.device(), h.timestamp), ("left_force", ts));
+            let (h, body) = read_kind(&mut s, "SENSOR").await?;
+            assert_eq!(h.device(), "left_torque");
+            assert!(matches!(body, Body::Sensor(ref x) if x.data.len() == 3));
+        }
+        // The server goes away; the bridge comes back (about a second later).
+        drop(s);
+    }
+    let stats = bridge.stop().await?;
+    assert_eq!(stats.connections, 2);
+    assert_eq!((stats.forwarded, stats.answered, stats.bad), (10, 10, 0));
+    server.stop().await
+}

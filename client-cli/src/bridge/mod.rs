@@ -2,7 +2,10 @@
 //! speak gRPC. It holds one haptic stream per instrument to the server,
 //! forwards each pose datagram it receives to the instrument's stream and
 //! sends the force sample that answers it back to the datagram's sender, in
-//! the sender's format (binary or JSON).
+//! the sender's format (binary or JSON). With `--igtl-listen` or
+//! `--igtl-connect` it speaks OpenIGTLink over TCP instead, for 3D Slicer
+//! and PLUS ([`igtl`]: TRANSFORM and POSITION in; SENSOR, STATUS and the
+//! deformed surface as POLYDATA out).
 //!
 //! # Datagram format
 //!
@@ -67,7 +70,7 @@
 //!
 //! [`codec`] reads and writes the datagrams; [`lanes`] holds the haptic
 //! streams and the answers owed, for this protocol and any other; this module
-//! is the UDP loop.
+//! is the UDP loop; [`igtl`] is the OpenIGTLink bridge on the same lanes.
 
 pub mod codec;
 pub mod igtl;

@@ -997,3 +997,103 @@ async fn write_loop(
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn registration_maps_millimetres_into_the_scene_and_back() {
+        // A quarter turn about z and a shift of (10, 20, 30) mm.
+        let r = Registration::parse("0 -1 0 10, 0 1e-300 0 0, 0 0 1 30, 0 0 0 1", 0.001);
+        assert!(
+            matches!(r, Err(RegistrationError::NotRotation(..))),
+            "{r:?}"
+        );
+        let r = Registration::parse("0 -1 0 10  1 0 0 20  0 0 1 30  0 0 0 1", 0.001).unwrap();
+        let p = r.position_m([1.0, 2.0, 3.0]);
+        let want = [0.008, 0.021, 0.033];
+        for k in 0..3 {
+            assert!((p[k] - want[k]).abs() < 1e-12, "{p:?}");
+        }
+        let back = r.point_to_sender(p);
+        for k in 0..3 {
+            assert!((back[k] - [1.0, 2.0, 3.0][k]).abs() < 1e-9, "{back:?}");
+        }
+        // A force along scene +x is along sender -y.
+        let f = r.vector_to_sender([1.0, 0.0, 0.0]);
+        assert!((f[1] + 1.0).abs() < 1e-12 && f[0].abs() < 1e-12, "{f:?}");
+        // Orientations compose: identity in the sender is the registration's rotation.
+        let q = r.orientation(&UnitQuaternion::identity());
+        assert!((q.angle() - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
+    }
+
+    #[test]
+    fn bad_registrations_are_refused_with_their_cause() {
+        assert_eq!(
+            Registration::parse("1 0 0", 0.001),
+            Err(RegistrationError::Count(3))
+        );
+        assert_eq!(
+            Registration::parse("1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 x", 0.001),
+            Err(RegistrationError::Number("x".into()))
+        );
+        assert_eq!(
+            Registration::parse("1 0 0 0 0 1 0 0 0 0 1 0 0 0 1 1", 0.001),
+            Err(RegistrationError::LastRow)
+        );
+        // A mirror has det -1.
+        assert!(matches!(
+            Registration::parse("-1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1", 0.001),
+            Err(RegistrationError::NotRotation(..))
+        ));
+        for u in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            assert!(matches!(
+                Registration::parse("1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1", u),
+                Err(RegistrationError::Unit(_))
+            ));
+        }
+    }
+
+    #[test]
+    fn tracker_matrices_give_their_quaternion() {
+        // A rotation of 0.7 rad about (1, 2, 2)/3, rounded to f32 as a
+        // TRANSFORM carries it.
+        let axis = nalgebra::Unit::new_normalize(Vector3::new(1.0, 2.0, 2.0));
+        let q = UnitQuaternion::from_axis_angle(&axis, 0.7);
+        let m = q.to_rotation_matrix().into_inner().map(|x| x as f32 as f64);
+        let got = rotation_quaternion(&m);
+        assert!(got.angle_to(&q) < 1e-6, "{got:?} {q:?}");
+        assert!((got.norm() - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn lane_clocks_start_at_zero_and_number_the_poses() {
+        let mut c = LaneClock::default();
+        assert_eq!(c.next(1_700_000_000.5), (0.0, 1));
+        let (t, s) = c.next(1_700_000_000.75);
+        assert_eq!((t, s), (0.25, 2));
+        // A sender without timestamps: time since its first pose.
+        let mut c = LaneClock::default();
+        let (t0, _) = c.next(0.0);
+        std::thread::sleep(Duration::from_millis(5));
+        let (t1, s1) = c.next(0.0);
+        assert!(t0 < 1e-3 && t1 >= 0.005 && s1 == 2, "{t0} {t1}");
+    }
+
+    #[test]
+    fn safety_flags_are_named() {
+        assert_eq!(flag_names(0), "none");
+        assert_eq!(flag_names(1 | 4), "FORCE_ABOVE_THRESHOLD|MODEL_STALE");
+        assert_eq!(flag_names(64 | 256), "CONTACT_UNSOLVED|0x100");
+    }
+
+    #[test]
+    fn device_maps_are_checked() {
+        let m = parse_map(&["Tracker=left".into(), "StylusToReference=right".into()]).unwrap();
+        assert_eq!(m["Tracker"], "left");
+        assert!(parse_map(&["Tracker".into()]).is_err());
+        assert!(parse_map(&["A=left".into(), "A=right".into()]).is_err());
+        assert!(parse_map(&["ThisDeviceNameIsTooLongForIGTL=left".into()]).is_err());
+    }
+}
