@@ -1,21 +1,25 @@
 //! `fissure bench bridge`: the latency the device bridges add to a force
-//! round trip. One in-process server (free-running) per path; one client
-//! holds the left spatula pressed 1 mm into the `cube` scene's top and sends
-//! a pose on every tick of `--rate-hz`, waiting for its answer (lockstep, as
-//! a haptic servo loop does), over:
+//! round trip. One in-process server (free-running) per bridge path on the
+//! `cube` scene; two clients hold the spatulas pressed 1 mm into the cube's
+//! top, one pose per tick of `--rate-hz` each, each waiting for its answer
+//! (lockstep, as a haptic servo loop does):
 //!
-//! * `grpc`: a haptic stream straight to the server (the reference);
-//! * `udp`: binary datagrams through `fissure bridge` (UDP);
-//! * `igtl`: TRANSFORM messages through `fissure bridge --igtl-listen`,
-//!   answered by the two SENSOR messages (no surface);
-//! * `igtl+surface`: the same with the deformed surface streamed as
-//!   POLYDATA on the same connection at the deformation rate.
+//! * `left` on a haptic stream straight to the server (the reference,
+//!   `grpc_*`);
+//! * `right` through the bridge of the path: `udp` (binary datagrams through
+//!   `fissure bridge`), `igtl` (TRANSFORM messages through `fissure bridge
+//!   --igtl-listen`, answered by the two SENSOR messages, no surface) or
+//!   `igtl+surface` (the same with the deformed surface streamed as POLYDATA
+//!   on the same connection at the deformation rate).
 //!
-//! A round trip runs from just before the send to the answer's arrival
-//! (for OpenIGTLink, the torque SENSOR, the second of the pair). The client
-//! runs on a thread and runtime of its own, paced by `std::thread::sleep`
-//! (tokio's timer has millisecond resolution). `added_*` is the path's
-//! percentile less that of `grpc`.
+//! The two round trips of a tick run one after the other, in alternating
+//! order, so that both see the same machine (a shared machine's noise
+//! otherwise dominates a 99th percentile). A round trip runs from just
+//! before the send to the answer's arrival (for OpenIGTLink, the torque
+//! SENSOR, the second of the pair). The clients run on a thread and runtime
+//! of their own, paced by `std::thread::sleep` (tokio's timer has
+//! millisecond resolution). `added_*` is the bridge's percentile less the
+//! direct stream's of the same run.
 
 use crate::bridge::igtl::codec::{
     self, HEADER_LEN, Transform, name_field, transform_content, type_field, write_message,
@@ -44,7 +48,7 @@ pub struct BridgeBenchArgs {
     /// Samples sent before the timed ones (connections and caches warm).
     #[arg(long, default_value_t = 500)]
     pub warmup: usize,
-    /// Paths to time (grpc, udp, igtl, igtl+surface); all by default.
+    /// Bridge paths to time (udp, igtl, igtl+surface); all by default.
     #[arg(long, value_delimiter = ',')]
     pub path: Vec<String>,
     /// Print JSON instead of a table.
@@ -55,21 +59,25 @@ pub struct BridgeBenchArgs {
 /// One path's round trips, us.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct PathRow {
-    /// `grpc`, `udp`, `igtl` or `igtl+surface`.
+    /// `udp`, `igtl` or `igtl+surface`.
     pub path: String,
-    /// Timed samples answered.
+    /// Timed samples answered on each client.
     pub samples: usize,
-    /// Round trip percentiles and maximum, us.
+    /// The direct stream's median round trip in the same run, us.
+    pub grpc_p50_us: f64,
+    /// The direct stream's 99th percentile, us.
+    pub grpc_p99_us: f64,
+    /// The bridged median round trip, us.
     pub p50_us: f64,
-    /// 99th percentile, us.
+    /// The bridged 99th percentile, us.
     pub p99_us: f64,
-    /// Largest, us.
+    /// The bridged largest, us.
     pub max_us: f64,
-    /// Median less the direct stream's, us (0 for `grpc`).
+    /// `p50_us - grpc_p50_us`.
     pub added_p50_us: f64,
-    /// 99th percentile less the direct stream's, us.
+    /// `p99_us - grpc_p99_us`.
     pub added_p99_us: f64,
-    /// Samples whose round trip was longer than a tick.
+    /// Bridged samples whose round trip was longer than a tick.
     pub over_period: usize,
     /// POLYDATA messages read between the answers (`igtl+surface`).
     pub polydata: usize,
@@ -86,8 +94,9 @@ pub struct BridgeBenchReport {
     pub rows: Vec<PathRow>,
 }
 
-/// The held pose: the left plate flat, face A 1 mm into the cube's top.
-const POSITION_M: [f64; 3] = [0.011, 0.005, 0.04075 - 0.001];
+/// The held poses: the plates flat, face A 1 mm into the cube's top.
+const LEFT_M: [f64; 3] = [0.011, 0.005, 0.04075 - 0.001];
+const RIGHT_M: [f64; 3] = [0.029, 0.005, 0.04075 - 0.001];
 const ORIENTATION: [f64; 4] = [0.5, -0.5, 0.5, 0.5];
 
 /// A path's client: sends pose `i` and waits for its answer.
@@ -111,13 +120,13 @@ impl Client {
         let t_s = i as f64 * 1e-3;
         match self {
             Client::Grpc { tx, rx, .. } => {
-                tx.send(pb::PoseSample::new(t_s, i, POSITION_M, ORIENTATION))
+                tx.send(pb::PoseSample::new(t_s, i, LEFT_M, ORIENTATION))
                     .await
                     .context("the haptic stream closed")?;
                 rx.message().await?.context("the haptic stream ended")?;
             }
             Client::Udp(sock) => {
-                sock.send(&encode_pose(0, i, t_s, POSITION_M, ORIENTATION))
+                sock.send(&encode_pose(0, i, t_s, RIGHT_M, ORIENTATION))
                     .await?;
                 let mut buf = [0u8; 256];
                 let n = sock.recv(&mut buf).await?;
@@ -138,12 +147,12 @@ impl Client {
                 let r = q.to_rotation_matrix();
                 let t = Transform {
                     rotation: std::array::from_fn(|a| std::array::from_fn(|b| r[(a, b)] as f32)),
-                    translation: POSITION_M.map(|x| (x * 1000.0) as f32),
+                    translation: RIGHT_M.map(|x| (x * 1000.0) as f32),
                 };
                 write_message(
                     message,
                     type_field("TRANSFORM"),
-                    name_field("left").unwrap_or([0; 20]),
+                    name_field("right").unwrap_or([0; 20]),
                     codec::s_to_timestamp(1.0 + t_s),
                     |o| transform_content(&t, o),
                 );
@@ -155,7 +164,7 @@ impl Client {
                     body.resize(h.body_size as usize, 0);
                     stream.read_exact(body).await?;
                     match (h.type_str(), h.device()) {
-                        ("SENSOR", "left_torque") => break,
+                        ("SENSOR", "right_torque") => break,
                         ("POLYDATA", _) => *polydata += 1,
                         _ => {}
                     }
@@ -205,21 +214,27 @@ async fn open_client(
     })
 }
 
-/// Drives one path on a thread of its own; returns the timed round trips, us.
+/// Drives the direct client and the bridged one (`path`) on a thread of
+/// their own; returns the timed round trips of each, us, and the POLYDATA
+/// messages read.
 fn drive(
     path: String,
     url: String,
     bridge_addr: Option<std::net::SocketAddr>,
     args: BridgeBenchArgs,
-) -> anyhow::Result<(Vec<f64>, usize)> {
+) -> anyhow::Result<(Vec<f64>, Vec<f64>, usize)> {
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?;
     rt.block_on(async move {
-        let mut client = open_client(&path, &url, bridge_addr).await?;
+        let mut direct = open_client("grpc", &url, None).await?;
+        let mut bridged = open_client(&path, &url, bridge_addr).await?;
         let period = Duration::from_secs_f64(1.0 / args.rate_hz);
         let total = args.warmup + args.samples;
-        let mut rtts = Vec::with_capacity(args.samples);
+        let (mut grpc, mut via) = (
+            Vec::with_capacity(args.samples),
+            Vec::with_capacity(args.samples),
+        );
         let mut next = Instant::now();
         for i in 0..total {
             let now = Instant::now();
@@ -229,33 +244,44 @@ fn drive(
                 std::thread::sleep(next - now);
             }
             next += period;
-            let t0 = Instant::now();
-            client.round_trip(i as u64 + 1).await?;
+            let seq = i as u64 + 1;
+            let mut times = [0.0; 2];
+            for k in 0..2 {
+                // Alternate which client goes first.
+                let bridge_turn = (k + i) % 2 == 1;
+                let t0 = Instant::now();
+                if bridge_turn {
+                    bridged.round_trip(seq).await?;
+                } else {
+                    direct.round_trip(seq).await?;
+                }
+                times[usize::from(bridge_turn)] = t0.elapsed().as_secs_f64() * 1e6;
+            }
             if i >= args.warmup {
-                rtts.push(t0.elapsed().as_secs_f64() * 1e6);
+                grpc.push(times[0]);
+                via.push(times[1]);
             }
         }
-        let polydata = match client {
+        let polydata = match bridged {
             Client::Igtl { polydata, .. } => polydata,
             _ => 0,
         };
-        anyhow::Ok((rtts, polydata))
+        anyhow::Ok((grpc, via, polydata))
     })
 }
 
 /// Times every path.
 pub async fn run(args: &BridgeBenchArgs) -> anyhow::Result<BridgeBenchReport> {
+    const PATHS: [&str; 3] = ["udp", "igtl", "igtl+surface"];
     let paths: Vec<String> = if args.path.is_empty() {
-        ["grpc", "udp", "igtl", "igtl+surface"]
-            .map(String::from)
-            .to_vec()
+        PATHS.map(String::from).to_vec()
     } else {
         args.path.clone()
     };
     for p in &paths {
         anyhow::ensure!(
-            ["grpc", "udp", "igtl", "igtl+surface"].contains(&p.as_str()),
-            "--path {p}: one of grpc, udp, igtl, igtl+surface"
+            PATHS.contains(&p.as_str()),
+            "--path {p}: one of udp, igtl, igtl+surface"
         );
     }
     let scene_name = "cube";
@@ -270,24 +296,22 @@ pub async fn run(args: &BridgeBenchArgs) -> anyhow::Result<BridgeBenchReport> {
         let server = serve("127.0.0.1:0".parse()?, ServeOptions::default()).await?;
         server.set_simulation(sim.clone()).await;
         let url = format!("http://{}", server.addr);
-        let left = ["left".to_owned()];
-        let (udp, igtl) = match path.as_str() {
-            "udp" => (
-                Some(Bridge::start(&url, "127.0.0.1:0".parse()?, &left, None).await?),
+        let right = ["right".to_owned()];
+        let (udp, igtl) = if path == "udp" {
+            (
+                Some(Bridge::start(&url, "127.0.0.1:0".parse()?, &right, None).await?),
                 None,
-            ),
-            "igtl" | "igtl+surface" => {
-                let options = IgtlOptions {
-                    listen: Some("127.0.0.1:0".parse()?),
-                    surface_device: (path == "igtl+surface").then(|| "fissure_surface".into()),
-                    ..IgtlOptions::default()
-                };
-                (
-                    None,
-                    Some(IgtlBridge::start(&url, &left, None, &options).await?),
-                )
-            }
-            _ => (None, None),
+            )
+        } else {
+            let options = IgtlOptions {
+                listen: Some("127.0.0.1:0".parse()?),
+                surface_device: (path == "igtl+surface").then(|| "fissure_surface".into()),
+                ..IgtlOptions::default()
+            };
+            (
+                None,
+                Some(IgtlBridge::start(&url, &right, None, &options).await?),
+            )
         };
         let addr = udp
             .as_ref()
@@ -303,31 +327,25 @@ pub async fn run(args: &BridgeBenchArgs) -> anyhow::Result<BridgeBenchReport> {
         }
         server.shutdown().await?;
         tokio::task::spawn_blocking(move || sim.shutdown()).await?;
-        let (mut rtts, polydata) = result.with_context(|| format!("path {path}"))?;
-        rtts.sort_by(f64::total_cmp);
+        let (mut grpc, mut via, polydata) = result.with_context(|| format!("path {path}"))?;
+        grpc.sort_by(f64::total_cmp);
+        via.sort_by(f64::total_cmp);
         let period_us = 1e6 / args.rate_hz;
+        let (g50, g99) = (percentile(&grpc, 0.5), percentile(&grpc, 0.99));
+        let (p50, p99) = (percentile(&via, 0.5), percentile(&via, 0.99));
         rows.push(PathRow {
             path: path.clone(),
-            samples: rtts.len(),
-            p50_us: percentile(&rtts, 0.5),
-            p99_us: percentile(&rtts, 0.99),
-            max_us: rtts.last().copied().unwrap_or(f64::NAN),
-            added_p50_us: 0.0,
-            added_p99_us: 0.0,
-            over_period: rtts.iter().filter(|&&r| r > period_us).count(),
+            samples: via.len(),
+            grpc_p50_us: g50,
+            grpc_p99_us: g99,
+            p50_us: p50,
+            p99_us: p99,
+            max_us: via.last().copied().unwrap_or(f64::NAN),
+            added_p50_us: p50 - g50,
+            added_p99_us: p99 - g99,
+            over_period: via.iter().filter(|&&r| r > period_us).count(),
             polydata,
         });
-    }
-    if let Some(g) = rows.iter().find(|r| r.path == "grpc").cloned() {
-        for r in &mut rows {
-            r.added_p50_us = r.p50_us - g.p50_us;
-            r.added_p99_us = r.p99_us - g.p99_us;
-        }
-    } else {
-        for r in &mut rows {
-            r.added_p50_us = f64::NAN;
-            r.added_p99_us = f64::NAN;
-        }
     }
     Ok(BridgeBenchReport {
         scene: scene_name.to_owned(),
@@ -339,18 +357,30 @@ pub async fn run(args: &BridgeBenchArgs) -> anyhow::Result<BridgeBenchReport> {
 /// The report as a table.
 pub fn table(r: &BridgeBenchReport) -> String {
     let mut s = format!(
-        "bridge round trips, scene {}, {} Hz lockstep (us; added = path - grpc)\n",
+        "bridge round trips, scene {}, {} Hz lockstep, us (grpc: the direct stream of the same run; added = bridged - grpc)\n",
         r.scene, r.rate_hz
     );
     s += &format!(
-        "{:<14} {:>8} {:>9} {:>9} {:>9} {:>11} {:>11} {:>8} {:>9}\n",
-        "path", "samples", "p50", "p99", "max", "added p50", "added p99", "> tick", "polydata"
+        "{:<14} {:>8} {:>9} {:>9} {:>9} {:>9} {:>9} {:>10} {:>10} {:>7} {:>9}\n",
+        "path",
+        "samples",
+        "grpc p50",
+        "grpc p99",
+        "p50",
+        "p99",
+        "max",
+        "added p50",
+        "added p99",
+        "> tick",
+        "polydata"
     );
     for x in &r.rows {
         s += &format!(
-            "{:<14} {:>8} {:>9.1} {:>9.1} {:>9.1} {:>11.1} {:>11.1} {:>8} {:>9}\n",
+            "{:<14} {:>8} {:>9.1} {:>9.1} {:>9.1} {:>9.1} {:>9.1} {:>10.1} {:>10.1} {:>7} {:>9}\n",
             x.path,
             x.samples,
+            x.grpc_p50_us,
+            x.grpc_p99_us,
             x.p50_us,
             x.p99_us,
             x.max_us,

@@ -152,8 +152,8 @@ OpenIGTLink (--igtl-listen [ADDR] or --igtl-connect HOST:PORT, instead of UDP):
        in the sender's frame, with the pose's timestamp; STATUS on rejections and
        safety-flag changes; POLYDATA --igtl-surface-device (mm, triangles first)
 Examples:
-  fissure bridge --igtl-listen                      (Slicer: OpenIGTLinkIF client of localhost:18944)
-  fissure bridge --igtl-connect plus-host:18944 --igtl-map StylusToTracker=left";
+  fissure bridge --igtl-listen        (3D Slicer connects to localhost:18944)
+  fissure bridge --igtl-connect plus-host:18944 --igtl-map StylusToReference=left";
 
 #[derive(Debug, clap::Args)]
 struct ReplayArgs {
