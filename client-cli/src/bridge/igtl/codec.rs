@@ -985,9 +985,22 @@ pub fn write_message(
     body: impl FnOnce(&mut Vec<u8>),
 ) {
     out.clear();
-    out.resize(HEADER_LEN, 0);
+    append_message(out, type_name, device, timestamp, body);
+}
+
+/// [`write_message`] after what `out` already holds (several messages in
+/// one buffer, sent with one write).
+pub fn append_message(
+    out: &mut Vec<u8>,
+    type_name: [u8; 12],
+    device: [u8; 20],
+    timestamp: u64,
+    body: impl FnOnce(&mut Vec<u8>),
+) {
+    let start = out.len();
+    out.resize(start + HEADER_LEN, 0);
     body(out);
-    let b = &out[HEADER_LEN..];
+    let b = &out[start + HEADER_LEN..];
     let h = Header {
         version: 1,
         type_name,
@@ -996,7 +1009,7 @@ pub fn write_message(
         body_size: b.len() as u64,
         crc: crc64(b),
     };
-    h.write(&mut out[..HEADER_LEN]);
+    h.write(&mut out[start..start + HEADER_LEN]);
 }
 
 /// A NUL-padded type field of a type name the bridge writes.
@@ -1028,6 +1041,41 @@ mod tests {
         // The table's first entries are the reference library's.
         assert_eq!(CRC_TABLE[1], 0x42F0_E1EB_A9EA_3693);
         assert_eq!(CRC_TABLE[2], 0x85E1_C3D7_53D4_6D26);
+    }
+
+    #[test]
+    fn appended_messages_parse_one_after_the_other() {
+        let mut out = Vec::new();
+        append_message(
+            &mut out,
+            type_field("SENSOR"),
+            name_field("a").unwrap(),
+            5,
+            |o| sensor_content(0, 0, &[1.0], o),
+        );
+        let first = out.len();
+        append_message(
+            &mut out,
+            type_field("STATUS"),
+            name_field("b").unwrap(),
+            6,
+            |o| {
+                status_content(
+                    &StatusMsg {
+                        code: 1,
+                        subcode: 0,
+                        error_name: "OK".into(),
+                        message: String::new(),
+                    },
+                    o,
+                )
+            },
+        );
+        let (h1, _) = parse_message(&out[..first]).unwrap();
+        let (h2, b2) = parse_message(&out[first..]).unwrap();
+        assert_eq!((h1.device(), h1.timestamp), ("a", 5));
+        assert_eq!((h2.device(), h2.timestamp), ("b", 6));
+        assert!(matches!(b2, Body::Status(s) if s.error_name == "OK"));
     }
 
     #[test]

@@ -38,7 +38,7 @@
 //! vertex positions in the sender's frame and units; the triangles (a
 //! POLYGONS cell array) with a peer's first POLYDATA only, or with every one
 //! under `--igtl-topology-every` (for receivers that rebuild the mesh from
-//! each message). A peer slower than the deformation rate gets the newest
+//! each message, as 3D Slicer's OpenIGTLinkIO converter does). A peer slower than the deformation rate gets the newest
 //! frame when it is ready for one; force answers are never queued behind
 //! surfaces.
 //!
@@ -63,8 +63,8 @@ use super::{Answers, Lanes, instrument_names};
 use crate::replay::connect;
 use anyhow::{Context, bail};
 use codec::{
-    Body, Cells, HEADER_LEN, IgtlError, StatusMsg, Unit, name_field, status_code, type_field,
-    write_message,
+    Body, Cells, HEADER_LEN, IgtlError, StatusMsg, Unit, append_message, name_field, status_code,
+    type_field, write_message,
 };
 use fissure_proto::v1 as pb;
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
@@ -403,11 +403,9 @@ struct IgtlAnswers {
 }
 
 fn status_message(out: &mut Vec<u8>, device: [u8; 20], timestamp: u64, s: &StatusMsg) {
-    let mut m = Vec::new();
-    write_message(&mut m, type_field("STATUS"), device, timestamp, |o| {
+    append_message(out, type_field("STATUS"), device, timestamp, |o| {
         codec::status_content(s, o)
     });
-    out.extend_from_slice(&m);
 }
 
 /// Names of the safety flags set in `flags`.
@@ -440,18 +438,18 @@ pub fn flag_names(flags: u32) -> String {
 impl Answers<Pending> for IgtlAnswers {
     async fn answer(&mut self, _index: usize, _name: &str, to: Pending, s: pb::ForceSample) {
         let v = |v: &Option<pb::Vec3>| v.as_ref().map_or([0.0; 3], |v| [v.x, v.y, v.z]);
+        // Both SENSOR messages (and a STATUS) in one buffer: one write, and
+        // the one allocation of an answer.
         let mut out = Vec::with_capacity(2 * (HEADER_LEN + 58) + 128);
-        let mut one = Vec::with_capacity(HEADER_LEN + 58);
         let f = self.registration.vector_to_sender(v(&s.force_n));
         let t = self.registration.vector_to_sender(v(&s.torque_nm));
         for (device, unit, data) in [
             (self.force_device, Unit::newton(), f),
             (self.torque_device, Unit::newton_meter(), t),
         ] {
-            write_message(&mut one, type_field("SENSOR"), device, to.timestamp, |o| {
+            append_message(&mut out, type_field("SENSOR"), device, to.timestamp, |o| {
                 codec::sensor_content(0, unit.pack(), &data, o)
             });
-            out.extend_from_slice(&one);
         }
         let mut statuses = 0;
         if let Some(r) = &s.rejection {
