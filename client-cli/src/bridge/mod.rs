@@ -211,6 +211,22 @@ impl BridgeArgs {
     /// is given.
     pub fn igtl_options(&self) -> anyhow::Result<Option<igtl::IgtlOptions>> {
         if self.igtl_listen.is_none() && self.igtl_connect.is_none() {
+            let given = [
+                ("--igtl-map", !self.igtl_map.is_empty()),
+                ("--igtl-registration", self.igtl_registration.is_some()),
+                ("--igtl-unit-m", self.igtl_unit_m != 0.001),
+                (
+                    "--igtl-surface-device",
+                    self.igtl_surface_device != "fissure_surface",
+                ),
+                ("--igtl-no-surface", self.igtl_no_surface),
+                ("--igtl-topology-every", self.igtl_topology_every),
+            ];
+            if let Some((flag, _)) = given.iter().find(|(_, g)| *g) {
+                bail!(
+                    "{flag} needs --igtl-listen or --igtl-connect (without them the bridge speaks UDP)"
+                );
+            }
             return Ok(None);
         }
         let registration = match &self.igtl_registration {
@@ -548,4 +564,59 @@ async fn run_udp(args: &BridgeArgs) -> anyhow::Result<BridgeStats> {
         stats.answered
     );
     Ok(stats)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: BridgeArgs,
+    }
+
+    fn args(line: &[&str]) -> BridgeArgs {
+        Cli::try_parse_from(std::iter::once("bridge").chain(line.iter().copied()))
+            .expect("the flags parse")
+            .args
+    }
+
+    #[test]
+    fn igtl_listen_alone_is_loopback_on_the_slicer_port() {
+        let o = args(&["--igtl-listen", "--igtl-map", "Tracker=left"])
+            .igtl_options()
+            .unwrap()
+            .expect("OpenIGTLink");
+        assert_eq!(o.listen, Some("127.0.0.1:18944".parse().unwrap()));
+        assert_eq!(o.map["Tracker"], "left");
+        assert_eq!(o.registration, igtl::Registration::default());
+        assert_eq!(o.surface_device.as_deref(), Some("fissure_surface"));
+        // No OpenIGTLink flag: the UDP bridge.
+        assert!(args(&[]).igtl_options().unwrap().is_none());
+    }
+
+    #[test]
+    fn igtl_flags_without_a_peer_are_refused() {
+        for line in [
+            &["--igtl-map", "A=left"][..],
+            &["--igtl-no-surface"],
+            &["--igtl-unit-m", "1"],
+        ] {
+            let e = args(line).igtl_options().unwrap_err().to_string();
+            assert!(e.contains("needs --igtl-listen or --igtl-connect"), "{e}");
+        }
+        // A registration with negative numbers parses as one value.
+        let o = args(&[
+            "--igtl-connect",
+            "plus:18944",
+            "--igtl-registration",
+            "-1 0 0 -5  0 -1 0 0  0 0 1 0  0 0 0 1",
+        ])
+        .igtl_options()
+        .unwrap()
+        .expect("OpenIGTLink");
+        assert_eq!(o.registration.translation.x, -5.0);
+    }
 }
