@@ -348,9 +348,9 @@ async fn read_kind(s: &mut TcpStream, kind: &str) -> anyhow::Result<(codec::Head
 /// On one connection: a wrong CRC, a body that is not a rotation and a type
 /// the bridge does not read are dropped (the first two counted bad, the
 /// third ignored), the connection stays usable; an unmapped device is
-/// answered with STATUS `UNKNOWN_DEVICE`; a NaN pose would be refused by
-/// the codec, while a valid pose is answered with SENSOR; a header that
-/// does not parse closes the connection.
+/// answered with STATUS `UNKNOWN_DEVICE`; a valid pose is answered with
+/// SENSOR, one going back in time with STATUS `POSE_REJECTED` (the server's
+/// reason); a header that does not parse closes the connection.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn malformed_messages_are_dropped_counted_and_named() -> anyhow::Result<()> {
     let server = start_server(false).await?;
@@ -408,12 +408,31 @@ async fn malformed_messages_are_dropped_counted_and_named() -> anyhow::Result<()
         panic!("{body:?}")
     };
     assert_eq!(f.data, vec![0.0; 3]);
+    // A pose going back in time: the server rejects it; zero force and a
+    // STATUS naming the reason.
+    let back = s_to_timestamp(12.0);
+    s.write_all(&transform_message("left", back, [0.0, 0.0, 200.0]))
+        .await?;
+    let (h, body) = read_kind(&mut s, "STATUS").await?;
+    assert_eq!((h.device(), h.timestamp), ("left", back));
+    let Body::Status(st) = body else {
+        panic!("{body:?}")
+    };
+    assert_eq!(
+        (st.code, st.error_name.as_str()),
+        (2, "POSE_REJECTED"),
+        "{st:?}"
+    );
+    // The gRPC code (3, INVALID_ARGUMENT) and the server's words.
+    assert_eq!(st.subcode, 3, "{st:?}");
+    assert!(st.message.contains("before the previous"), "{st:?}");
     let stats = bridge.stats();
     assert_eq!(
         (stats.bad, stats.ignored, stats.not_forwarded),
         (2, 1, 1),
         "{stats:?}"
     );
+    assert_eq!(stats.rejected, 1);
     // A header of version 7: the framing is lost, the connection closes.
     let mut v7 = transform_message("left", 0, [0.0; 3]);
     v7[0..2].copy_from_slice(&7u16.to_be_bytes());
@@ -429,7 +448,7 @@ async fn malformed_messages_are_dropped_counted_and_named() -> anyhow::Result<()
     tokio::time::timeout(Duration::from_secs(20), closed).await??;
     let stats = bridge.stop().await?;
     assert_eq!(stats.bad, 3);
-    assert_eq!(stats.answered, 1);
+    assert_eq!(stats.answered, 2);
     server.stop().await
 }
 
