@@ -2,15 +2,21 @@
 //! bridge reads (TRANSFORM, POSITION) and writes (SENSOR, STATUS, POLYDATA),
 //! each read as well as written so that the round trips are tested.
 //!
-//! Written here rather than taken from the `openigtlink-rust` crate: that
-//! crate's decoders report several distinct faults under one generic size
-//! error (an unknown POLYDATA attribute type comes back as "invalid size,
-//! expected 0"), it brings its own I/O stack (the bridge already has tokio
-//! and its lanes), and the registry this project builds from does not serve
-//! it. The formats are small; the layouts below follow the reference C
-//! library's headers (`igtl_header.h`, `igtl_sensor.h`, `igtl_unit.h`,
-//! `igtl_polydata.h`, `igtlStatusMessage.h`) and are checked against that
-//! library and against `pyigtl` in `client-cli/tests/igtl_peers.rs`.
+//! Written here rather than taken from the `openigtlink-rust` crate (0.4.1,
+//! MIT), which does not hold up on either count that matters here. Its
+//! POLYDATA is not the protocol's: it writes and reads a count before each
+//! array instead of the ten-field POLYDATA header, so neither Slicer nor
+//! the reference library can read the surface it would send. On bad input
+//! it can panic or abort: the body end is `58 + body_size` unchecked (a
+//! huge size wraps), the content size of a version-3 body is a subtraction
+//! of the metadata sizes unchecked, and POLYDATA reserves the declared
+//! point count before checking the bytes (4 billion points declared in a
+//! 40-byte body ask for about 50 GB). It also guesses an extended header from a
+//! body's first two bytes whatever the header version says. The formats
+//! are small; the layouts below follow the reference C library's headers
+//! (`igtl_header.h`, `igtl_sensor.h`, `igtl_unit.h`, `igtl_polydata.h`,
+//! `igtlStatusMessage.h`) and are checked against that library and against
+//! `pyigtl` in `client-cli/tests/igtl_peers.rs`.
 //!
 //! Everything is big-endian. Parsing never panics and never allocates more
 //! than the bytes at hand justify: every refusal is an [`IgtlError`] naming
