@@ -55,7 +55,10 @@
 //! A pose's time is its header timestamp less that of the first pose of its
 //! instrument (so the server's stepped mode starts at 0); a sender that
 //! puts 0 in the timestamp gets the time elapsed since its instrument's
-//! first pose. Sequence numbers are the bridge's, per instrument.
+//! first pose. A sender clock going back by more than [`CLOCK_RESTART_S`]
+//! (a restarted sender) is rebased so that the instrument's time carries on
+//! from its last pose; smaller steps back reach the server, which rejects
+//! them. Sequence numbers are the bridge's, per instrument.
 
 pub mod codec;
 
@@ -358,13 +361,19 @@ struct Shared {
     next_peer: AtomicU64,
 }
 
+/// A sender clock going back by more than this is taken for a restarted
+/// sender, s: the lane's time carries on from its last pose.
+pub const CLOCK_RESTART_S: f64 = 1.0;
+
 /// A lane's clock and sequence.
 #[derive(Debug, Default)]
 struct LaneClock {
-    /// Header time of the lane's first pose, s.
+    /// Header time that is the lane's time 0, s.
     epoch_s: Option<f64>,
     /// When the lane's first pose arrived (for senders without timestamps).
     start: Option<Instant>,
+    /// The latest time given, s.
+    last_s: f64,
     sequence: u64,
 }
 
@@ -372,13 +381,29 @@ impl LaneClock {
     fn next(&mut self, header_s: f64) -> (f64, u64) {
         self.sequence += 1;
         let t_s = if header_s > 0.0 {
-            header_s - *self.epoch_s.get_or_insert(header_s)
+            let epoch = *self.epoch_s.get_or_insert(header_s);
+            let t = header_s - epoch;
+            if t < self.last_s - CLOCK_RESTART_S {
+                // A restarted sender (PLUS, a tracker): carry on from the
+                // last pose rather than have every pose rejected as going
+                // back. Smaller steps back go to the server, which rejects
+                // them and says so.
+                tracing::info!(
+                    "OpenIGTLink: a sender's clock went back {:.3} s; its poses carry on from the last one",
+                    self.last_s - t
+                );
+                self.epoch_s = Some(header_s - self.last_s);
+                self.last_s
+            } else {
+                t
+            }
         } else {
             self.start
                 .get_or_insert_with(Instant::now)
                 .elapsed()
                 .as_secs_f64()
         };
+        self.last_s = self.last_s.max(t_s);
         (t_s, self.sequence)
     }
 }
@@ -1071,6 +1096,11 @@ mod tests {
         assert_eq!(c.next(1_700_000_000.5), (0.0, 1));
         let (t, s) = c.next(1_700_000_000.75);
         assert_eq!((t, s), (0.25, 2));
+        // A small step back goes through (the server rejects it).
+        assert_eq!(c.next(1_700_000_000.5).0, 0.0);
+        // A restarted sender: time carries on from the last pose.
+        assert_eq!(c.next(1_000.0).0, 0.25);
+        assert_eq!(c.next(1_000.5).0, 0.75);
         // A sender without timestamps: time since its first pose.
         let mut c = LaneClock::default();
         let (t0, _) = c.next(0.0);
