@@ -16,6 +16,8 @@ pub mod trajectory;
 pub mod watch;
 
 #[cfg(feature = "lab")]
+pub mod bench_bridge;
+#[cfg(feature = "lab")]
 pub mod bench_collision;
 #[cfg(feature = "lab")]
 pub mod bench_fem;

@@ -25,8 +25,9 @@ enum Command {
     /// and write the forces per instrument.
     #[command(after_help = REPLAY_HELP)]
     Replay(ReplayArgs),
-    /// Bridge UDP pose datagrams of haptic device programs to the server's
-    /// haptic streams; force datagrams go back to the sender.
+    /// Bridge UDP pose datagrams of haptic device programs (or, with
+    /// --igtl-listen / --igtl-connect, OpenIGTLink peers such as 3D Slicer
+    /// and PLUS) to the server's haptic streams; forces go back to the sender.
     #[command(after_help = BRIDGE_HELP)]
     Bridge(fissure_cli::bridge::BridgeArgs),
     /// Subscribe to deformation frames; write a VTU series (+ .pvd for
@@ -106,6 +107,10 @@ enum Bench {
     /// changes, onset, press/retract hysteresis, normal force, settling of
     /// held poses, model age and cost, beside their targets.
     Haptic(fissure_cli::bench_haptic::HapticArgs),
+    /// Latency the device bridges add to a force round trip: direct gRPC,
+    /// the UDP bridge and the OpenIGTLink bridge (with and without the
+    /// surface stream), lockstep at 1 kHz on the cube scene.
+    Bridge(fissure_cli::bench_bridge::BridgeBenchArgs),
 }
 
 const REPLAY_HELP: &str = "\
@@ -139,7 +144,18 @@ JSON form (one object per datagram):
   {\"instrument\":\"left\",\"seq\":7,\"t_s\":0.007,\"p\":[x,y,z],\"q\":[w,x,y,z]}   (or \"i\":0)
   answered by one line {\"instrument\":..,\"seq\":..,\"status\":\"ok\",\"f\":[..],\"torque\":[..],...}
 Instrument indices follow the order of --instrument, or the scene's order.
-Sequence numbers must increase and times must not go back, per instrument.";
+Sequence numbers must increase and times must not go back, per instrument.
+
+OpenIGTLink (--igtl-listen [ADDR] or --igtl-connect HOST:PORT, instead of UDP):
+  in   TRANSFORM or POSITION, device name = instrument (or --igtl-map DEVICE=INSTRUMENT),
+       sender units (--igtl-unit-m, default 0.001 = mm) in the sender's frame;
+       scene position = unit_m * (R p + t) with --igtl-registration (4x4, row major)
+  out  SENSOR <instrument>_force (N, 3 values) and <instrument>_torque (N m), per pose,
+       in the sender's frame, with the pose's timestamp; STATUS on rejections and
+       safety-flag changes; POLYDATA --igtl-surface-device (mm, triangles first)
+Examples:
+  fissure bridge --igtl-listen        (3D Slicer connects to localhost:18944)
+  fissure bridge --igtl-connect plus-host:18944 --igtl-map StylusToReference=left";
 
 #[derive(Debug, clap::Args)]
 struct ReplayArgs {
@@ -305,6 +321,7 @@ fn main() -> anyhow::Result<()> {
             Bench::Loop(args) => rt.block_on(fissure_cli::bench_loop::main(&args))?,
             Bench::Collision(args) => fissure_cli::bench_collision::run(&args)?,
             Bench::Haptic(args) => fissure_cli::bench_haptic::main(&args)?,
+            Bench::Bridge(args) => rt.block_on(fissure_cli::bench_bridge::main(&args))?,
         },
         Command::Report {
             file,

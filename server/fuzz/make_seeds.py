@@ -236,6 +236,99 @@ def bridge_seeds():
     put("bridge", "padded.json", json_pose("right", 9, 0.009, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0)).ljust(1024))
 
 
+# OpenIGTLink messages (client-cli/src/bridge/igtl/codec.rs), packed here
+# from the protocol's layout. File names: `ok-*` parse; `bad-<cause>-*` are
+# refused with that cause (`IgtlError::kind`), which
+# client-cli/tests/igtl_corpus.rs checks.
+def crc64(data):
+    crc = 0
+    for b in data:
+        crc ^= b << 56
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x42F0E1EBA9EA3693) if crc & (1 << 63) else crc << 1
+            crc &= (1 << 64) - 1
+    return crc
+
+
+def igtl(kind, device, body, version=1, ts=0, crc=None, size=None):
+    head = struct.pack(">H12s20sQQQ", version, kind, device, ts,
+                       len(body) if size is None else size,
+                       crc64(body) if crc is None else crc)
+    return head + body
+
+
+def transform_body(r, t):
+    cols = [r[row][col] for col in range(3) for row in range(3)]
+    return struct.pack(">12f", *cols, *t)
+
+
+def polydata_body(points, polys, strips=(), attrs=b"", nattr=0):
+    pc = [v for c in polys for v in (len(c), *c)]
+    sc = [v for c in strips for v in (len(c), *c)]
+    head = struct.pack(">10I", len(points), 0, 0, 0, 0, len(polys), 4 * len(pc), len(strips), 4 * len(sc), nattr)
+    pts = b"".join(struct.pack(">3f", *p) for p in points)
+    return head + pts + struct.pack(">%dI" % len(pc), *pc) + struct.pack(">%dI" % len(sc), *sc) + attrs
+
+
+def igtl_seeds():
+    eye = ((1, 0, 0), (0, 1, 0), (0, 0, 1))
+    rz = ((0, -1, 0), (1, 0, 0), (0, 0, 1))
+    ts = (1_700_000_000 << 32) | 0x80000000
+    good = igtl(b"TRANSFORM", b"Tracker", transform_body(eye, (11.0, 5.0, 42.75)), ts=ts)
+    put("igtl", "ok-transform.bin", good)
+    put("igtl", "ok-transform-rotated.bin", igtl(b"TRANSFORM", b"left", transform_body(rz, (-11.0, 5.0, 45.0))))
+    v2 = struct.pack(">HHII", 12, 10, 4, 7) + transform_body(eye, (1.0, 2.0, 3.0)) + b"\x00\x01\x00\x03\x00\x03\x00\x00\x00\x01key1"
+    put("igtl", "ok-transform-v2-metadata.bin", igtl(b"TRANSFORM", b"Tracker", v2, version=2))
+    put("igtl", "ok-position-28.bin", igtl(b"POSITION", b"Stylus", struct.pack(">7f", 1, 2, 3, 0, 0, 0.6, 0.8)))
+    put("igtl", "ok-position-24.bin", igtl(b"POSITION", b"Stylus", struct.pack(">6f", 1, 2, 3, 0, 0, 0.6)))
+    put("igtl", "ok-position-12.bin", igtl(b"POSITION", b"Stylus", struct.pack(">3f", 1, 2, 3)))
+    newton = (0x0B << 4 | 1) << 50
+    put("igtl", "ok-sensor-force.bin", igtl(b"SENSOR", b"left_force", struct.pack(">BBQ3d", 3, 0, newton, 0.01, -0.02, 0.35)))
+    put("igtl", "ok-status.bin", igtl(b"STATUS", b"left", struct.pack(">Hq20s", 2, 3, b"POSE_REJECTED") + b"position is NaN\0"))
+    square = [(0, 0, 0), (10, 0, 0), (0, 10, 0), (10, 10, 5)]
+    put("igtl", "ok-polydata.bin", igtl(b"POLYDATA", b"fissure_surface", polydata_body(square, [(0, 1, 2), (1, 3, 2)], [(0, 1, 2, 3)])))
+    attr = struct.pack(">BBI", 0, 1, 4) + b"disp\0\0" + struct.pack(">4f", 0, 0.1, 0.2, 0.3)
+    put("igtl", "ok-polydata-attribute.bin", igtl(b"POLYDATA", b"fissure_surface", polydata_body(square, [(0, 1, 2)], attrs=attr, nattr=1)))
+    # Malformed headers.
+    put("igtl", "bad-short-header-empty.bin", b"")
+    put("igtl", "bad-short-header-57.bin", good[:57])
+    put("igtl", "bad-version-0.bin", b"\x00\x00" + good[2:])
+    put("igtl", "bad-version-3.bin", b"\x00\x03" + good[2:])
+    put("igtl", "bad-type-name-empty.bin", good[:2] + b"\0" * 12 + good[14:])
+    put("igtl", "bad-type-name-binary.bin", good[:2] + b"TRANS\xffFORM\0\0\0" + good[14:])
+    put("igtl", "bad-device-name-after-nul.bin", good[:14] + b"Tracker\0\0\0x" + b"\0" * 9 + good[34:])
+    huge = bytearray(good)
+    huge[42:50] = struct.pack(">Q", 2**64 - 1)
+    put("igtl", "bad-body-too-large.bin", bytes(huge))
+    # Bodies that do not match their header.
+    put("igtl", "bad-body-length-beyond-data.bin", igtl(b"TRANSFORM", b"Tracker", transform_body(eye, (0, 0, 0)), size=4096))
+    put("igtl", "bad-body-length-trailing.bin", good + b"\0")
+    put("igtl", "bad-crc-flipped.bin", igtl(b"TRANSFORM", b"Tracker", transform_body(eye, (0, 0, 0)), crc=crc64(transform_body(eye, (0, 0, 0))) ^ 1))
+    put("igtl", "bad-crc-zero.bin", igtl(b"TRANSFORM", b"Tracker", transform_body(eye, (1, 0, 0)), crc=0))
+    put("igtl", "bad-extended-header-sizes.bin", igtl(b"TRANSFORM", b"Tracker", struct.pack(">HHII", 12, 0, 4000, 0) + transform_body(eye, (0, 0, 0)), version=2))
+    put("igtl", "bad-extended-header-short.bin", igtl(b"TRANSFORM", b"Tracker", b"\0\x0c", version=2))
+    # Types the bridge does not read.
+    put("igtl", "bad-unknown-type-get-status.bin", igtl(b"GET_STATUS", b"", b""))
+    put("igtl", "bad-unknown-type-image.bin", igtl(b"IMAGE", b"US", b"\0" * 72))
+    # Bodies that do not hold what they say.
+    put("igtl", "bad-content-length-transform.bin", igtl(b"TRANSFORM", b"Tracker", transform_body(eye, (0, 0, 0))[:44]))
+    put("igtl", "bad-content-length-position.bin", igtl(b"POSITION", b"Stylus", struct.pack(">5f", 1, 2, 3, 0, 0)))
+    put("igtl", "bad-not-finite-transform.bin", igtl(b"TRANSFORM", b"Tracker", transform_body(eye, (float("nan"), 0, 0))))
+    put("igtl", "bad-not-rotation-scaled.bin", igtl(b"TRANSFORM", b"Tracker", transform_body(((2, 0, 0), (0, 1, 0), (0, 0, 1)), (0, 0, 0))))
+    put("igtl", "bad-not-rotation-mirror.bin", igtl(b"TRANSFORM", b"Tracker", transform_body(((-1, 0, 0), (0, 1, 0), (0, 0, 1)), (0, 0, 0))))
+    put("igtl", "bad-sensor-length.bin", igtl(b"SENSOR", b"s", struct.pack(">BBQ2d", 3, 0, newton, 1, 2)))
+    put("igtl", "bad-status-no-nul.bin", igtl(b"STATUS", b"s", struct.pack(">Hq20s", 1, 0, b"OK") + b"no end"))
+    # Huge or inconsistent POLYDATA.
+    put("igtl", "bad-polydata-huge-counts.bin", igtl(b"POLYDATA", b"b", struct.pack(">10I", 2**32 - 1, 0, 0, 0, 0, 2**32 - 1, 2**32 - 4, 0, 0, 2**32 - 1)))
+    put("igtl", "bad-polydata-index-out-of-range.bin", igtl(b"POLYDATA", b"b", polydata_body(square, [(0, 1, 9)])))
+    put("igtl", "bad-polydata-cell-past-end.bin", igtl(b"POLYDATA", b"b", polydata_body(square, [(0, 1, 2)])[:-4]))
+    body = bytearray(polydata_body(square, [(0, 1, 2)]))
+    body[20:24] = struct.pack(">I", 2)
+    put("igtl", "bad-polydata-cell-count.bin", igtl(b"POLYDATA", b"b", bytes(body)))
+    put("igtl", "bad-polydata-attribute-type.bin", igtl(b"POLYDATA", b"b", polydata_body(square, [(0, 1, 2)], attrs=struct.pack(">BBI", 7, 1, 4) + b"a\0" + struct.pack(">4f", 0, 0, 0, 0), nattr=1)))
+    put("igtl", "bad-polydata-nan-point.bin", igtl(b"POLYDATA", b"b", polydata_body([(float("nan"), 0, 0)], [])))
+
+
 def main():
     if os.path.isdir(SEEDS):
         shutil.rmtree(SEEDS)
@@ -272,6 +365,7 @@ def main():
         pose(0.003, 3, (1.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0)),
     ]))
     bridge_seeds()
+    igtl_seeds()
 
 
 if __name__ == "__main__":

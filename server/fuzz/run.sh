@@ -18,7 +18,7 @@ cd "$(dirname "$0")"
 if [ "$#" -gt 0 ]; then
     targets=("$@")
 else
-    targets=(msh vtk vtu tetgen obj ply stl scene pose bridge)
+    targets=(msh vtk vtu tetgen obj ply stl scene pose bridge igtl)
 fi
 toolchain="${FUZZ_TOOLCHAIN:-nightly}"
 sanitizer="${FUZZ_SANITIZER:-address}"

@@ -2,7 +2,10 @@
 //! speak gRPC. It holds one haptic stream per instrument to the server,
 //! forwards each pose datagram it receives to the instrument's stream and
 //! sends the force sample that answers it back to the datagram's sender, in
-//! the sender's format (binary or JSON).
+//! the sender's format (binary or JSON). With `--igtl-listen` or
+//! `--igtl-connect` it speaks OpenIGTLink over TCP instead, for 3D Slicer
+//! and PLUS ([`igtl`]: TRANSFORM and POSITION in; SENSOR, STATUS and the
+//! deformed surface as POLYDATA out).
 //!
 //! # Datagram format
 //!
@@ -67,9 +70,10 @@
 //!
 //! [`codec`] reads and writes the datagrams; [`lanes`] holds the haptic
 //! streams and the answers owed, for this protocol and any other; this module
-//! is the UDP loop.
+//! is the UDP loop; [`igtl`] is the OpenIGTLink bridge on the same lanes.
 
 pub mod codec;
+pub mod igtl;
 pub mod lanes;
 
 pub use codec::*;
@@ -167,6 +171,81 @@ pub struct BridgeArgs {
     /// Stop after this long, s (default: until Ctrl-C).
     #[arg(long)]
     pub duration_s: Option<f64>,
+    /// Speak OpenIGTLink instead of UDP: listen for peers (3D Slicer's
+    /// OpenIGTLinkIF as a client, ...) on this TCP address (default
+    /// 127.0.0.1:18944, loopback only).
+    #[arg(long, num_args = 0..=1, default_missing_value = "127.0.0.1:18944", help_heading = "OpenIGTLink")]
+    pub igtl_listen: Option<SocketAddr>,
+    /// Speak OpenIGTLink instead of UDP: connect to the OpenIGTLink server
+    /// at HOST:PORT (PLUS, or Slicer's OpenIGTLinkIF as a server), and
+    /// reconnect when it goes away.
+    #[arg(long, help_heading = "OpenIGTLink")]
+    pub igtl_connect: Option<String>,
+    /// DEVICE=INSTRUMENT: poses of OpenIGTLink device DEVICE drive
+    /// INSTRUMENT (repeatable; a device not mapped drives the instrument of
+    /// its own name).
+    #[arg(long, help_heading = "OpenIGTLink")]
+    pub igtl_map: Vec<String>,
+    /// The sender's frame to the scene frame: a 4x4 homogeneous transform,
+    /// 16 numbers row major (commas or blanks), in the sender's units, its
+    /// 3x3 part a rotation (default identity).
+    #[arg(long, allow_hyphen_values = true, help_heading = "OpenIGTLink")]
+    pub igtl_registration: Option<String>,
+    /// Metres per unit of the sender's positions (0.001: millimetres, as
+    /// Slicer and PLUS send).
+    #[arg(long, default_value_t = 0.001, help_heading = "OpenIGTLink")]
+    pub igtl_unit_m: f64,
+    /// Device name of the deformed surface's POLYDATA messages.
+    #[arg(long, default_value = "fissure_surface", help_heading = "OpenIGTLink")]
+    pub igtl_surface_device: String,
+    /// Send no surface (no POLYDATA, no Watch subscription).
+    #[arg(long, help_heading = "OpenIGTLink")]
+    pub igtl_no_surface: bool,
+    /// Send the triangles with every POLYDATA, not only with a peer's first.
+    #[arg(long, help_heading = "OpenIGTLink")]
+    pub igtl_topology_every: bool,
+}
+
+impl BridgeArgs {
+    /// The OpenIGTLink options, when `--igtl-listen` or `--igtl-connect`
+    /// is given.
+    pub fn igtl_options(&self) -> anyhow::Result<Option<igtl::IgtlOptions>> {
+        if self.igtl_listen.is_none() && self.igtl_connect.is_none() {
+            let given = [
+                ("--igtl-map", !self.igtl_map.is_empty()),
+                ("--igtl-registration", self.igtl_registration.is_some()),
+                ("--igtl-unit-m", self.igtl_unit_m != 0.001),
+                (
+                    "--igtl-surface-device",
+                    self.igtl_surface_device != "fissure_surface",
+                ),
+                ("--igtl-no-surface", self.igtl_no_surface),
+                ("--igtl-topology-every", self.igtl_topology_every),
+            ];
+            if let Some((flag, _)) = given.iter().find(|(_, g)| *g) {
+                bail!(
+                    "{flag} needs --igtl-listen or --igtl-connect (without them the bridge speaks UDP)"
+                );
+            }
+            return Ok(None);
+        }
+        let registration = match &self.igtl_registration {
+            Some(r) => igtl::Registration::parse(r, self.igtl_unit_m)
+                .map_err(|e| anyhow::anyhow!("--igtl-registration: {e}"))?,
+            None => {
+                igtl::Registration::parse("1 0 0 0  0 1 0 0  0 0 1 0  0 0 0 1", self.igtl_unit_m)
+                    .map_err(|e| anyhow::anyhow!("--igtl-unit-m: {e}"))?
+            }
+        };
+        Ok(Some(igtl::IgtlOptions {
+            listen: self.igtl_listen,
+            connect: self.igtl_connect.clone(),
+            map: igtl::parse_map(&self.igtl_map)?,
+            registration,
+            surface_device: (!self.igtl_no_surface).then(|| self.igtl_surface_device.clone()),
+            topology_every: self.igtl_topology_every,
+        }))
+    }
 }
 
 impl Bridge {
@@ -179,22 +258,7 @@ impl Bridge {
         token: Option<&str>,
     ) -> anyhow::Result<Self> {
         let mut client = connect(server).await?;
-        let names: Vec<String> = if instruments.is_empty() {
-            client
-                .get_scene(pb::GetSceneRequest {})
-                .await
-                .context("GetScene")?
-                .into_inner()
-                .instruments
-                .into_iter()
-                .map(|i| i.name)
-                .collect()
-        } else {
-            instruments.to_vec()
-        };
-        if names.is_empty() {
-            bail!("the scene has no instrument to bridge");
-        }
+        let names = instrument_names(&mut client, instruments).await?;
         if names.len() > 256 {
             bail!("at most 256 instruments can be bridged (the index is one byte)");
         }
@@ -236,6 +300,31 @@ impl Bridge {
     pub async fn wait(&mut self) -> anyhow::Result<()> {
         (&mut self.task).await.context("the bridge task panicked")?
     }
+}
+
+/// The instruments to bridge: `instruments`, or every instrument of the
+/// scene (in the scene's order) when it is empty.
+pub(crate) async fn instrument_names(
+    client: &mut fissure_proto::v1::fissure_client::FissureClient<tonic::transport::Channel>,
+    instruments: &[String],
+) -> anyhow::Result<Vec<String>> {
+    let names: Vec<String> = if instruments.is_empty() {
+        client
+            .get_scene(pb::GetSceneRequest {})
+            .await
+            .context("GetScene")?
+            .into_inner()
+            .instruments
+            .into_iter()
+            .map(|i| i.name)
+            .collect()
+    } else {
+        instruments.to_vec()
+    };
+    if names.is_empty() {
+        bail!("the scene has no instrument to bridge");
+    }
+    Ok(names)
 }
 
 /// The UDP loop: parses each datagram, forwards its pose on its
@@ -381,8 +470,67 @@ impl Answers<Pending> for UdpAnswers {
     }
 }
 
-/// Runs `fissure bridge` until Ctrl-C or `--duration-s`.
-pub async fn run(args: &BridgeArgs) -> anyhow::Result<BridgeStats> {
+/// Runs the OpenIGTLink bridge until Ctrl-C or `--duration-s`.
+async fn run_igtl(args: &BridgeArgs, options: &igtl::IgtlOptions) -> anyhow::Result<()> {
+    let bridge = igtl::IgtlBridge::start(
+        &args.server,
+        &args.instrument,
+        args.token.as_deref(),
+        options,
+    )
+    .await?;
+    if let Some(a) = bridge.local_addr {
+        eprintln!(
+            "OpenIGTLink: listening on TCP {a}, bridging to {}",
+            args.server
+        );
+    }
+    if let Some(c) = &options.connect {
+        eprintln!(
+            "OpenIGTLink: connecting to {c}, bridging to {}",
+            args.server
+        );
+    }
+    let limit = async {
+        match args.duration_s {
+            Some(d) => tokio::time::sleep(std::time::Duration::from_secs_f64(d.max(0.0))).await,
+            None => std::future::pending().await,
+        }
+    };
+    tokio::select! {
+        _ = tokio::signal::ctrl_c() => {}
+        _ = limit => {}
+    }
+    let s = bridge.stop().await?;
+    eprintln!(
+        "OpenIGTLink: connections {}, messages received {}, bad {}, ignored {}, poses forwarded {}, not forwarded {}, rejected by the server {}, answered {}, STATUS sent {}, answers dropped {}, surface frames {}, POLYDATA sent {}",
+        s.connections,
+        s.received,
+        s.bad,
+        s.ignored,
+        s.forwarded,
+        s.not_forwarded,
+        s.rejected,
+        s.answered,
+        s.statuses,
+        s.dropped,
+        s.surface_frames,
+        s.polydata_sent
+    );
+    Ok(())
+}
+
+/// Runs `fissure bridge` until Ctrl-C or `--duration-s`: UDP, or
+/// OpenIGTLink with `--igtl-listen` / `--igtl-connect` (the instruments are
+/// claimed by one or the other).
+pub async fn run(args: &BridgeArgs) -> anyhow::Result<()> {
+    if let Some(options) = args.igtl_options()? {
+        return run_igtl(args, &options).await;
+    }
+    run_udp(args).await.map(|_| ())
+}
+
+async fn run_udp(args: &BridgeArgs) -> anyhow::Result<BridgeStats> {
     let mut bridge = Bridge::start(
         &args.server,
         args.listen,
@@ -416,4 +564,59 @@ pub async fn run(args: &BridgeArgs) -> anyhow::Result<BridgeStats> {
         stats.answered
     );
     Ok(stats)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: BridgeArgs,
+    }
+
+    fn args(line: &[&str]) -> BridgeArgs {
+        Cli::try_parse_from(std::iter::once("bridge").chain(line.iter().copied()))
+            .expect("the flags parse")
+            .args
+    }
+
+    #[test]
+    fn igtl_listen_alone_is_loopback_on_the_slicer_port() {
+        let o = args(&["--igtl-listen", "--igtl-map", "Tracker=left"])
+            .igtl_options()
+            .unwrap()
+            .expect("OpenIGTLink");
+        assert_eq!(o.listen, Some("127.0.0.1:18944".parse().unwrap()));
+        assert_eq!(o.map["Tracker"], "left");
+        assert_eq!(o.registration, igtl::Registration::default());
+        assert_eq!(o.surface_device.as_deref(), Some("fissure_surface"));
+        // No OpenIGTLink flag: the UDP bridge.
+        assert!(args(&[]).igtl_options().unwrap().is_none());
+    }
+
+    #[test]
+    fn igtl_flags_without_a_peer_are_refused() {
+        for line in [
+            &["--igtl-map", "A=left"][..],
+            &["--igtl-no-surface"],
+            &["--igtl-unit-m", "1"],
+        ] {
+            let e = args(line).igtl_options().unwrap_err().to_string();
+            assert!(e.contains("needs --igtl-listen or --igtl-connect"), "{e}");
+        }
+        // A registration with negative numbers parses as one value.
+        let o = args(&[
+            "--igtl-connect",
+            "plus:18944",
+            "--igtl-registration",
+            "-1 0 0 -5  0 -1 0 0  0 0 1 0  0 0 0 1",
+        ])
+        .igtl_options()
+        .unwrap()
+        .expect("OpenIGTLink");
+        assert_eq!(o.registration.translation.x, -5.0);
+    }
 }
