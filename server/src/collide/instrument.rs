@@ -164,6 +164,76 @@ impl Plate {
     }
 }
 
+/// The outline of a plate as a scene names it: its kind and the parameter
+/// only that kind has (`shape` and `base_width_m` or `bend_radius_m` in a
+/// scene file). The widths and lengths every plate has stay beside it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum PlateShape {
+    /// A flat rectangular plate.
+    Flat,
+    /// A flat plate whose width goes from `base_width_m` at the handle end to
+    /// the plate's width at the tip.
+    Trapezoid {
+        /// Width at the handle end, m.
+        base_width_m: f64,
+    },
+    /// A rectangular plate bent along its length.
+    Curved {
+        /// Signed bend radius, m (`> 0`: face A convex).
+        bend_radius_m: f64,
+    },
+}
+
+impl PlateShape {
+    /// The shape's name in scene files and in `InstrumentDescription.shape`.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Self::Flat => "flat",
+            Self::Trapezoid { .. } => "trapezoid",
+            Self::Curved { .. } => "curved",
+        }
+    }
+
+    /// The plate of this outline with thickness `h`, width `w` (at the tip
+    /// for a trapezoid) and length `l`, m.
+    pub fn plate(&self, h: f64, w: f64, l: f64) -> Plate {
+        match *self {
+            Self::Flat => Plate::flat(h, w, l),
+            Self::Trapezoid { base_width_m } => Plate::trapezoid(h, base_width_m, w, l),
+            Self::Curved { bend_radius_m } => Plate::curved(h, w, l, bend_radius_m),
+        }
+    }
+}
+
+/// Where the face nodes sit, as a scene names it (`layout`); with a node
+/// count it gives the [`NodeLayout`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum LayoutKind {
+    /// A grid over the whole face.
+    #[default]
+    WholeFace,
+    /// A grid over the last [`TIP_FRACTION`] of the length.
+    Tip,
+}
+
+/// The share of the plate's length, from the tip, that a `tip` layout
+/// covers (the paper's tip-concentrated nodes).
+pub const TIP_FRACTION: f64 = 0.3;
+
+impl LayoutKind {
+    /// The layout of `per_face` nodes a face.
+    pub fn layout(self, per_face: usize) -> NodeLayout {
+        match self {
+            Self::WholeFace => NodeLayout::WholeFace { per_face },
+            Self::Tip => NodeLayout::Tip {
+                per_face,
+                fraction: TIP_FRACTION,
+            },
+        }
+    }
+}
+
 /// Where the face nodes go.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum NodeLayout {

@@ -475,64 +475,113 @@ impl Default for LoopSpec {
     }
 }
 
-/// Spatula shape.
-#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq, Default)]
-#[serde(rename_all = "kebab-case")]
-pub enum ShapeKind {
-    /// A flat rectangular plate.
-    #[default]
-    Flat,
-    /// A flat plate narrowing to the tip.
-    Trapezoid,
-    /// A plate bent along its length.
-    Curved,
-}
-
-/// Where the source nodes sit on each face.
-#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq, Default)]
-#[serde(rename_all = "kebab-case")]
-pub enum LayoutKind {
-    /// A grid over the whole face.
-    #[default]
-    WholeFace,
-    /// A grid concentrated at the tip.
-    Tip,
-}
+pub use crate::collide::instrument::{LayoutKind, PlateShape};
 
 /// One spatula.
 #[derive(Debug, Clone, Deserialize, PartialEq)]
-#[serde(deny_unknown_fields)]
+#[serde(try_from = "InstrumentFields")]
 pub struct InstrumentSpec {
     /// Name clients claim it by.
     pub name: String,
-    /// Shape.
-    #[serde(default)]
-    pub shape: ShapeKind,
+    /// The plate's outline with the parameter only it has (`shape`, and
+    /// `base_width_m` for a trapezoid or `bend_radius_m` for a curved plate).
+    pub shape: PlateShape,
     /// Plate thickness, m.
     pub thickness_m: f64,
     /// Plate width (at the tip for a trapezoid), m.
     pub width_m: f64,
-    /// Plate width at the handle end (trapezoid only), m.
-    #[serde(default)]
-    pub base_width_m: Option<f64>,
     /// Plate length, m.
     pub length_m: f64,
-    /// Bend radius (curved only), m.
-    #[serde(default)]
-    pub bend_radius_m: Option<f64>,
     /// Source-node layout.
-    #[serde(default)]
     pub layout: LayoutKind,
     /// Source nodes a face.
     pub nodes_per_face: u32,
     /// Whether rim nodes are added for contact with the side.
-    #[serde(default)]
     pub rim: bool,
     /// Position of the handle point at rest, m.
     pub home_position_m: [f64; 3],
     /// Orientation at rest, quaternion (w, x, y, z).
-    #[serde(default = "identity_quaternion")]
     pub home_orientation: [f64; 4],
+}
+
+/// The name of a plate's outline in a scene file (`shape`).
+#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "kebab-case")]
+enum ShapeName {
+    #[default]
+    Flat,
+    Trapezoid,
+    Curved,
+}
+
+/// An `[[instruments]]` table as written: the outline's parameters sit
+/// beside its name, and [`InstrumentSpec`] takes only the one its shape has
+/// (serde cannot flatten a tagged enum into a struct that denies unknown
+/// fields).
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct InstrumentFields {
+    name: String,
+    #[serde(default)]
+    shape: ShapeName,
+    thickness_m: f64,
+    width_m: f64,
+    #[serde(default)]
+    base_width_m: Option<f64>,
+    length_m: f64,
+    #[serde(default)]
+    bend_radius_m: Option<f64>,
+    #[serde(default)]
+    layout: LayoutKind,
+    nodes_per_face: u32,
+    #[serde(default)]
+    rim: bool,
+    home_position_m: [f64; 3],
+    #[serde(default = "identity_quaternion")]
+    home_orientation: [f64; 4],
+}
+
+impl TryFrom<InstrumentFields> for InstrumentSpec {
+    type Error = String;
+
+    fn try_from(f: InstrumentFields) -> Result<Self, String> {
+        let named = |field: &str| format!("instrument {:?}: {field}", f.name);
+        let shape = match (f.shape, f.base_width_m, f.bend_radius_m) {
+            (ShapeName::Flat, None, None) => PlateShape::Flat,
+            (ShapeName::Trapezoid, Some(base_width_m), None) => {
+                PlateShape::Trapezoid { base_width_m }
+            }
+            (ShapeName::Curved, None, Some(bend_radius_m)) => PlateShape::Curved { bend_radius_m },
+            (ShapeName::Trapezoid, None, _) => {
+                return Err(named("shape = \"trapezoid\" needs base_width_m (m)"));
+            }
+            (ShapeName::Curved, _, None) => {
+                return Err(named("shape = \"curved\" needs bend_radius_m (m)"));
+            }
+            (shape, Some(_), _) => {
+                return Err(named(&format!(
+                    "base_width_m is only for shape = \"trapezoid\", this plate is {shape:?}"
+                )));
+            }
+            (shape, _, Some(_)) => {
+                return Err(named(&format!(
+                    "bend_radius_m is only for shape = \"curved\", this plate is {shape:?}"
+                )));
+            }
+        };
+        Ok(Self {
+            name: f.name,
+            shape,
+            thickness_m: f.thickness_m,
+            width_m: f.width_m,
+            length_m: f.length_m,
+            layout: f.layout,
+            nodes_per_face: f.nodes_per_face,
+            rim: f.rim,
+            home_position_m: f.home_position_m,
+            home_orientation: f.home_orientation,
+        })
+    }
 }
 
 fn identity_quaternion() -> [f64; 4] {
@@ -879,13 +928,13 @@ impl Scene {
                 ));
             }
             match ins.shape {
-                ShapeKind::Trapezoid => {
-                    positive(&f("base_width_m"), ins.base_width_m.unwrap_or(f64::NAN))?
+                PlateShape::Trapezoid { base_width_m } => {
+                    positive(&f("base_width_m"), base_width_m)?
                 }
-                ShapeKind::Curved => {
-                    positive(&f("bend_radius_m"), ins.bend_radius_m.unwrap_or(f64::NAN))?
+                PlateShape::Curved { bend_radius_m } => {
+                    positive(&f("bend_radius_m"), bend_radius_m)?
                 }
-                ShapeKind::Flat => {}
+                PlateShape::Flat => {}
             }
             finite3(f("home_position_m"), &ins.home_position_m)?;
             let q = ins.home_orientation;
@@ -986,6 +1035,72 @@ mod tests {
             let err = geometry(strategy, contact).unwrap_err();
             assert!(err.contains("contact.geometry"), "{strategy}: {err}");
         }
+    }
+
+    /// A plate's outline is its shape with the one parameter that shape has:
+    /// each shape reads back under its own name with its parameter, the
+    /// plate it gives is that shape's, and a parameter of another shape, a missing
+    /// one or a bad value is refused naming the instrument and the field.
+    #[test]
+    fn a_shape_takes_its_own_parameter_and_refuses_another_shapes() {
+        let cube = include_str!("../../scenes/cube.toml");
+        let with = |shape: &str| {
+            let text = cube.replacen("shape = \"flat\"", shape, 1);
+            Scene::parse(&text, "c.toml").map_err(|e| e.to_string())
+        };
+        let scene = with("shape = \"trapezoid\"\nbase_width_m = 0.014").unwrap();
+        let left = &scene.instruments[0];
+        assert_eq!(
+            left.shape,
+            PlateShape::Trapezoid {
+                base_width_m: 0.014
+            }
+        );
+        assert_eq!(left.shape.name(), "trapezoid");
+        let plate = left
+            .shape
+            .plate(left.thickness_m, left.width_m, left.length_m);
+        assert_eq!((plate.base_width, plate.tip_width), (0.014, 0.010));
+        let scene = with("shape = \"curved\"\nbend_radius_m = 0.05").unwrap();
+        let left = &scene.instruments[0];
+        assert_eq!(left.shape.name(), "curved");
+        let plate = left
+            .shape
+            .plate(left.thickness_m, left.width_m, left.length_m);
+        assert_eq!(plate.bend_radius, Some(0.05));
+        assert_eq!(
+            with("shape = \"flat\"").unwrap().instruments[0]
+                .shape
+                .name(),
+            "flat"
+        );
+        assert_eq!(with("").unwrap().instruments[0].shape, PlateShape::Flat);
+        for (shape, field) in [
+            ("shape = \"flat\"\nbase_width_m = 0.014", "base_width_m"),
+            ("shape = \"flat\"\nbend_radius_m = 0.05", "bend_radius_m"),
+            ("shape = \"trapezoid\"", "base_width_m"),
+            ("shape = \"curved\"", "bend_radius_m"),
+            (
+                "shape = \"curved\"\nbend_radius_m = 0.05\nbase_width_m = 0.01",
+                "base_width_m",
+            ),
+            (
+                "shape = \"trapezoid\"\nbase_width_m = -0.01",
+                "instrument[0].base_width_m",
+            ),
+            (
+                "shape = \"curved\"\nbend_radius_m = 0.0",
+                "instrument[0].bend_radius_m",
+            ),
+        ] {
+            let err = with(shape).unwrap_err();
+            assert!(err.contains(field), "{shape}: {err}");
+        }
+        assert!(
+            with("shape = \"trapezoid\"")
+                .unwrap_err()
+                .contains("\"left\"")
+        );
     }
 
     #[test]

@@ -1,8 +1,6 @@
 //! Conversions between engine values and `fissure.v1` messages.
 
-use crate::scene::{
-    CollisionBackend, CollisionMethod, ContactLaw, HistoryMode, Scene, ShapeKind, Strategy,
-};
+use crate::scene::{CollisionBackend, CollisionMethod, ContactLaw, HistoryMode, Scene, Strategy};
 use crate::sim::ForceOut;
 use crate::sim::engine::Model;
 use crate::sim::pose::{PoseError, RawPose};
@@ -47,15 +45,6 @@ fn material_model(strategy: Strategy) -> &'static str {
     }
 }
 
-/// A spatula shape's name (`InstrumentDescription.shape`), as in scene files.
-fn shape_name(shape: ShapeKind) -> &'static str {
-    match shape {
-        ShapeKind::Flat => "flat",
-        ShapeKind::Trapezoid => "trapezoid",
-        ShapeKind::Curved => "curved",
-    }
-}
-
 /// The description of a loaded scene.
 pub fn scene_description(scene: &Scene, model: &Model) -> pb::SceneDescription {
     let (lo, hi) = model.mesh.bounds();
@@ -74,7 +63,7 @@ pub fn scene_description(scene: &Scene, model: &Model) -> pb::SceneDescription {
             .enumerate()
             .map(|(i, ins)| pb::InstrumentDescription {
                 name: ins.name.clone(),
-                shape: shape_name(ins.shape).into(),
+                shape: ins.shape.name().into(),
                 thickness_m: ins.thickness_m,
                 width_m: ins.width_m,
                 length_m: ins.length_m,
@@ -322,16 +311,6 @@ mod tests {
                 Strategy::Corotational | Strategy::NeoHookean => s.name(),
             };
             assert_eq!(material_model(s), expected, "{s:?}");
-        }
-    }
-
-    /// `InstrumentDescription.shape` is the shape's scene-file name: it reads
-    /// back as the same shape.
-    #[test]
-    fn shape_names_are_the_scene_file_names() {
-        for k in [ShapeKind::Flat, ShapeKind::Trapezoid, ShapeKind::Curved] {
-            let back: ShapeKind = serde_json::from_str(&format!("\"{}\"", shape_name(k))).unwrap();
-            assert_eq!(back, k);
         }
     }
 }

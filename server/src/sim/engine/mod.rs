@@ -21,13 +21,13 @@ use crate::collide::brute::BruteForce;
 use crate::collide::bvh::{Bvh, BvhView};
 use crate::collide::contact::{self, ContactOutput, ContactRule, DetectOptions, Tool, Workspace};
 use crate::collide::history::{HistoryMode as CollideHistoryMode, Stage};
-use crate::collide::instrument::{Instrument, NodeLayout, Plate, RimNodes};
+use crate::collide::instrument::{Instrument, RimNodes};
 use crate::fem::compliance::ColumnPolicy;
 use crate::fem::{self, CompliancePatch, ContactAnswer, ContactRow, DeformationSolver, RowKind};
 use crate::mesh::{BoundarySurface, TetMesh};
 use crate::scene::{
-    CollisionBackend, CollisionMethod, ContactGeometry, ContactLaw, HistoryMode, LayoutKind,
-    ModelSpec, Region, Scene, ShapeKind,
+    CollisionBackend, CollisionMethod, ContactGeometry, ContactLaw, HistoryMode, ModelSpec, Region,
+    Scene,
 };
 use faer::Par;
 use nalgebra::{Isometry3, Point3, Vector3};

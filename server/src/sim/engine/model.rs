@@ -54,29 +54,10 @@ fn build_instrument(
     spec: &crate::scene::InstrumentSpec,
     max_depth_m: f64,
 ) -> Result<Instrument, SimError> {
-    let plate = match spec.shape {
-        ShapeKind::Flat => Plate::flat(spec.thickness_m, spec.width_m, spec.length_m),
-        ShapeKind::Trapezoid => Plate::trapezoid(
-            spec.thickness_m,
-            spec.base_width_m.unwrap_or(spec.width_m),
-            spec.width_m,
-            spec.length_m,
-        ),
-        ShapeKind::Curved => Plate::curved(
-            spec.thickness_m,
-            spec.width_m,
-            spec.length_m,
-            spec.bend_radius_m.unwrap_or(f64::INFINITY),
-        ),
-    };
-    let per_face = spec.nodes_per_face as usize;
-    let layout = match spec.layout {
-        LayoutKind::WholeFace => NodeLayout::WholeFace { per_face },
-        LayoutKind::Tip => NodeLayout::Tip {
-            per_face,
-            fraction: 0.3,
-        },
-    };
+    let plate = spec
+        .shape
+        .plate(spec.thickness_m, spec.width_m, spec.length_m);
+    let layout = spec.layout.layout(spec.nodes_per_face as usize);
     let rim = spec.rim.then(|| RimNodes {
         per_side: ((spec.length_m / spec.width_m * 3.0).round() as usize).clamp(4, 64),
         tip: 5,
