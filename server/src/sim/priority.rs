@@ -33,7 +33,9 @@
 //! when asked for none).
 
 /// Sets the nice value of the calling thread to `nice` (Linux: threads are
-/// scheduled individually; 0 leaves the thread as it is). Failures are
+/// scheduled individually; 0 leaves the thread as it is), or leaves it where
+/// it is when it already runs nicer: a server started under `nice` is never
+/// raised, even where the privilege to raise it is held. Failures are
 /// logged, not fatal: the loops still work, only with less isolation.
 ///
 /// A thread that inherited a real-time policy (spawned from a real-time
@@ -46,9 +48,10 @@ pub fn lower_current_thread(nice: i32) {
         return;
     }
     #[cfg(target_os = "linux")]
-    if let Err(e) =
-        rustix::process::setpriority_process(Some(rustix::thread::gettid()), nice.min(19))
-    {
+    if let Err(e) = rustix::process::setpriority_process(
+        Some(rustix::thread::gettid()),
+        nice.min(19).max(current_thread_nice().unwrap_or(0)),
+    ) {
         tracing::debug!(error = %e, nice, "cannot lower the deformation thread's priority");
     }
     #[cfg(not(target_os = "linux"))]

@@ -94,3 +94,43 @@ pub struct Snapshot {
     /// The frame summary sent to watchers.
     pub frame_summary: Arc<Frame>,
 }
+
+impl Frame {
+    /// Surface positions in single precision, as watchers get them, m.
+    pub fn positions_of(surface: &[Point3<f64>]) -> Arc<Vec<[f32; 3]>> {
+        Arc::new(
+            surface
+                .iter()
+                .map(|p| [p.x as f32, p.y as f32, p.z as f32])
+                .collect(),
+        )
+    }
+}
+
+impl Snapshot {
+    /// What a failed step `frame` at `sim_time_s` publishes: this last good
+    /// state, renumbered, with `error` in it and in its summary, so that the
+    /// force loops keep answering on the last good model and watchers see
+    /// why the shape did not move.
+    pub fn failed(&self, frame: u64, sim_time_s: f64, timings: StepTimings, error: String) -> Self {
+        let mut summary = (*self.frame_summary).clone();
+        summary.frame = frame;
+        summary.sim_time_s = sim_time_s;
+        summary.timings = timings;
+        summary.solver_error = Some(error.clone());
+        let mut force_model = (*self.force_model).clone();
+        force_model.frame = frame;
+        Self {
+            frame,
+            sim_time_s,
+            published: Instant::now(),
+            surface: self.surface.clone(),
+            displacements: self.displacements.clone(),
+            surface_bvh: self.surface_bvh.clone(),
+            force_model: Arc::new(force_model),
+            paper_history: self.paper_history.clone(),
+            solver_error: Some(error),
+            frame_summary: Arc::new(summary),
+        }
+    }
+}

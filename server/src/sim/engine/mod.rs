@@ -319,28 +319,13 @@ impl StepEngine {
         };
         if let Err(e) = result {
             tracing::warn!(frame, error = %e, "deformation step failed; keeping the last good state");
-            let mut summary = (*prev.frame_summary).clone();
-            summary.frame = frame;
-            summary.sim_time_s = sim_time_s;
-            summary.timings = timings(started.elapsed().as_secs_f64() * 1e6);
-            summary.solver_error = Some(e.to_string());
-            let mut fm = (*prev.force_model).clone();
-            fm.frame = frame;
-            return (
-                Snapshot {
-                    frame,
-                    sim_time_s,
-                    published: Instant::now(),
-                    surface: prev.surface.clone(),
-                    displacements: prev.displacements.clone(),
-                    surface_bvh: prev.surface_bvh.clone(),
-                    force_model: Arc::new(fm),
-                    paper_history: prev.paper_history.clone(),
-                    solver_error: Some(e.to_string()),
-                    frame_summary: Arc::new(summary),
-                },
-                None,
+            let failed = prev.failed(
+                frame,
+                sim_time_s,
+                timings(started.elapsed().as_secs_f64() * 1e6),
+                e.to_string(),
             );
+            return (failed, None);
         }
         let answer = self.deformer.answer();
         self.lambda.clear();
@@ -684,10 +669,7 @@ impl StepEngine {
             &surface,
             tips_centre(&self.scene, poses),
         );
-        let positions = surface
-            .iter()
-            .map(|p| [p.x as f32, p.y as f32, p.z as f32])
-            .collect();
+        let positions = Frame::positions_of(&surface);
         let force_model = ForceModel::new(
             frame,
             patch.patch,
@@ -711,7 +693,7 @@ impl StepEngine {
             frame_summary: Arc::new(Frame {
                 frame,
                 sim_time_s,
-                positions: Arc::new(positions),
+                positions,
                 instruments,
                 timings,
                 solver_error: None,

@@ -263,11 +263,6 @@ impl Model {
 
     /// The rest state as frame `frame`, no contact.
     pub fn rest_snapshot(&self, scene: &Scene, frame: u64, sim_time_s: f64) -> Snapshot {
-        let positions: Vec<[f32; 3]> = self
-            .rest_surface
-            .iter()
-            .map(|p| [p.x as f32, p.y as f32, p.z as f32])
-            .collect();
         let instruments = scene
             .instruments
             .iter()
@@ -307,7 +302,7 @@ impl Model {
             frame_summary: Arc::new(Frame {
                 frame,
                 sim_time_s,
-                positions: Arc::new(positions),
+                positions: Frame::positions_of(&self.rest_surface),
                 instruments,
                 timings: StepTimings::default(),
                 solver_error: None,
