@@ -1084,6 +1084,13 @@ impl DeformationSolver for Compliance {
         "compliance"
     }
 
+    fn cache_bytes(&self) -> usize {
+        // The length, not the capacity: growth writes the new slots' zeros,
+        // so what is resident is what is in use.
+        let words = self.cols.len() * std::mem::size_of::<f64>();
+        words + self.slot_node.len() * 4 + self.slot_stamp.len() * 8
+    }
+
     fn solve(&mut self, prescribed: &[Prescribed]) -> Result<&Solution, SolveError> {
         self.prepare(prescribed)?;
         self.finish_step()

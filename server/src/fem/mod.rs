@@ -262,6 +262,12 @@ pub trait DeformationSolver: Send {
     /// in the background where the strategy defers it). The default does
     /// nothing.
     fn prefetch(&mut self, _nodes: &[u32]) {}
+    /// Bytes the strategy holds in caches that grow with use (the
+    /// compliance columns of the nodes contact has reached), so that memory
+    /// growth from them can be told from any other. The default is 0.
+    fn cache_bytes(&self) -> usize {
+        0
+    }
     /// Whether [`Self::solve_loaded`] and [`Self::load_response`] work.
     fn takes_loads(&self) -> bool {
         false

@@ -237,6 +237,10 @@ impl DeformationSolver for SkullSolver {
         self.inner.node_count()
     }
 
+    fn cache_bytes(&self) -> usize {
+        self.inner.cache_bytes()
+    }
+
     fn last_solution(&self) -> Option<&Solution> {
         Some(&self.solution)
     }

@@ -262,6 +262,7 @@ pub fn stats(s: &StatsSummary) -> pb::Stats {
         deformation_step: Some(latency(&s.deformation_step)),
         failed_steps: s.failed_steps,
         recording_lost: s.recording_lost,
+        solver_cache_bytes: s.solver_cache_bytes,
     }
 }
 
@@ -282,6 +283,7 @@ mod tests {
             claimed: vec!["left".into()],
             failed_steps: 2,
             recording_lost: 12,
+            solver_cache_bytes: 1 << 20,
             ..Default::default()
         };
         let m = stats(&s);
@@ -293,9 +295,10 @@ mod tests {
                 m.rejected_poses,
                 m.watchers,
                 m.failed_steps,
-                m.recording_lost
+                m.recording_lost,
+                m.solver_cache_bytes
             ),
-            (2.5, 40, 2_000, 3, 1, 2, 12)
+            (2.5, 40, 2_000, 3, 1, 2, 12, 1 << 20)
         );
         assert_eq!(m.claimed, ["left"]);
     }

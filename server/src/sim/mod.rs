@@ -275,6 +275,7 @@ pub struct Simulation {
     force_samples: AtomicU64,
     rejected: AtomicU64,
     failed_steps: AtomicU64,
+    solver_cache_bytes: AtomicU64,
     watchers: AtomicU64,
     recorder: Option<Arc<dyn journal::Journal>>,
     shared_rows: Vec<Mutex<SharedRows>>,
@@ -372,6 +373,7 @@ impl Simulation {
             force_samples: AtomicU64::new(0),
             rejected: AtomicU64::new(0),
             failed_steps: AtomicU64::new(0),
+            solver_cache_bytes: AtomicU64::new(0),
             watchers: AtomicU64::new(0),
             recorder,
             shared_rows: (0..n).map(|_| Mutex::new(SharedRows::default())).collect(),
@@ -545,6 +547,7 @@ impl Simulation {
             force_compute: self.force_latency.summary(),
             deformation_step: self.step_latency.summary(),
             failed_steps: self.failed_steps.load(Ordering::Relaxed),
+            solver_cache_bytes: self.solver_cache_bytes.load(Ordering::Relaxed),
             recording_lost: self.recorder().map_or(0, |r| r.lost()),
         }
     }
@@ -599,6 +602,10 @@ impl Simulation {
     fn note_step(&self, done: &StepDone) {
         if done.report.is_none() && done.snapshot.solver_error.is_some() {
             self.failed_steps.fetch_add(1, Ordering::Relaxed);
+        }
+        if let Some(report) = &done.report {
+            self.solver_cache_bytes
+                .store(report.cache_bytes as u64, Ordering::Relaxed);
         }
         if done.step_us > 0.0 {
             self.step_latency.record(done.step_us);

@@ -107,6 +107,10 @@ pub struct StatsSummary {
     pub deformation_step: LatencySummary,
     /// Deformation steps that failed.
     pub failed_steps: u64,
+    /// Bytes the solver's caches held after the last step (the compliance
+    /// columns of the nodes contact has reached): they grow as contact
+    /// reaches new tissue, up to the cache's limit.
+    pub solver_cache_bytes: u64,
     /// Recording entries dropped since the start (the recorder's queue to
     /// the disk was full, or its writing failed), all kinds together; 0 when
     /// the session is not recorded. See `recording::RecorderStats::lost`.

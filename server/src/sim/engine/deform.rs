@@ -105,6 +105,11 @@ impl Deformer {
     pub fn prefetch(&mut self, nodes: &[u32]) {
         self.solver.prefetch(nodes);
     }
+
+    /// Bytes the strategy's caches hold ([`fem::DeformationSolver::cache_bytes`]).
+    pub fn cache_bytes(&self) -> usize {
+        self.solver.cache_bytes()
+    }
 }
 
 /// The penalty answer of a row whose node has no compliance yet

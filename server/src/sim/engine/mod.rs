@@ -62,6 +62,8 @@ pub struct StepReport {
     pub check: fem::lcp::Report,
     /// Nodes of the published compliance patch.
     pub patch_nodes: usize,
+    /// Bytes the solver's caches hold after the step.
+    pub cache_bytes: usize,
 }
 
 /// The deformation step of a scene: collision of every instrument, the
@@ -439,6 +441,7 @@ impl StepEngine {
             rounds,
             check,
             patch_nodes: patch.nodes.len(),
+            cache_bytes: self.deformer.cache_bytes(),
         };
         let total_us = started.elapsed().as_secs_f64() * 1e6;
         let snap = self.snapshot(
