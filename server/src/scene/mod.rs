@@ -546,28 +546,24 @@ impl TryFrom<InstrumentFields> for InstrumentSpec {
 
     fn try_from(f: InstrumentFields) -> Result<Self, String> {
         let named = |field: &str| format!("instrument {:?}: {field}", f.name);
-        let shape = match (f.shape, f.base_width_m, f.bend_radius_m) {
-            (ShapeName::Flat, None, None) => PlateShape::Flat,
-            (ShapeName::Trapezoid, Some(base_width_m), None) => {
-                PlateShape::Trapezoid { base_width_m }
-            }
-            (ShapeName::Curved, None, Some(bend_radius_m)) => PlateShape::Curved { bend_radius_m },
-            (ShapeName::Trapezoid, None, _) => {
-                return Err(named("shape = \"trapezoid\" needs base_width_m (m)"));
-            }
-            (ShapeName::Curved, _, None) => {
-                return Err(named("shape = \"curved\" needs bend_radius_m (m)"));
-            }
-            (shape, Some(_), _) => {
-                return Err(named(&format!(
-                    "base_width_m is only for shape = \"trapezoid\", this plate is {shape:?}"
-                )));
-            }
-            (shape, _, Some(_)) => {
-                return Err(named(&format!(
-                    "bend_radius_m is only for shape = \"curved\", this plate is {shape:?}"
-                )));
-            }
+        if f.base_width_m.is_some() && f.shape != ShapeName::Trapezoid {
+            return Err(named("base_width_m is only for shape = \"trapezoid\""));
+        }
+        if f.bend_radius_m.is_some() && f.shape != ShapeName::Curved {
+            return Err(named("bend_radius_m is only for shape = \"curved\""));
+        }
+        let shape = match f.shape {
+            ShapeName::Flat => PlateShape::Flat,
+            ShapeName::Trapezoid => PlateShape::Trapezoid {
+                base_width_m: f
+                    .base_width_m
+                    .ok_or_else(|| named("shape = \"trapezoid\" needs base_width_m (m)"))?,
+            },
+            ShapeName::Curved => PlateShape::Curved {
+                bend_radius_m: f
+                    .bend_radius_m
+                    .ok_or_else(|| named("shape = \"curved\" needs bend_radius_m (m)"))?,
+            },
         };
         Ok(Self {
             name: f.name,
@@ -1083,6 +1079,10 @@ mod tests {
             (
                 "shape = \"curved\"\nbend_radius_m = 0.05\nbase_width_m = 0.01",
                 "base_width_m",
+            ),
+            (
+                "shape = \"trapezoid\"\nbase_width_m = 0.014\nbend_radius_m = 0.05",
+                "bend_radius_m",
             ),
             (
                 "shape = \"trapezoid\"\nbase_width_m = -0.01",
