@@ -208,7 +208,7 @@ pub fn from_surface(
     levels: u32,
     scale: f64,
 ) -> anyhow::Result<fissure_server::mesh::from_surface::Meshed> {
-    use fissure_server::mesh::from_surface::{SurfaceError, SurfaceMeshing, mesh_surface};
+    use fissure_server::mesh::from_surface::{ClosedSurfaceError, SurfaceMeshing, mesh_surface};
     if !(resolution_m.is_finite() && resolution_m > 0.0) {
         bail!("--resolution must be a positive length in metres, got {resolution_m}");
     }
@@ -221,7 +221,7 @@ pub fn from_surface(
         rate: 0.5,
     };
     mesh_surface(&surface.vertices, &surface.triangles, &params).map_err(|e| match e {
-        SurfaceError::Units(u) => {
+        ClosedSurfaceError::Units(u) => {
             anyhow::anyhow!("{}: {u}: use --scale {}", file.display(), u.scale * scale)
         }
         e => anyhow::anyhow!("{}: {e}", file.display()),

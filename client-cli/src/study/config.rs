@@ -119,7 +119,7 @@ impl Config {
             Strategy::NeoHookean => "neoh",
         };
         let mut l = format!("{preset}/{strategy}");
-        if matches!(self.strategy, Strategy::Corotational | Strategy::NeoHookean) {
+        if !self.strategy.is_linear() {
             l.push_str(&format!("/tol{:.0e}", self.tolerance));
         }
         l.push_str(&format!("/n{}", self.nodes_per_face));

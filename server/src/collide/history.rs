@@ -25,14 +25,28 @@
 
 use super::instrument::Instrument;
 
-/// When the history flags are renewed.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+/// When the history flags are renewed (a scene's `collision.history`:
+/// `"force-rate"` or `"paper"`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum HistoryMode {
-    /// Renewed at every call (force-loop rate).
+    /// Renewed at every call (force-loop rate, robust to fast travel).
     #[default]
     ForceRate,
-    /// Renewed only by deformation-loop calls (the paper).
+    /// Renewed only by deformation-loop calls (once per step, as in the
+    /// seed paper).
+    #[serde(rename = "paper")]
     PaperFaithful,
+}
+
+impl HistoryMode {
+    /// The name a scene file gives it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::ForceRate => "force-rate",
+            Self::PaperFaithful => "paper",
+        }
+    }
 }
 
 /// Which loop makes a `detect` call.

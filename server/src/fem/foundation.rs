@@ -43,16 +43,6 @@ pub struct Foundation {
     pub faces: Vec<[u32; 3]>,
 }
 
-impl Foundation {
-    /// Total supported area at rest, m^2.
-    pub fn area_m2(&self, nodes: &[Point3<f64>]) -> f64 {
-        self.faces
-            .iter()
-            .map(|f| normal_area(f.map(|n| nodes[n as usize])).1)
-            .sum()
-    }
-}
-
 /// Outward unit normal and area (m^2) of a triangle.
 pub fn normal_area(p: [Point3<f64>; 3]) -> (Vector3<f64>, f64) {
     let c = (p[1] - p[0]).cross(&(p[2] - p[0]));

@@ -340,6 +340,17 @@ impl Strategy {
             Self::NeoHookean => "neo-hookean",
         }
     }
+
+    /// Whether its elasticity is linear (small strain about the rest
+    /// shape): its compliance is constant, so it can take an elastic
+    /// foundation folded into the stiffness once and a contact linearized
+    /// about the rest shape.
+    pub fn is_linear(self) -> bool {
+        match self {
+            Self::Direct | Self::Compliance => true,
+            Self::Corotational | Self::NeoHookean => false,
+        }
+    }
 }
 
 impl std::str::FromStr for Strategy {
@@ -349,9 +360,8 @@ impl std::str::FromStr for Strategy {
             .into_iter()
             .find(|k| k.name() == s)
             .ok_or_else(|| {
-                SolveError::InvalidModel(format!(
-                    "unknown strategy {s:?} (direct, compliance, corotational, neo-hookean)"
-                ))
+                let names: Vec<&str> = Self::ALL.iter().map(|k| k.name()).collect();
+                SolveError::InvalidModel(format!("unknown strategy {s:?} ({})", names.join(", ")))
             })
     }
 }
@@ -411,7 +421,7 @@ pub fn build_solver(
 ) -> Result<Box<dyn DeformationSolver>, SolveError> {
     let mut model = model::Model::new(mesh, material, fixed, &options.axis_supports)?;
     if let Some(f) = &options.foundation {
-        if !matches!(strategy, Strategy::Direct | Strategy::Compliance) {
+        if !strategy.is_linear() {
             return Err(SolveError::InvalidModel(format!(
                 "an elastic foundation needs the direct or compliance strategy, not {}",
                 strategy.name()

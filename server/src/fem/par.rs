@@ -50,34 +50,9 @@ pub fn for_each_chunk<T: Send>(
     }
 }
 
-/// Like [`for_each_chunk`], where `f` may report a failure at an index; the
-/// failure with the smallest index is returned (the same under any `par`).
-pub fn try_for_each_chunk<T: Send, E: Send>(
-    par: Par,
-    data: &mut [T],
-    unit: usize,
-    min: usize,
-    f: impl Fn(usize, &mut [T]) -> Option<(usize, E)> + Sync + Send,
-) -> Option<(usize, E)> {
-    let len = chunk_len(par, data.len(), unit, min);
-    match par {
-        Par::Seq => {
-            if data.is_empty() {
-                None
-            } else {
-                f(0, data)
-            }
-        }
-        Par::Rayon(_) => data
-            .par_chunks_mut(len)
-            .enumerate()
-            .filter_map(|(i, c)| f(i * len, c))
-            .min_by_key(|(i, _)| *i),
-    }
-}
-
-/// Like [`try_for_each_chunk`] over two slices split at the same item
-/// boundaries: item `i` owns `a[i * ua .. (i + 1) * ua]` and
+/// Like [`for_each_chunk`] over two slices split at the same item
+/// boundaries, where `f` may report a failure at an index (the failure with
+/// the smallest index is returned, the same under any `par`): item `i` owns `a[i * ua .. (i + 1) * ua]` and
 /// `b[i * ub .. (i + 1) * ub]`; `f(first_item, a_chunk, b_chunk)`.
 pub fn try_for_each_chunk_pair<A: Send, B: Send, E: Send>(
     par: Par,

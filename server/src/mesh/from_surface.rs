@@ -26,7 +26,7 @@ use std::collections::HashMap;
 
 /// What is wrong with an input surface; each names the offending element.
 #[derive(Debug, thiserror::Error, Clone, PartialEq)]
-pub enum SurfaceError {
+pub enum ClosedSurfaceError {
     /// No triangles.
     #[error("the surface has no triangles")]
     Empty,
@@ -96,9 +96,12 @@ pub struct SurfaceMeshing {
 
 /// Checks that the surface is a closed, consistently oriented 2-manifold
 /// without degenerate or intersecting triangles.
-pub fn check_surface(vertices: &[Point3<f64>], triangles: &[[u32; 3]]) -> Result<(), SurfaceError> {
+pub fn check_closed_surface(
+    vertices: &[Point3<f64>],
+    triangles: &[[u32; 3]],
+) -> Result<(), ClosedSurfaceError> {
     if triangles.is_empty() {
-        return Err(SurfaceError::Empty);
+        return Err(ClosedSurfaceError::Empty);
     }
     fissure_proto::surface::check_surface(triangles, vertices)?;
     for (triangle, t) in triangles.iter().enumerate() {
@@ -108,7 +111,7 @@ pub fn check_surface(vertices: &[Point3<f64>], triangles: &[[u32; 3]]) -> Result
             || t[2] == t[0]
             || (b - a).cross(&(c - a)).norm_squared() == 0.0
         {
-            return Err(SurfaceError::DegenerateTriangle { triangle });
+            return Err(ClosedSurfaceError::DegenerateTriangle { triangle });
         }
     }
     // Edges: each undirected edge in exactly two triangles, once each way.
@@ -125,14 +128,14 @@ pub fn check_surface(vertices: &[Point3<f64>], triangles: &[[u32; 3]]) -> Result
         let back = directed.get(&(b, a)).map_or(0, Vec::len);
         let count = fwd.len() + back;
         if count > 2 {
-            return Err(SurfaceError::NonManifoldEdge {
+            return Err(ClosedSurfaceError::NonManifoldEdge {
                 a: a.min(b),
                 b: a.max(b),
                 count,
             });
         }
         if fwd.len() == 2 {
-            return Err(SurfaceError::InconsistentOrientation {
+            return Err(ClosedSurfaceError::InconsistentOrientation {
                 a,
                 b,
                 first: fwd[0],
@@ -140,7 +143,7 @@ pub fn check_surface(vertices: &[Point3<f64>], triangles: &[[u32; 3]]) -> Result
             });
         }
         if back == 0 {
-            return Err(SurfaceError::OpenEdge {
+            return Err(ClosedSurfaceError::OpenEdge {
                 a,
                 b,
                 triangle: fwd[0],
@@ -179,14 +182,14 @@ pub fn check_surface(vertices: &[Point3<f64>], triangles: &[[u32; 3]]) -> Result
             }
         }
         if fans > 1 || seen != edges.len() {
-            return Err(SurfaceError::NonManifoldVertex {
+            return Err(ClosedSurfaceError::NonManifoldVertex {
                 vertex: v as u32,
                 fans,
             });
         }
     }
     if let Some((first, second)) = first_intersection(vertices, triangles) {
-        return Err(SurfaceError::SelfIntersection { first, second });
+        return Err(ClosedSurfaceError::SelfIntersection { first, second });
     }
     Ok(())
 }
@@ -343,13 +346,13 @@ pub fn mesh_surface(
     vertices: &[Point3<f64>],
     triangles: &[[u32; 3]],
     params: &SurfaceMeshing,
-) -> Result<Meshed, SurfaceError> {
+) -> Result<Meshed, ClosedSurfaceError> {
     units::check_extent(vertices, units::MAX_MODEL_EXTENT_M)?;
     crate::progress::stage(format_args!(
         "checking the surface ({} triangles): closed, manifold, no self-intersection",
         triangles.len()
     ));
-    check_surface(vertices, triangles)?;
+    check_closed_surface(vertices, triangles)?;
     // Negative when inside out.
     let enclosed = super::enclosed_volume(vertices, triangles);
     crate::progress::stage(format_args!(
@@ -509,7 +512,7 @@ mod tests {
             rate: 0.5,
         };
         match mesh_surface(&v, &f, &params) {
-            Err(SurfaceError::Units(e)) => {
+            Err(ClosedSurfaceError::Units(e)) => {
                 assert_eq!((e.unit, e.scale), ("millimetres", 1e-3));
                 assert!((e.extent_m - 140.0).abs() < 1.0, "{e}");
             }
@@ -521,9 +524,9 @@ mod tests {
     fn open_surface_is_rejected() {
         let (v, mut f) = icosphere(Point3::origin(), 0.03, 1);
         let removed = f.remove(7);
-        let err = check_surface(&v, &f).unwrap_err();
+        let err = check_closed_surface(&v, &f).unwrap_err();
         match err {
-            SurfaceError::OpenEdge { a, b, .. } => {
+            ClosedSurfaceError::OpenEdge { a, b, .. } => {
                 assert!(
                     removed.contains(&a) && removed.contains(&b),
                     "{a} {b} not in {removed:?}"
@@ -538,8 +541,8 @@ mod tests {
         let (v, mut f) = icosphere(Point3::origin(), 0.03, 1);
         f[3].swap(0, 1);
         assert!(matches!(
-            check_surface(&v, &f),
-            Err(SurfaceError::InconsistentOrientation { .. })
+            check_closed_surface(&v, &f),
+            Err(ClosedSurfaceError::InconsistentOrientation { .. })
         ));
     }
 
@@ -550,8 +553,8 @@ mod tests {
         let (v1, f1) = icosphere(Point3::origin(), 0.03, 1);
         let (n, f1_len) = (v1.len() as u32, f1.len());
         let (v, f) = join_surfaces((v1, f1), icosphere(Point3::new(0.02, 0.0, 0.0), 0.03, 1));
-        match check_surface(&v, &f) {
-            Err(SurfaceError::SelfIntersection { first, second }) => {
+        match check_closed_surface(&v, &f) {
+            Err(ClosedSurfaceError::SelfIntersection { first, second }) => {
                 assert!(first < f1_len && second >= f1_len, "{first} {second}");
             }
             other => panic!("wrong result {other:?}"),
@@ -559,7 +562,7 @@ mod tests {
         // Disjoint spheres are fine.
         let (v2, _) = icosphere(Point3::new(0.1, 0.0, 0.0), 0.03, 1);
         let v: Vec<_> = v[..n as usize].iter().copied().chain(v2).collect();
-        assert!(check_surface(&v, &f).is_ok());
+        assert!(check_closed_surface(&v, &f).is_ok());
     }
 
     #[test]
@@ -567,8 +570,8 @@ mod tests {
         let (mut v, mut f) = icosphere(Point3::origin(), 0.03, 1);
         f[0][1] = 999;
         assert!(matches!(
-            check_surface(&v, &f),
-            Err(SurfaceError::Values(
+            check_closed_surface(&v, &f),
+            Err(ClosedSurfaceError::Values(
                 fissure_proto::surface::SurfaceError::VertexOutOfRange {
                     triangle: 0,
                     vertex: 999,
@@ -578,17 +581,20 @@ mod tests {
         ));
         f[0][1] = f[0][0];
         assert!(matches!(
-            check_surface(&v, &f),
-            Err(SurfaceError::DegenerateTriangle { triangle: 0 })
+            check_closed_surface(&v, &f),
+            Err(ClosedSurfaceError::DegenerateTriangle { triangle: 0 })
         ));
         v[2].x = f64::NAN;
         assert!(matches!(
-            check_surface(&v, &f),
-            Err(SurfaceError::Values(
+            check_closed_surface(&v, &f),
+            Err(ClosedSurfaceError::Values(
                 fissure_proto::surface::SurfaceError::NonFinite { vertex: 2 }
             ))
         ));
-        assert!(matches!(check_surface(&v, &[]), Err(SurfaceError::Empty)));
+        assert!(matches!(
+            check_closed_surface(&v, &[]),
+            Err(ClosedSurfaceError::Empty)
+        ));
     }
 
     #[test]
@@ -607,8 +613,8 @@ mod tests {
         let mut f = tet(0, 1, 2, 3);
         f.extend(tet(0, 4, 5, 6));
         assert!(matches!(
-            check_surface(&v, &f),
-            Err(SurfaceError::NonManifoldVertex { vertex: 0, fans: 2 })
+            check_closed_surface(&v, &f),
+            Err(ClosedSurfaceError::NonManifoldVertex { vertex: 0, fans: 2 })
         ));
     }
 

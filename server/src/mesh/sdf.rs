@@ -149,16 +149,6 @@ impl Sdf for Capsule {
     }
 }
 
-/// Union `min(a, b)`.
-pub fn union(a: f64, b: f64) -> f64 {
-    a.min(b)
-}
-
-/// Intersection `max(a, b)`.
-pub fn intersection(a: f64, b: f64) -> f64 {
-    a.max(b)
-}
-
 /// Difference `a \ b`: `max(a, -b)`.
 pub fn difference(a: f64, b: f64) -> f64 {
     a.max(-b)

@@ -61,7 +61,7 @@ pub struct SurfaceField {
 
 impl SurfaceField {
     /// Builds the hierarchy. Indices must be in range (checked by
-    /// [`super::from_surface::check_surface`]); out-of-range triangles are
+    /// [`super::from_surface::check_closed_surface`]); out-of-range triangles are
     /// ignored here.
     pub fn new(vertices: &[Point3<f64>], triangles: &[[u32; 3]]) -> Self {
         let triangles: Vec<[u32; 3]> = triangles

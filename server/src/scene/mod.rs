@@ -285,6 +285,16 @@ pub enum CollisionMethod {
     Bvh,
 }
 
+impl CollisionMethod {
+    /// The name a scene file gives it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Brute => "brute",
+            Self::Bvh => "bvh",
+        }
+    }
+}
+
 /// Where rays are cast.
 #[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq, Default)]
 #[serde(rename_all = "kebab-case")]
@@ -296,16 +306,18 @@ pub enum CollisionBackend {
     Gpu,
 }
 
-/// When the contact history is renewed.
-#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq, Default)]
-#[serde(rename_all = "kebab-case")]
-pub enum HistoryMode {
-    /// At every pose of the force loop (robust to fast travel).
-    #[default]
-    ForceRate,
-    /// Once per deformation step, as in the seed paper.
-    Paper,
+impl CollisionBackend {
+    /// The name a scene file gives it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Cpu => "cpu",
+            Self::Gpu => "gpu",
+        }
+    }
 }
+
+/// When the contact history is renewed: the collision stage's own enum.
+pub use crate::collide::history::HistoryMode;
 
 /// Collision settings.
 #[derive(Debug, Clone, Deserialize, PartialEq)]
@@ -615,11 +627,8 @@ impl Scene {
     pub fn contact_geometry(&self) -> ContactGeometry {
         match self.contact.geometry {
             ContactGeometry::Auto => {
-                let linear = matches!(
-                    self.solver.strategy,
-                    Strategy::Direct | Strategy::Compliance
-                );
-                if linear && self.contact.law == ContactLaw::Frictionless {
+                if self.solver.strategy.is_linear() && self.contact.law == ContactLaw::Frictionless
+                {
                     ContactGeometry::Rest
                 } else {
                     ContactGeometry::Deformed
@@ -775,10 +784,7 @@ impl Scene {
             for (i, r) in f.open.iter().enumerate() {
                 check_region(format!("foundation.open[{i}]"), r)?;
             }
-            if !matches!(
-                self.solver.strategy,
-                Strategy::Direct | Strategy::Compliance
-            ) {
+            if !self.solver.strategy.is_linear() {
                 return Err(bad(
                     "foundation".into(),
                     format!(
@@ -808,10 +814,7 @@ impl Scene {
             ));
         }
         if self.contact.geometry == ContactGeometry::Rest {
-            if !matches!(
-                self.solver.strategy,
-                Strategy::Direct | Strategy::Compliance
-            ) {
+            if !self.solver.strategy.is_linear() {
                 return Err(bad(
                     "contact.geometry".into(),
                     format!(

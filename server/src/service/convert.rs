@@ -1,6 +1,6 @@
 //! Conversions between engine values and `fissure.v1` messages.
 
-use crate::scene::{CollisionBackend, CollisionMethod, ContactLaw, HistoryMode, Scene, Strategy};
+use crate::scene::{ContactLaw, Scene, Strategy};
 use crate::sim::ForceOut;
 use crate::sim::engine::Model;
 use crate::sim::pose::{PoseError, RawPose};
@@ -92,21 +92,9 @@ pub fn scene_description(scene: &Scene, model: &Model) -> pb::SceneDescription {
             bounds_max_m: Some(vec3(&hi.coords)),
         }),
         solver: scene.solver.strategy.name().into(),
-        collision_method: match scene.collision.method {
-            CollisionMethod::Brute => "brute",
-            CollisionMethod::Bvh => "bvh",
-        }
-        .into(),
-        collision_backend: match scene.collision.backend {
-            CollisionBackend::Cpu => "cpu",
-            CollisionBackend::Gpu => "gpu",
-        }
-        .into(),
-        history_mode: match scene.collision.history {
-            HistoryMode::ForceRate => "force-rate",
-            HistoryMode::Paper => "paper",
-        }
-        .into(),
+        collision_method: scene.collision.method.name().into(),
+        collision_backend: scene.collision.backend.name().into(),
+        history_mode: scene.collision.history.name().into(),
         contact_law: scene.contact.law.name().into(),
         friction_coefficient: match scene.contact.law {
             ContactLaw::Coulomb => scene.contact.friction_coefficient.unwrap_or(0.0),

@@ -76,7 +76,7 @@ impl ForceLoop {
         Self {
             index,
             history: model.new_history(index),
-            paper_mode: scene.collision.history == HistoryMode::Paper,
+            paper_mode: scene.collision.history == HistoryMode::PaperFaithful,
             query: match backend {
                 Some(b) => ContactQuery::with_backend(scene, b),
                 None => ContactQuery::new(scene, Par::Seq),

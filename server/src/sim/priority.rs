@@ -19,7 +19,7 @@
 //!   well under a millisecond, so it cannot monopolise a CPU; Linux's
 //!   real-time throttling (`sched_rt_runtime_us`) bounds it regardless;
 //! * the gRPC transport (the runtime whose workers read poses off the sockets
-//!   and write force samples back, [`crate::service::Transport`]) asks for
+//!   and write force samples back: the service's `Transport`) asks for
 //!   `SCHED_FIFO` one step below the force loops
 //!   ([`DEFAULT_TRANSPORT_RT_PRIORITY`]). A pose crosses it twice per round
 //!   trip; at normal priority, beside the solver, a woken worker now and then

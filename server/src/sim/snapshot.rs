@@ -95,7 +95,47 @@ pub struct Snapshot {
     pub frame_summary: Arc<Frame>,
 }
 
+impl InstrumentReaction {
+    /// No contact, the instrument at its scene's home pose.
+    pub fn at_rest(spec: &crate::scene::InstrumentSpec) -> Self {
+        Self {
+            name: spec.name.clone(),
+            force_n: Vector3::zeros(),
+            torque_nm: Vector3::zeros(),
+            pairs: 0,
+            culled: 0,
+            contact_vertices: 0,
+            pending_vertices: 0,
+            position_m: Vector3::from(spec.home_position_m),
+            orientation: spec.home_orientation,
+        }
+    }
+}
+
 impl Frame {
+    /// The summary of a solved step (or of the rest state): `surface` (m)
+    /// sent in single precision, no error.
+    pub fn solved(
+        frame: u64,
+        sim_time_s: f64,
+        surface: &[Point3<f64>],
+        instruments: Vec<InstrumentReaction>,
+        timings: StepTimings,
+        max_displacement_m: f64,
+        rigid: super::motion::RigidPart,
+    ) -> Self {
+        Self {
+            frame,
+            sim_time_s,
+            positions: Self::positions_of(surface),
+            instruments,
+            timings,
+            solver_error: None,
+            max_displacement_m,
+            rigid,
+        }
+    }
+
     /// Surface positions in single precision, as watchers get them, m.
     pub fn positions_of(surface: &[Point3<f64>]) -> Arc<Vec<[f32; 3]>> {
         Arc::new(
@@ -108,6 +148,31 @@ impl Frame {
 }
 
 impl Snapshot {
+    /// What a solved step (or the rest state) publishes now: its surface
+    /// (m), node displacements (m), fitted tree, force model and paper
+    /// history, with `summary`'s frame number and time.
+    pub fn solved(
+        surface: Arc<Vec<Point3<f64>>>,
+        displacements: Arc<Vec<Vector3<f64>>>,
+        surface_bvh: Option<Arc<Bvh>>,
+        force_model: ForceModel,
+        paper_history: Vec<super::engine::History>,
+        summary: Frame,
+    ) -> Self {
+        Self {
+            frame: summary.frame,
+            sim_time_s: summary.sim_time_s,
+            published: Instant::now(),
+            surface,
+            displacements,
+            surface_bvh,
+            force_model: Arc::new(force_model),
+            paper_history,
+            solver_error: None,
+            frame_summary: Arc::new(summary),
+        }
+    }
+
     /// What a failed step `frame` at `sim_time_s` publishes: this last good
     /// state, renumbered, with `error` in it and in its summary, so that the
     /// force loops keep answering on the last good model and watchers see

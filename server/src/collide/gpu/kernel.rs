@@ -118,7 +118,7 @@ impl CastKernel {
         params: Params,
         workgroups: usize,
         before: impl FnOnce(&Device, &Frame, &[wgpu::Buffer], &mut wgpu::CommandEncoder),
-    ) -> Result<(), String> {
+    ) -> Result<(), super::runtime::ReadbackError> {
         let n = origins.len();
         if self.frame.reserve_rays(&self.dev, n) {
             self.group = Self::bind(

@@ -89,14 +89,15 @@ use super::{RayBackend, SurfaceError};
 pub enum GpuError {
     /// No wgpu adapter (GPU or software rasteriser such as lavapipe) was found.
     #[error("no GPU adapter found: {0}")]
-    NoAdapter(String),
+    NoAdapter(#[source] wgpu::RequestAdapterError),
     /// The adapter refused to create a device.
-    #[error("GPU adapter {adapter:?} refused a device: {reason}")]
+    #[error("GPU adapter {adapter:?} refused a device: {source}")]
     RequestDevice {
         /// Adapter name.
         adapter: String,
-        /// wgpu's message.
-        reason: String,
+        /// wgpu's error.
+        #[source]
+        source: wgpu::RequestDeviceError,
     },
     /// The surface has a vertex index out of range, a non-finite position,
     /// or more triangles or vertices than the kernels address with `u32`.

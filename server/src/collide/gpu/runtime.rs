@@ -8,6 +8,28 @@ use bytemuck::{Pod, Zeroable};
 use nalgebra::{Point3, Vector3};
 
 use super::GpuError;
+
+/// Why a kernel's answers could not be read back (the rays are then
+/// answered on the host).
+#[derive(Debug, thiserror::Error)]
+pub enum ReadbackError {
+    /// A thread panicked while holding the readback slot.
+    #[error("the readback slot's lock is poisoned")]
+    Poisoned,
+    /// Waiting for the device failed.
+    #[error("device poll failed: {0}")]
+    Poll(#[from] wgpu::PollError),
+    /// Mapping the readback buffer failed.
+    #[error("mapping the readback buffer failed: {0}")]
+    Map(#[source] wgpu::BufferAsyncError),
+    /// The map callback had not run after the poll returned.
+    #[error("readback not mapped after the device poll")]
+    NotMapped,
+    /// The mapped range could not be viewed.
+    #[error("viewing the mapped readback failed: {0}")]
+    View(#[from] wgpu::MapRangeError),
+}
+
 use crate::collide::brute::{cast_line, keep_nearest};
 use crate::collide::ray::{RayTest, WatertightRay};
 use crate::collide::{Hit, NodeHits, SurfaceError, check_surface};
@@ -64,7 +86,7 @@ impl Device {
             compatible_surface: None,
             apply_limit_buckets: false,
         }))
-        .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
+        .map_err(GpuError::NoAdapter)?;
         let info = adapter.get_info();
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("fissure collide"),
@@ -74,9 +96,9 @@ impl Device {
             memory_hints: wgpu::MemoryHints::Performance,
             trace: wgpu::Trace::Off,
         }))
-        .map_err(|e| GpuError::RequestDevice {
+        .map_err(|source| GpuError::RequestDevice {
             adapter: info.name.clone(),
-            reason: e.to_string(),
+            source,
         })?;
         Ok(Self {
             device,
@@ -346,9 +368,12 @@ impl Frame {
     }
 
     /// Maps the readback buffer, waits, and copies the candidates into `words`.
-    pub fn read_candidates(&mut self, dev: &Device, n: usize) -> Result<(), String> {
+    pub fn read_candidates(&mut self, dev: &Device, n: usize) -> Result<(), ReadbackError> {
         let bytes = (n * OUT_WORDS * 4) as u64;
-        *self.map_result.lock().map_err(|e| e.to_string())? = None;
+        *self
+            .map_result
+            .lock()
+            .map_err(|_| ReadbackError::Poisoned)? = None;
         let slot = Arc::clone(&self.map_result);
         self.readback
             .map_async(wgpu::MapMode::Read, 0..bytes, move |r| {
@@ -356,20 +381,19 @@ impl Frame {
                     *s = Some(r);
                 }
             });
-        dev.device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| e.to_string())?;
-        let result = self.map_result.lock().map_err(|e| e.to_string())?.take();
+        dev.device.poll(wgpu::PollType::wait_indefinitely())?;
+        let result = self
+            .map_result
+            .lock()
+            .map_err(|_| ReadbackError::Poisoned)?
+            .take();
         match result {
             Some(Ok(())) => {}
-            Some(Err(e)) => return Err(e.to_string()),
-            None => return Err("readback not mapped after the device poll".into()),
+            Some(Err(e)) => return Err(ReadbackError::Map(e)),
+            None => return Err(ReadbackError::NotMapped),
         }
         {
-            let view = self
-                .readback
-                .get_mapped_range(0..bytes)
-                .map_err(|e| e.to_string())?;
+            let view = self.readback.get_mapped_range(0..bytes)?;
             self.words.clear();
             self.words.extend_from_slice(bytemuck::cast_slice(&view));
         }
@@ -448,7 +472,7 @@ impl Frame {
     /// reference on the host.
     pub fn answer(
         &mut self,
-        run: Result<(), String>,
+        run: Result<(), ReadbackError>,
         kernel: &str,
         origins: &[Point3<f64>],
         dirs: &[Vector3<f64>],

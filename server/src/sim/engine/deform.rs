@@ -1,7 +1,70 @@
-//! The deformation stage: the FEM solver of the scene's strategy and the
-//! penalty measure of a row.
+//! The deformation stage: the FEM solver of the scene's strategy, the
+//! choice of the nodes a step's compliance patch covers, and the penalty
+//! measure of a row.
 
 use super::*;
+use crate::collide::Nearby;
+
+/// The volume nodes a step's compliance patch covers (`near`) and those
+/// whose columns are computed ahead of contact (`ahead`), gathered from the
+/// step's rows and the vertices near the plates.
+#[derive(Debug, Default)]
+pub struct PatchNodes {
+    near: Vec<u32>,
+    ahead: Vec<u32>,
+}
+
+impl PatchNodes {
+    /// Every node a row names.
+    pub fn add_rows(&mut self, rows: &[Row]) {
+        self.near
+            .extend(rows.iter().flat_map(|r| r.row.nodes().map(|(n, _)| n)));
+    }
+
+    /// Vertices near a plate: within `near_m` (m) of a face in the patch,
+    /// farther ones ahead.
+    pub fn add_nearby(&mut self, nearby: &[Nearby], near_m: f64) {
+        for n in nearby {
+            if n.distance_m <= near_m {
+                self.near.push(n.volume_node);
+            } else {
+                self.ahead.push(n.volume_node);
+            }
+        }
+    }
+
+    /// The patch's nodes, with one ring of surface neighbours (a plate's
+    /// outline that moves within the interval crosses triangles beyond the
+    /// vertices the step found, and a polygon point there names all three),
+    /// and the nodes ahead; each sorted, without repeats or fixed nodes.
+    pub fn finish(self, model: &Model) -> (Vec<u32>, Vec<u32>) {
+        let Self {
+            near: mut patch,
+            mut ahead,
+        } = self;
+        patch.sort_unstable();
+        patch.dedup();
+        let found = patch.len();
+        for i in 0..found {
+            let s = model.from_volume[patch[i] as usize];
+            if s != u32::MAX {
+                patch.extend(
+                    model
+                        .surface_neighbours
+                        .row(s as usize)
+                        .iter()
+                        .map(|&w| model.surface.to_volume[w as usize]),
+                );
+            }
+        }
+        for nodes in [&mut patch, &mut ahead] {
+            nodes.sort_unstable();
+            nodes.dedup();
+            nodes.retain(|&v| !model.fixed_mask[v as usize]);
+        }
+        (patch, ahead)
+    }
+}
 
 /// The deformation stage: the FEM solver of the scene's strategy.
 pub struct Deformer {

@@ -20,7 +20,7 @@ use crate::collide::RayBackend;
 use crate::collide::brute::BruteForce;
 use crate::collide::bvh::{Bvh, BvhView};
 use crate::collide::contact::{self, ContactOutput, ContactRule, DetectOptions, Tool, Workspace};
-use crate::collide::history::{HistoryMode as CollideHistoryMode, Stage};
+use crate::collide::history::Stage;
 use crate::collide::instrument::{Instrument, RimNodes};
 use crate::fem::compliance::ColumnPolicy;
 use crate::fem::{self, CompliancePatch, ContactAnswer, ContactRow, DeformationSolver, RowKind};
@@ -211,7 +211,7 @@ impl StepEngine {
         let model = self.model.clone();
         let frame = self.next_frame;
         self.next_frame += 1;
-        let paper_mode = self.scene.collision.history == HistoryMode::Paper;
+        let paper_mode = self.scene.collision.history == HistoryMode::PaperFaithful;
         let own: Vec<bool> = histories
             .iter()
             .map(|h| paper_mode || h.is_none())
@@ -364,20 +364,10 @@ impl StepEngine {
         let surface = Arc::new(surface);
         let surface_bvh =
             tracing::debug_span!("refit").in_scope(|| self.bvhs.as_mut().map(|b| b.fit(&surface)));
-        let mut patch_nodes: Vec<u32> = self
-            .rows
-            .iter()
-            .flat_map(|r| r.row.nodes().map(|(n, _)| n))
-            .collect();
-        let mut ahead = Vec::new();
+        let mut selection = deform::PatchNodes::default();
         let band2 = 2.0 * self.scene.contact.band_m;
-        for n in &nearby {
-            if n.distance_m <= band2 {
-                patch_nodes.push(n.volume_node);
-            } else {
-                ahead.push(n.volume_node);
-            }
-        }
+        selection.add_rows(&self.rows);
+        selection.add_nearby(&nearby, band2);
         // (A linearized contact finds the same rows on any shape.)
         if model.contact_rest.is_none() {
             let post =
@@ -393,40 +383,11 @@ impl StepEngine {
                 poses,
                 &mut post_rows,
             );
-            patch_nodes.extend(post_rows.iter().flat_map(|r| r.row.nodes().map(|(n, _)| n)));
-            for n in &post.nearby {
-                if n.distance_m <= band2 {
-                    patch_nodes.push(n.volume_node);
-                } else {
-                    ahead.push(n.volume_node);
-                }
-            }
+            selection.add_rows(&post_rows);
+            selection.add_nearby(&post.nearby, band2);
         }
-        // And one ring of surface neighbours: a plate's outline that moves
-        // within the interval crosses triangles beyond the vertices the
-        // step found, and a polygon point there names all three.
-        patch_nodes.sort_unstable();
-        patch_nodes.dedup();
-        let found = patch_nodes.len();
-        for i in 0..found {
-            let s = model.from_volume[patch_nodes[i] as usize];
-            if s != u32::MAX {
-                patch_nodes.extend(
-                    model
-                        .surface_neighbours
-                        .row(s as usize)
-                        .iter()
-                        .map(|&w| model.surface.to_volume[w as usize]),
-                );
-            }
-        }
-        patch_nodes.sort_unstable();
-        patch_nodes.dedup();
-        patch_nodes.retain(|&v| !model.fixed_mask[v as usize]);
+        let (patch_nodes, ahead) = selection.finish(&model);
         let patch = self.deformer.patch(&patch_nodes);
-        ahead.sort_unstable();
-        ahead.dedup();
-        ahead.retain(|&v| !model.fixed_mask[v as usize]);
         self.deformer.prefetch(&ahead);
         let has_patch = patch.is_some();
         let patch = Arc::new(patch.unwrap_or_default());
@@ -672,7 +633,15 @@ impl StepEngine {
             &surface,
             tips_centre(&self.scene, poses),
         );
-        let positions = Frame::positions_of(&surface);
+        let summary = Frame::solved(
+            frame,
+            sim_time_s,
+            &surface,
+            instruments,
+            timings,
+            max_d,
+            rigid,
+        );
         let force_model = ForceModel::new(
             frame,
             patch.patch,
@@ -683,27 +652,14 @@ impl StepEngine {
             patch.has_patch,
             step_force,
         );
-        Snapshot {
-            frame,
-            sim_time_s,
-            published: Instant::now(),
+        Snapshot::solved(
             surface,
             displacements,
             surface_bvh,
-            force_model: Arc::new(force_model),
-            paper_history: self.paper_history.clone(),
-            solver_error: None,
-            frame_summary: Arc::new(Frame {
-                frame,
-                sim_time_s,
-                positions,
-                instruments,
-                timings,
-                solver_error: None,
-                max_displacement_m: max_d,
-                rigid,
-            }),
-        }
+            force_model,
+            self.paper_history.clone(),
+            summary,
+        )
     }
 }
 

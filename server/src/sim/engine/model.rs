@@ -36,7 +36,7 @@ pub struct Model {
     /// The rest surface the contact search runs on, when the scene's
     /// contact geometry is the rest shape ([`ContactGeometry::Rest`]).
     pub contact_rest: Option<RestContact>,
-    history_mode: CollideHistoryMode,
+    history_mode: HistoryMode,
 }
 
 /// The shape of a linearized contact search: the rest surface and, for
@@ -148,10 +148,7 @@ impl Model {
             .iter()
             .map(|spec| build_instrument(spec, scene.collision.max_depth_m))
             .collect::<Result<_, _>>()?;
-        let history_mode = match scene.collision.history {
-            HistoryMode::ForceRate => CollideHistoryMode::ForceRate,
-            HistoryMode::Paper => CollideHistoryMode::PaperFaithful,
-        };
+        let history_mode = scene.collision.history;
         let mut fixed_mask = vec![false; mesh.nodes.len()];
         for &n in &fixed {
             fixed_mask[n as usize] = true;
@@ -266,26 +263,13 @@ impl Model {
         let instruments = scene
             .instruments
             .iter()
-            .map(|s| InstrumentReaction {
-                name: s.name.clone(),
-                force_n: Vector3::zeros(),
-                torque_nm: Vector3::zeros(),
-                pairs: 0,
-                culled: 0,
-                contact_vertices: 0,
-                pending_vertices: 0,
-                position_m: Vector3::from(s.home_position_m),
-                orientation: s.home_orientation,
-            })
+            .map(InstrumentReaction::at_rest)
             .collect();
-        Snapshot {
-            frame,
-            sim_time_s,
-            published: Instant::now(),
-            surface: Arc::new(self.rest_surface.clone()),
-            displacements: Arc::new(vec![Vector3::zeros(); self.mesh.nodes.len()]),
-            surface_bvh: None,
-            force_model: Arc::new(ForceModel::new(
+        Snapshot::solved(
+            Arc::new(self.rest_surface.clone()),
+            Arc::new(vec![Vector3::zeros(); self.mesh.nodes.len()]),
+            None,
+            ForceModel::new(
                 frame,
                 Arc::default(),
                 Arc::default(),
@@ -294,21 +278,19 @@ impl Model {
                 Anchors::default(),
                 false,
                 vec![(Vector3::zeros(), Vector3::zeros()); scene.instruments.len()],
-            )),
-            paper_history: (0..self.instruments.len())
+            ),
+            (0..self.instruments.len())
                 .map(|i| self.new_history(i))
                 .collect(),
-            solver_error: None,
-            frame_summary: Arc::new(Frame {
+            Frame::solved(
                 frame,
                 sim_time_s,
-                positions: Frame::positions_of(&self.rest_surface),
+                &self.rest_surface,
                 instruments,
-                timings: StepTimings::default(),
-                solver_error: None,
-                max_displacement_m: 0.0,
-                rigid: crate::sim::motion::RigidPart::default(),
-            }),
-        }
+                StepTimings::default(),
+                0.0,
+                crate::sim::motion::RigidPart::default(),
+            ),
+        )
     }
 }
