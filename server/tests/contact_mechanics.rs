@@ -14,7 +14,10 @@
 //!   step to the next);
 //! * a plate sliding down the V block's walls: every sample equals a full
 //!   solve, and no vertex is pushed by both large faces of one plate;
-//! * only tissue the plate covers carries force.
+//! * only tissue the plate covers carries force;
+//! * Coulomb friction: the net force stays in the cone at every sample,
+//!   sticking and at the onset of slip, and a sliding plate feels `mu`
+//!   times the normal force.
 
 use fissure_server::fem::compliance::ColumnPolicy;
 use fissure_server::scene::Scene;
@@ -445,6 +448,19 @@ fn a_plate_dragged_with_friction_slides_with_mu_times_the_normal_force() {
         })
         .collect();
     let r = run(&scene, &ts, &[track], false);
+    // Every sample, sticking, at the onset of slip and sliding: the net
+    // force lies in the cone (|sum F_t| <= sum |F_t,i| <= mu sum F_n,i).
+    // (A sample whose contact problem goes unsolved, flagged, holds the
+    // last solved force, which lay in the cone too.)
+    for (j, &t) in r.t.iter().enumerate() {
+        let f = r.force[j][0];
+        assert!(
+            f.x.hypot(f.y) <= mu * f.z.max(0.0) * (1.0 + 1e-6) + 1e-12,
+            "t {t} s: |F_t| = {} above mu F_n = {}",
+            f.x.hypot(f.y),
+            mu * f.z
+        );
+    }
     let mut slid = 0;
     for (j, &t) in r.t.iter().enumerate() {
         if !(0.3..=0.5).contains(&t) {
