@@ -248,7 +248,11 @@ fn cast_in(
             let mut cell_hi = [0usize; 2];
             let mut outside = false;
             for k in 0..2 {
-                let (pa, pb, pc) = (e[k].dot(&a.coords), e[k].dot(&b.coords), e[k].dot(&c.coords));
+                let (pa, pb, pc) = (
+                    e[k].dot(&a.coords),
+                    e[k].dot(&b.coords),
+                    e[k].dot(&c.coords),
+                );
                 let tlo = pa.min(pb).min(pc);
                 let thi = pa.max(pb).max(pc);
                 let m = margin + 1e-9 * tlo.abs().max(thi.abs());

@@ -809,9 +809,8 @@ impl Bvh {
     ) {
         let end = first + out.len();
         let bounded = |i: usize| segment(&origins[i], &dirs[i], ranges.get(i)).is_some();
-        let same = |a: &Vector3<f64>, b: &Vector3<f64>| {
-            (0..3).all(|k| a[k].to_bits() == b[k].to_bits())
-        };
+        let same =
+            |a: &Vector3<f64>, b: &Vector3<f64>| (0..3).all(|k| a[k].to_bits() == b[k].to_bits());
         let mut stack = EMPTY_STACK;
         let mut i = first;
         while i < end {
