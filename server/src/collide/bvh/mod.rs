@@ -49,6 +49,10 @@
 //! never culled; direction components that are exactly zero are handled by a
 //! containment test instead of an infinite inverse.
 
+mod bundle;
+
+pub use bundle::{BUNDLE_MIN, Traversal};
+
 use super::brute::keep_nearest;
 use super::ray::{PreparedRay, RayTest};
 use super::{Hit, NodeHits, RayBackend, RayRange, SurfaceError, check_surface};
@@ -268,6 +272,8 @@ pub struct Bvh {
     moved: Vec<u32>,
     stats: RefitStats,
     test: RayTest,
+    /// How bounded runs of parallel rays are cast.
+    traversal: Traversal,
     needed: usize,
     valid: bool,
 }
@@ -306,6 +312,7 @@ impl Bvh {
             moved: Vec::new(),
             stats: RefitStats::default(),
             test,
+            traversal: Traversal::default(),
             needed,
             valid: true,
         };
@@ -315,6 +322,16 @@ impl Bvh {
     }
 
     /// What the last position update refitted.
+    pub fn traversal(&self) -> Traversal {
+        self.traversal
+    }
+
+    /// Chooses how bounded runs of parallel rays are cast (answers are the
+    /// same either way; [`Traversal`]).
+    pub fn set_traversal(&mut self, traversal: Traversal) {
+        self.traversal = traversal;
+    }
+
     pub fn refit_stats(&self) -> RefitStats {
         self.stats
     }
@@ -727,6 +744,10 @@ impl Bvh {
                 &[0]
             }
         };
+        if self.traversal == Traversal::Bundled && n >= BUNDLE_MIN {
+            self.cast_span(0, origins, dirs, ranges, par, &entry, &mut out[..]);
+            return;
+        }
         match par {
             Par::Seq => {
                 let mut stack = EMPTY_STACK;
@@ -747,7 +768,80 @@ impl Bvh {
             }
         }
     }
+
+    /// The rays `first..first + out.len()` of a bundled cast: halves cast in
+    /// parallel (`rayon::join`, no allocation) down to spans of
+    /// [`SPAN_SEQ`] rays, each cast in sequence by [`Bvh::cast_runs`].
+    #[allow(clippy::too_many_arguments)]
+    fn cast_span(
+        &self,
+        first: usize,
+        origins: &[Point3<f64>],
+        dirs: &[Vector3<f64>],
+        ranges: &[RayRange],
+        par: Par,
+        entry: &Entry,
+        out: &mut [NodeHits],
+    ) {
+        if matches!(par, Par::Seq) || out.len() <= SPAN_SEQ {
+            self.cast_runs(first, origins, dirs, ranges, entry, out);
+            return;
+        }
+        let mid = out.len() / 2;
+        let (a, b) = out.split_at_mut(mid);
+        rayon::join(
+            || self.cast_span(first, origins, dirs, ranges, par, entry, a),
+            || self.cast_span(first + mid, origins, dirs, ranges, par, entry, b),
+        );
+    }
+
+    /// The rays `first..first + out.len()` in sequence: each run of at least
+    /// [`BUNDLE_MIN`] consecutive bounded rays with bitwise-equal directions
+    /// as one bundle, every other ray alone.
+    fn cast_runs(
+        &self,
+        first: usize,
+        origins: &[Point3<f64>],
+        dirs: &[Vector3<f64>],
+        ranges: &[RayRange],
+        entry: &Entry,
+        out: &mut [NodeHits],
+    ) {
+        let end = first + out.len();
+        let bounded = |i: usize| segment(&origins[i], &dirs[i], ranges.get(i)).is_some();
+        let same =
+            |a: &Vector3<f64>, b: &Vector3<f64>| (0..3).all(|k| a[k].to_bits() == b[k].to_bits());
+        let mut stack = EMPTY_STACK;
+        let mut i = first;
+        while i < end {
+            let mut j = i + 1;
+            if bounded(i) {
+                while j < end && bounded(j) && same(&dirs[j], &dirs[i]) {
+                    j += 1;
+                }
+            }
+            if j - i >= BUNDLE_MIN {
+                bundle::cast_bundle(
+                    self,
+                    &origins[i..j],
+                    dirs[i],
+                    &ranges[i..j],
+                    &mut out[i - first..j - first],
+                );
+            } else {
+                for k in i..j {
+                    let range = ranges.get(k).copied().unwrap_or(RayRange::LINE);
+                    let start: &[u32] = if bounded(k) { entry.nodes() } else { &[0] };
+                    out[k - first] = self.cast_one(origins[k], dirs[k], range, start, &mut stack);
+                }
+            }
+            i = j;
+        }
+    }
 }
+
+/// Rays a bundled cast hands to one thread at least.
+const SPAN_SEQ: usize = 512;
 
 /// Most entry nodes a batch of bounded rays starts from.
 const ENTRY_MAX: usize = 8;

@@ -1,0 +1,295 @@
+//! Bundled traversal: one walk of the tree for a whole run of parallel rays.
+//!
+//! # Method
+//! The rays of one spatula face share one direction `d` (bitwise equal) and
+//! their origins lie on a grid in the face's plane, each looking only within
+//! a bounded range. A run of at least [`BUNDLE_MIN`] such consecutive rays is
+//! cast as one bundle:
+//!
+//! 1. The origins are projected onto two vectors `e1`, `e2` perpendicular to
+//!    `d` (m, in the plane of the face) and counting-sorted into a 2D grid of
+//!    buckets over their bounding rectangle, about two rays a bucket.
+//! 2. The tree is walked once with the swept volume of the bundle: a node is
+//!    entered when its box meets the box of all the rays' segments (the
+//!    [`super::Entry`] box) and its projection onto `e1`, `e2` meets the
+//!    origins' rectangle, i.e. the prism of the rectangle swept along `d` over
+//!    the reach.
+//! 3. Each triangle of a reached leaf is projected the same way; only the rays
+//!    of the buckets its projected rectangle (widened far above rounding)
+//!    overlaps are tested, with the same [`PreparedRay`] test on the same
+//!    `f64` positions as [`Bvh::cast_one`], and each hit within the ray's range
+//!    is folded with [`keep_nearest`].
+//!
+//! A ray meets a triangle only where its line passes through it, so its
+//! origin projects into the triangle's projected rectangle (up to a rounding
+//! of `|t| |P d| + |P x| 1e-16`, far below the margin `1e-9 (|P x| + reach) +
+//! 1 pm`), and the hit lies in the segment box and in the leaf's box: every
+//! triangle that can give a ray a hit within its range is tested for it. The
+//! nearest hit under [`keep_nearest`]'s order (smallest `|t|`, then smallest
+//! triangle index) does not depend on the order the triangles are tested in,
+//! so the answers are those of the per-ray cast and of the brute force, bit
+//! for bit.
+//!
+//! # Why hand-written
+//! Packet and frustum traversals of general ray tracers (Embree's streams,
+//! parry3d's BVH) answer half rays with one best hit and their own triangle
+//! test; the collision method needs the nearest hit behind and in front on a
+//! line, with our watertight test and tie rule, over our refitted tree. The
+//! bundle turns the per-ray walk of the top levels and the box tests near the
+//! leaves into one walk and a bucket look-up per triangle.
+//!
+//! Buffers live in a per-thread workspace that grows to the largest bundle
+//! and is reused: a cast allocates nothing once it has grown.
+
+use super::{Bvh, segment};
+use crate::collide::brute::keep_nearest;
+use crate::collide::ray::PreparedRay;
+use crate::collide::{Hit, NodeHits, RayRange};
+use nalgebra::{Point3, Vector3};
+use std::cell::RefCell;
+
+/// Fewest consecutive parallel bounded rays cast as a bundle; shorter runs
+/// are cast ray by ray (a bundle of ~30 rays measured slower than per-ray).
+pub const BUNDLE_MIN: usize = 64;
+
+/// How [`Bvh`] casts runs of bounded rays with bitwise-equal directions.
+/// Answers are identical either way.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Traversal {
+    /// Every ray walks the tree on its own.
+    PerRay,
+    /// Runs of at least [`BUNDLE_MIN`] rays walk it once, as a bundle
+    /// (module documentation); shorter runs per ray.
+    #[default]
+    Bundled,
+}
+
+/// Scratch of one thread's bundles (reused; grows to the largest bundle).
+#[derive(Default)]
+struct Workspace {
+    rays: Vec<PreparedRay>,
+    /// Projected origins `(e1 . o, e2 . o)`, m.
+    uv: Vec<[f64; 2]>,
+    /// Bucket `b` holds `bucket_rays[bucket_start[b]..bucket_start[b + 1]]`.
+    bucket_start: Vec<u32>,
+    bucket_rays: Vec<u32>,
+    /// Bucket of each ray.
+    bucket_of: Vec<u32>,
+    stack: Vec<u32>,
+}
+
+thread_local! {
+    static WORKSPACE: RefCell<Workspace> = RefCell::new(Workspace::default());
+}
+
+/// The 2D bucket grid over the origins' rectangle.
+struct Grid {
+    lo: [f64; 2],
+    scale: [f64; 2],
+    n: [usize; 2],
+}
+
+impl Grid {
+    /// Bucket coordinate of `x` on axis `a` (monotone in `x`).
+    #[inline]
+    fn cell(&self, a: usize, x: f64) -> usize {
+        let c = (x - self.lo[a]) * self.scale[a];
+        if c >= 0.0 {
+            (c as usize).min(self.n[a] - 1)
+        } else {
+            0
+        }
+    }
+}
+
+/// Casts the bundle `origins[i] + t dir` within `ranges[i]` (every ray
+/// bounded) into `out` (defaulted by the caller).
+pub(super) fn cast_bundle(
+    bvh: &Bvh,
+    origins: &[Point3<f64>],
+    dir: Vector3<f64>,
+    ranges: &[RayRange],
+    out: &mut [NodeHits],
+) {
+    if bvh.nodes.is_empty() || (dir.x == 0.0 && dir.y == 0.0 && dir.z == 0.0) {
+        return;
+    }
+    WORKSPACE.with(|ws| cast_in(bvh, origins, dir, ranges, out, &mut ws.borrow_mut()));
+}
+
+fn cast_in(
+    bvh: &Bvh,
+    origins: &[Point3<f64>],
+    dir: Vector3<f64>,
+    ranges: &[RayRange],
+    out: &mut [NodeHits],
+    ws: &mut Workspace,
+) {
+    let n = origins.len();
+    // Two vectors perpendicular to `dir`: `e1` across the smallest component.
+    let d = dir / dir.norm();
+    let a = d.iamin();
+    let e1 = d.cross(&Vector3::ith(a, 1.0)).normalize();
+    let e2 = d.cross(&e1);
+    let e = [e1, e2];
+
+    // Segment box, projected rectangle and reach.
+    let mut lo = Point3::from([f64::INFINITY; 3]);
+    let mut hi = Point3::from([f64::NEG_INFINITY; 3]);
+    let mut reach = 0.0f64;
+    ws.rays.clear();
+    ws.uv.clear();
+    let mut rlo = [f64::INFINITY; 2];
+    let mut rhi = [f64::NEG_INFINITY; 2];
+    for (o, r) in origins.iter().zip(ranges) {
+        if let Some((p, q)) = segment(o, &dir, Some(r)) {
+            lo = lo.inf(&p.inf(&q));
+            hi = hi.sup(&p.sup(&q));
+            reach = reach.max((p - o).norm()).max((q - o).norm());
+        }
+        ws.rays.push(PreparedRay::new(bvh.test, *o, dir));
+        let uv = [e1.dot(&o.coords), e2.dot(&o.coords)];
+        for k in 0..2 {
+            rlo[k] = rlo[k].min(uv[k]);
+            rhi[k] = rhi[k].max(uv[k]);
+        }
+        ws.uv.push(uv);
+    }
+    let (lo, hi) = crate::collide::widen_box(lo, hi);
+    let size = rlo
+        .iter()
+        .chain(rhi.iter())
+        .fold(0.0f64, |m, x| m.max(x.abs()));
+    let margin = 1e-9 * (size + reach + (rhi[0] - rlo[0]) + (rhi[1] - rlo[1])) + 1e-12;
+
+    // Bucket grid: about two rays a bucket, cells as square as the rectangle
+    // allows.
+    let w = [rhi[0] - rlo[0], rhi[1] - rlo[1]];
+    let cells = (n / 2).max(1) as f64;
+    let nu = if w[0] <= 0.0 {
+        1.0
+    } else if w[1] <= 0.0 {
+        cells
+    } else {
+        (cells * w[0] / w[1]).sqrt().round().clamp(1.0, cells)
+    };
+    let nv = (cells / nu).round().max(1.0);
+    let grid_n = [nu as usize, nv as usize];
+    let grid = Grid {
+        lo: rlo,
+        scale: [0, 1].map(|k| {
+            if w[k] > 0.0 {
+                grid_n[k] as f64 / w[k]
+            } else {
+                0.0
+            }
+        }),
+        n: grid_n,
+    };
+    let buckets = grid_n[0] * grid_n[1];
+    ws.bucket_start.clear();
+    ws.bucket_start.resize(buckets + 1, 0);
+    ws.bucket_of.clear();
+    for uv in &ws.uv {
+        let b = grid.cell(1, uv[1]) * grid_n[0] + grid.cell(0, uv[0]);
+        ws.bucket_of.push(b as u32);
+        ws.bucket_start[b + 1] += 1;
+    }
+    for b in 0..buckets {
+        ws.bucket_start[b + 1] += ws.bucket_start[b];
+    }
+    ws.bucket_rays.clear();
+    ws.bucket_rays.resize(n, 0);
+    for (i, &b) in ws.bucket_of.iter().enumerate() {
+        let b = b as usize;
+        // `bucket_start[b]` runs ahead while filling, then is restored below.
+        ws.bucket_rays[ws.bucket_start[b] as usize] = i as u32;
+        ws.bucket_start[b] += 1;
+    }
+    for b in (1..=buckets).rev() {
+        ws.bucket_start[b] = ws.bucket_start[b - 1];
+    }
+    ws.bucket_start[0] = 0;
+
+    // The swept volume: the segment box and the prism over the rectangle.
+    let enters = |k: usize| {
+        let nd = &bvh.nodes[k];
+        let blo = nd.lo.map(f64::from);
+        let bhi = nd.hi.map(f64::from);
+        if !(0..3).all(|a| blo[a] <= hi[a] && bhi[a] >= lo[a]) {
+            return false;
+        }
+        let c = Vector3::from([0, 1, 2].map(|a| 0.5 * (blo[a] + bhi[a])));
+        let h = Vector3::from([0, 1, 2].map(|a| 0.5 * (bhi[a] - blo[a])));
+        (0..2).all(|k| {
+            let mid = e[k].dot(&c);
+            let half = e[k].abs().dot(&h) * (1.0 + 1e-12);
+            mid - half <= rhi[k] + margin && mid + half >= rlo[k] - margin
+        })
+    };
+    ws.stack.clear();
+    if enters(0) {
+        ws.stack.push(0);
+    }
+    while let Some(k) = ws.stack.pop() {
+        let nd = &bvh.nodes[k as usize];
+        if nd.count == 0 {
+            for c in [nd.index, k + 1] {
+                if enters(c as usize) {
+                    ws.stack.push(c);
+                }
+            }
+            continue;
+        }
+        let first = nd.index as usize;
+        for j in first..first + nd.count as usize {
+            let [a, b, c] = &bvh.verts[j];
+            let mut cell_lo = [0usize; 2];
+            let mut cell_hi = [0usize; 2];
+            let mut outside = false;
+            for k in 0..2 {
+                let (pa, pb, pc) = (
+                    e[k].dot(&a.coords),
+                    e[k].dot(&b.coords),
+                    e[k].dot(&c.coords),
+                );
+                let tlo = pa.min(pb).min(pc);
+                let thi = pa.max(pb).max(pc);
+                let m = margin + 1e-9 * tlo.abs().max(thi.abs());
+                let (tlo, thi) = (tlo - m, thi + m);
+                // Also skips a triangle with a NaN vertex (it meets no line).
+                if !(tlo <= rhi[k] && thi >= rlo[k]) {
+                    outside = true;
+                    break;
+                }
+                cell_lo[k] = grid.cell(k, tlo);
+                cell_hi[k] = grid.cell(k, thi);
+            }
+            if outside {
+                continue;
+            }
+            let id = bvh.ids[j];
+            for bv in cell_lo[1]..=cell_hi[1] {
+                let row = bv * grid_n[0];
+                let from = ws.bucket_start[row + cell_lo[0]] as usize;
+                let to = ws.bucket_start[row + cell_hi[0] + 1] as usize;
+                for &i in &ws.bucket_rays[from..to] {
+                    let i = i as usize;
+                    if let Some(h) = ws.rays[i].intersect(a, b, c)
+                        && ranges[i].contains(h.t)
+                    {
+                        keep_nearest(
+                            &mut out[i],
+                            Hit {
+                                triangle: id,
+                                t: h.t,
+                                u: h.u,
+                                v: h.v,
+                            },
+                        );
+                    }
+                }
+            }
+        }
+    }
+}
