@@ -31,7 +31,10 @@
 //! `bounded` cast each line only as far as an answer can matter
 //! ([`DetectOptions::bounded_rays`], the server's default); the CPU BVH is also
 //! timed casting whole lines (`line`, the paper's pass). Both give the same
-//! output (`same`).
+//! output (`same`). The CPU BVH rows (`bvh`) walk the tree once per run of
+//! at least [`fissure_server::collide::bvh::BUNDLE_MIN`] parallel rays (the
+//! server's default, `Traversal::Bundled`); the `bvh-per-ray` rows beside
+//! them walk it once per ray, in the same run.
 //!
 //! The refit alone is reported for three position changes: none (the force
 //! loop between two published surfaces), local (the bump) and global (every
@@ -41,6 +44,7 @@
 //! `taskset -c 0`) for one core.
 
 use anyhow::Context;
+use fissure_server::collide::bvh::Traversal;
 use fissure_server::collide::gpu::{GpuBruteForce, GpuBvh};
 use fissure_server::collide::{
     BruteForce, Bvh, ContactOutput, ContactQuery, DetectOptions, FissurePlacement, History,
@@ -282,7 +286,8 @@ pub struct Report {
     pub adapter: Option<String>,
     /// Why there are no GPU rows, when asked for.
     pub gpu_error: Option<String>,
-    /// The rows, per node count: CPU brute, CPU BVH, GPU brute, GPU BVH.
+    /// The rows, per node count: CPU brute, CPU BVH (bundled, then per ray),
+    /// GPU brute, GPU BVH, CPU BVH whole lines (per ray, then bundled).
     pub rows: Vec<Row>,
     /// The CPU BVH refit alone.
     pub refit: Option<RefitTimes>,
@@ -501,6 +506,23 @@ pub fn run_collision_bench(surf: &BenchSurface, opts: &BenchOptions) -> anyhow::
             rows.push(r);
         }
         if opts.cpu {
+            // The BVH walked once per ray beside the default bundled walk
+            // (one walk per run of parallel rays), bounded then whole line;
+            // the default's whole-line row comes last.
+            let mut per_ray = |detect: &DetectOptions| {
+                bvh.set_traversal(Traversal::PerRay);
+                let mut out = ContactOutput::default();
+                let (ms, rep) =
+                    time_queries(&mut bvh, surf, &to_volume, &inst, opts, detect, &mut out);
+                bvh.set_traversal(Traversal::Bundled);
+                let mut r = row("bvh-per-ray", "cpu", detect, ms, rep, out.pairs.len());
+                r.matches_brute = Some(out == reference);
+                r
+            };
+            let bounded_row = per_ray(&bounded);
+            let line_row = per_ray(&line);
+            rows.insert(2, bounded_row);
+            rows.push(line_row);
             let mut out = ContactOutput::default();
             let (ms, rep) = time_queries(&mut bvh, surf, &to_volume, &inst, opts, &line, &mut out);
             let mut r = row("bvh", "cpu", &line, ms, rep, out.pairs.len());
@@ -650,6 +672,10 @@ mod tests {
                     rows[1].cast.as_str()
                 ),
                 ("bvh", "cpu", "bounded")
+            );
+            assert_eq!(
+                (rows[2].method.as_str(), rows[2].cast.as_str()),
+                ("bvh-per-ray", "bounded")
             );
             let last = rows.last().unwrap();
             assert_eq!((last.method.as_str(), last.cast.as_str()), ("bvh", "line"));
