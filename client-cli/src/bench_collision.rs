@@ -40,6 +40,20 @@
 //! loop between two published surfaces), local (the bump) and global (every
 //! vertex moved).
 //!
+//! # Placements
+//! `aligned` is the placement above: the spatulas' node grids share
+//! coordinates with the surface's lattice planes, so many rays pass exactly
+//! through shared edges and vertices (ties of the watertight test). `offset`
+//! moves both spatulas within their plate plane by [`OFFSET_FRACTIONS`] of the
+//! lattice spacing (width, length), as a real scene is not aligned with the
+//! mesh. `--placement both` (the default) runs both, one report each.
+//!
+//! # Ray files
+//! `--dump-rays DIR` writes, per placement and node count, the rays of one
+//! deformation-stage query (bounded, as the server casts them) with the
+//! surface and the BVH's answers ([`crate::bench_rays`]), for
+//! `fissure bench rays` and the Embree comparison to cast again.
+//!
 //! Rayon uses its global pool: run with `RAYON_NUM_THREADS=1` (and
 //! `taskset -c 0`) for one core.
 
@@ -48,7 +62,8 @@ use fissure_server::collide::bvh::Traversal;
 use fissure_server::collide::gpu::{GpuBruteForce, GpuBvh};
 use fissure_server::collide::{
     BruteForce, Bvh, ContactOutput, ContactQuery, DetectOptions, FissurePlacement, History,
-    HistoryMode, Instrument, NodeLayout, Plate, RayBackend, Stage, Tool, Workspace, detect_many,
+    HistoryMode, Instrument, NodeHits, NodeLayout, Plate, RayBackend, RayRange, Stage, Tool,
+    Workspace, detect_many,
 };
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use serde::Serialize;
@@ -62,6 +77,51 @@ pub const BUMP_RADIUS: f64 = 0.015;
 pub const BUMP_DEPTH: f64 = 2e-4;
 /// Penetration of the pushing face into the tissue, m.
 pub const PUSH: f64 = 5e-4;
+/// The `offset` placement's shift of both spatulas within their plate plane,
+/// as fractions of the surface's lattice spacing: along the width, along the
+/// length (irrational-looking, so that no node lands on a lattice plane).
+pub const OFFSET_FRACTIONS: [f64; 2] = [0.372, 0.618];
+
+/// Where the spatulas lie against the surface's lattice.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Placement {
+    /// Node grids on the lattice planes (ties on shared edges and vertices).
+    Aligned,
+    /// Node grids shifted off the lattice by [`OFFSET_FRACTIONS`].
+    Offset,
+}
+
+impl Placement {
+    /// The name in reports and file names.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Aligned => "aligned",
+            Self::Offset => "offset",
+        }
+    }
+}
+
+/// Which placements to run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum PlacementChoice {
+    /// The aligned placement only.
+    Aligned,
+    /// The offset placement only.
+    Offset,
+    /// Both, one report each.
+    Both,
+}
+
+impl PlacementChoice {
+    /// The placements to run, in order.
+    pub fn placements(self) -> Vec<Placement> {
+        match self {
+            Self::Aligned => vec![Placement::Aligned],
+            Self::Offset => vec![Placement::Offset],
+            Self::Both => vec![Placement::Aligned, Placement::Offset],
+        }
+    }
+}
 
 /// Which surface to run on.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -107,7 +167,15 @@ pub struct CollisionArgs {
     /// Reach of the source nodes, m (the scenes' `collision.max_depth_m`).
     #[arg(long, default_value_t = fissure_server::scene::DEFAULT_MAX_DEPTH_M)]
     pub max_depth_m: f64,
-    /// Print JSON instead of a table.
+    /// Spatulas on the lattice, shifted off it, or both (one report each).
+    #[arg(long, value_enum, default_value_t = PlacementChoice::Both)]
+    pub placement: PlacementChoice,
+    /// Write the rays of one query per placement and node count into this
+    /// directory (`<surface>-<placement>-<nodes>.rays`, read by
+    /// `fissure bench rays` and the Embree comparison).
+    #[arg(long, value_name = "DIR")]
+    pub dump_rays: Option<std::path::PathBuf>,
+    /// Print JSON (one report per placement, in an array) instead of a table.
     #[arg(long)]
     pub json: bool,
 }
@@ -147,6 +215,8 @@ impl Default for BenchOptions {
 pub struct BenchSurface {
     /// "phantom:<preset>" or "cuboid".
     pub name: String,
+    /// "aligned", "offset", or a caller's name.
+    pub placement: String,
     /// Rest positions, m.
     pub rest: Vec<Point3<f64>>,
     /// The locally deformed positions (module documentation), m.
@@ -184,6 +254,7 @@ impl BenchSurface {
             .collect();
         Self {
             name,
+            placement: Placement::Aligned.name().into(),
             rest,
             deformed,
             triangles,
@@ -191,9 +262,44 @@ impl BenchSurface {
         }
     }
 
+    /// The surface with its spatulas placed as `placement` on a lattice of
+    /// spacing `spacing_m` (module documentation).
+    fn placed(
+        name: String,
+        rest: Vec<Point3<f64>>,
+        triangles: Vec<[u32; 3]>,
+        poses: Vec<Isometry3<f64>>,
+        placement: Placement,
+        spacing_m: f64,
+    ) -> Self {
+        let poses = match placement {
+            Placement::Aligned => poses,
+            Placement::Offset => {
+                let [w, l] = OFFSET_FRACTIONS.map(|f| f * spacing_m);
+                poses
+                    .into_iter()
+                    .map(|p| {
+                        // Instrument y is the width, z the length.
+                        let shift = p.rotation * Vector3::new(0.0, w, l);
+                        Isometry3::from_parts(
+                            Translation3::from(p.translation.vector + shift),
+                            p.rotation,
+                        )
+                    })
+                    .collect()
+            }
+        };
+        let mut s = Self::new(name, rest, triangles, poses);
+        s.placement = placement.name().into();
+        s
+    }
+
     /// The boundary of phantom preset `preset`, two spatulas in the left
-    /// Sylvian fissure (module documentation).
-    pub fn phantom(preset: &str) -> anyhow::Result<Self> {
+    /// Sylvian fissure (module documentation), placed as `placement`.
+    pub fn phantom(preset: &str, placement: Placement) -> anyhow::Result<Self> {
+        let spacing = fissure_server::mesh::phantom::preset_params(preset)
+            .with_context(|| format!("phantom preset {preset:?}"))?
+            .spacing;
         let phantom = fissure_server::mesh::phantom::preset(preset)
             .with_context(|| format!("phantom preset {preset:?}"))?;
         let s = phantom.mesh.boundary();
@@ -211,19 +317,24 @@ impl BenchSurface {
                 .pose(&f, PLATE[2])
             })
             .to_vec();
-        Ok(Self::new(
+        Ok(Self::placed(
             format!("phantom:{preset}"),
             pos,
             s.triangles,
             poses,
+            placement,
+            spacing,
         ))
     }
 
-    /// The box of the paper's size, two spatulas on its top face.
-    pub fn cuboid() -> Self {
+    /// The box of the paper's size, two spatulas on its top face, placed as
+    /// `placement` (its cells are [`BOX_SIZE_M`] / [`BOX_CELLS`]; the shift
+    /// uses the cell length along the plates' width).
+    pub fn cuboid(placement: Placement) -> Self {
         let (pos, tris) = paper_sized_box();
         let poses = touching_poses(&pos, 2);
-        Self::new("cuboid".into(), pos, tris, poses)
+        let spacing = BOX_SIZE_M[1] / BOX_CELLS[1] as f64;
+        Self::placed("cuboid".into(), pos, tris, poses, placement, spacing)
     }
 }
 
@@ -278,6 +389,8 @@ pub struct RefitTimes {
 pub struct Report {
     /// Surface name.
     pub surface: String,
+    /// Placement of the spatulas ("aligned" or "offset").
+    pub placement: String,
     /// Surface triangles.
     pub triangles: usize,
     /// Rayon threads the CPU rows ran on.
@@ -321,6 +434,77 @@ pub fn touching_poses(positions: &[Point3<f64>], count: usize) -> Vec<Isometry3<
         .collect()
 }
 
+/// One history per spatula, as a new session starts.
+fn fresh_histories(surf: &BenchSurface, inst: &Instrument) -> Vec<History> {
+    surf.poses
+        .iter()
+        .map(|_| History::new(inst, HistoryMode::ForceRate))
+        .collect()
+}
+
+/// The benchmark's instrument: a flat plate of [`PLATE`] with `per_face`
+/// nodes a face, reach capped at `max_depth_m`.
+fn bench_instrument(per_face: usize, max_depth_m: f64) -> anyhow::Result<Instrument> {
+    let mut inst = Instrument::new(
+        Plate::flat(PLATE[0], PLATE[1], PLATE[2]),
+        NodeLayout::WholeFace { per_face },
+        None,
+    )
+    .with_context(|| format!("{per_face} nodes a face"))?;
+    inst.cap_reach(max_depth_m);
+    Ok(inst)
+}
+
+/// Every vertex moved by about a micrometre (a global refit).
+fn global_move(rest: &[Point3<f64>]) -> Vec<Point3<f64>> {
+    rest.iter()
+        .map(|p| p + Vector3::new(1e-6, -1e-6, 1e-6))
+        .collect()
+}
+
+/// One deformation-stage query of all spatulas at `positions`: the update
+/// (a BVH refits) and [`detect_many`].
+#[allow(clippy::too_many_arguments)]
+fn query(
+    backend: &mut dyn RayBackend,
+    surf: &BenchSurface,
+    positions: &[Point3<f64>],
+    to_volume: &[u32],
+    inst: &Instrument,
+    hist: &mut [History],
+    detect: &DetectOptions,
+    ws: &mut Workspace,
+    out: &mut ContactOutput,
+) {
+    backend.update_positions(positions);
+    let query = ContactQuery {
+        positions,
+        rest: &surf.rest,
+        triangles: &surf.triangles,
+        to_volume,
+        solved: None,
+    };
+    let mut tools: Vec<Tool<'_>> = hist
+        .iter_mut()
+        .zip(&surf.poses)
+        .map(|(h, p)| Tool {
+            instrument: inst,
+            pose: *p,
+            history: h,
+        })
+        .collect();
+    detect_many(
+        backend,
+        &query,
+        &mut tools,
+        Stage::Deformation,
+        detect,
+        ws,
+        out,
+    )
+    .expect("a consistent benchmark surface");
+}
+
 /// Times queries alternating rest and deformed positions; returns (ms per
 /// query, queries) and the first query's output in `first`.
 fn time_queries(
@@ -332,11 +516,7 @@ fn time_queries(
     detect: &DetectOptions,
     first: &mut ContactOutput,
 ) -> (f64, usize) {
-    let mut hist: Vec<History> = surf
-        .poses
-        .iter()
-        .map(|_| History::new(inst, HistoryMode::ForceRate))
-        .collect();
+    let mut hist = fresh_histories(surf, inst);
     let mut ws = Workspace::new();
     let mut run = |k: usize, hist: &mut [History], out: &mut ContactOutput| {
         let positions = if k % 2 == 0 {
@@ -344,33 +524,9 @@ fn time_queries(
         } else {
             &surf.deformed
         };
-        backend.update_positions(positions);
-        let query = ContactQuery {
-            positions,
-            rest: &surf.rest,
-            triangles: &surf.triangles,
-            to_volume,
-            solved: None,
-        };
-        let mut tools: Vec<Tool<'_>> = hist
-            .iter_mut()
-            .zip(&surf.poses)
-            .map(|(h, p)| Tool {
-                instrument: inst,
-                pose: *p,
-                history: h,
-            })
-            .collect();
-        detect_many(
-            backend,
-            &query,
-            &mut tools,
-            Stage::Deformation,
-            detect,
-            &mut ws,
-            out,
-        )
-        .expect("a consistent benchmark surface");
+        query(
+            backend, surf, positions, to_volume, inst, hist, detect, &mut ws, out,
+        );
     };
     // Warm-up on the rest surface (sizes the workspace); its output is the one
     // compared across methods.
@@ -403,6 +559,7 @@ pub fn run_collision_bench(surf: &BenchSurface, opts: &BenchOptions) -> anyhow::
     let to_volume: Vec<u32> = (0..surf.rest.len() as u32).collect();
     let mut report = Report {
         surface: surf.name.clone(),
+        placement: surf.placement.clone(),
         triangles: tris.len(),
         threads: rayon::current_num_threads(),
         adapter: None,
@@ -438,13 +595,7 @@ pub fn run_collision_bench(surf: &BenchSurface, opts: &BenchOptions) -> anyhow::
         ..bounded
     };
     for &npf in &opts.nodes_per_face {
-        let mut inst = Instrument::new(
-            Plate::flat(PLATE[0], PLATE[1], PLATE[2]),
-            NodeLayout::WholeFace { per_face: npf },
-            None,
-        )
-        .with_context(|| format!("{npf} nodes a face"))?;
-        inst.cap_reach(opts.max_depth_m);
+        let inst = bench_instrument(npf, opts.max_depth_m)?;
         let row = |method: &str,
                    backend: &str,
                    detect: &DetectOptions,
@@ -536,11 +687,7 @@ pub fn run_collision_bench(surf: &BenchSurface, opts: &BenchOptions) -> anyhow::
         report.rows.extend(rows);
     }
     if opts.cpu {
-        let global: Vec<Point3<f64>> = surf
-            .rest
-            .iter()
-            .map(|p| p + Vector3::new(1e-6, -1e-6, 1e-6))
-            .collect();
+        let global = global_move(&surf.rest);
         let min = opts.min_time.min(Duration::from_millis(200));
         let unchanged_ms = time_refit(&mut bvh, &surf.rest, &surf.rest, min);
         let local_ms = time_refit(&mut bvh, &surf.rest, &surf.deformed, min);
@@ -557,12 +704,103 @@ pub fn run_collision_bench(surf: &BenchSurface, opts: &BenchOptions) -> anyhow::
     Ok(report)
 }
 
+/// A backend that casts with a BVH and keeps every ray it was asked, with
+/// its range and answer (the recorder of `--dump-rays`).
+struct Recorder<'a> {
+    bvh: &'a mut Bvh,
+    origins: Vec<Point3<f64>>,
+    dirs: Vec<Vector3<f64>>,
+    ranges: Vec<RayRange>,
+    answers: Vec<NodeHits>,
+}
+
+impl RayBackend for Recorder<'_> {
+    fn method(&self) -> &'static str {
+        self.bvh.method()
+    }
+    fn backend(&self) -> &'static str {
+        self.bvh.backend()
+    }
+    fn update_positions(&mut self, positions: &[Point3<f64>]) {
+        self.bvh.update_positions(positions);
+    }
+    fn cast(&mut self, origins: &[Point3<f64>], dirs: &[Vector3<f64>], out: &mut Vec<NodeHits>) {
+        let line = vec![RayRange::LINE; origins.len()];
+        self.cast_ranged(origins, dirs, &line, out);
+    }
+    fn cast_ranged(
+        &mut self,
+        origins: &[Point3<f64>],
+        dirs: &[Vector3<f64>],
+        ranges: &[RayRange],
+        out: &mut Vec<NodeHits>,
+    ) {
+        self.bvh.cast_ranged(origins, dirs, ranges, out);
+        self.origins.extend_from_slice(origins);
+        self.dirs.extend_from_slice(dirs);
+        self.ranges.extend_from_slice(ranges);
+        self.answers.extend_from_slice(out);
+    }
+}
+
+/// The rays of one deformation-stage query on the rest surface, bounded as
+/// the server casts them, for every node count of `opts`, written into
+/// `dir`; returns the files.
+pub fn dump_rays(
+    surf: &BenchSurface,
+    opts: &BenchOptions,
+    dir: &std::path::Path,
+) -> anyhow::Result<Vec<std::path::PathBuf>> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let to_volume: Vec<u32> = (0..surf.rest.len() as u32).collect();
+    let mut bvh = Bvh::new(&surf.triangles, &surf.rest).context("benchmark surface")?;
+    let moved = global_move(&surf.rest);
+    let mut files = Vec::new();
+    for &npf in &opts.nodes_per_face {
+        let inst = bench_instrument(npf, opts.max_depth_m)?;
+        let mut rec = Recorder {
+            bvh: &mut bvh,
+            origins: Vec::new(),
+            dirs: Vec::new(),
+            ranges: Vec::new(),
+            answers: Vec::new(),
+        };
+        let mut hist = fresh_histories(surf, &inst);
+        query(
+            &mut rec,
+            surf,
+            &surf.rest,
+            &to_volume,
+            &inst,
+            &mut hist,
+            &DetectOptions::default(),
+            &mut Workspace::new(),
+            &mut ContactOutput::default(),
+        );
+        let file = crate::bench_rays::RayFile {
+            rest: surf.rest.clone(),
+            deformed: surf.deformed.clone(),
+            moved: moved.clone(),
+            triangles: surf.triangles.clone(),
+            origins: rec.origins,
+            dirs: rec.dirs,
+            ranges: rec.ranges,
+            answers: rec.answers,
+        };
+        let name = format!(
+            "{}-{}-{npf}.rays",
+            surf.name.replace([':', '/'], "-"),
+            surf.placement
+        );
+        let path = dir.join(name);
+        file.write(&path)?;
+        files.push(path);
+    }
+    Ok(files)
+}
+
 /// `fissure bench collision`: builds the surface, runs, prints.
 pub fn run(args: &CollisionArgs) -> anyhow::Result<()> {
-    let surf = match args.surface {
-        SurfaceKind::Phantom => BenchSurface::phantom(&args.preset)?,
-        SurfaceKind::Cuboid => BenchSurface::cuboid(),
-    };
     let opts = BenchOptions {
         nodes_per_face: args.nodes.clone(),
         cpu: args.backend != BackendChoice::Gpu,
@@ -571,8 +809,27 @@ pub fn run(args: &CollisionArgs) -> anyhow::Result<()> {
         min_repeats: args.min_repeats.max(1),
         max_depth_m: args.max_depth_m,
     };
-    let report = run_collision_bench(&surf, &opts)?;
-    print(&report, args.json);
+    let mut reports = Vec::new();
+    for placement in args.placement.placements() {
+        let surf = match args.surface {
+            SurfaceKind::Phantom => BenchSurface::phantom(&args.preset, placement)?,
+            SurfaceKind::Cuboid => BenchSurface::cuboid(placement),
+        };
+        if let Some(dir) = &args.dump_rays {
+            for f in dump_rays(&surf, &opts, dir)? {
+                eprintln!("wrote {}", f.display());
+            }
+        }
+        let report = run_collision_bench(&surf, &opts)?;
+        if !args.json {
+            print(&report, false);
+            println!();
+        }
+        reports.push(report);
+    }
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&reports)?);
+    }
     Ok(())
 }
 
@@ -586,8 +843,8 @@ pub fn print(report: &Report, json: bool) {
         return;
     }
     println!(
-        "surface {} ({} triangles), {} rayon thread(s)",
-        report.surface, report.triangles, report.threads
+        "surface {} ({} triangles), placement {}, {} rayon thread(s)",
+        report.surface, report.triangles, report.placement, report.threads
     );
     match (&report.adapter, &report.gpu_error) {
         (Some(a), _) => println!("GPU adapter: {a}"),
@@ -595,7 +852,7 @@ pub fn print(report: &Report, json: bool) {
         (None, None) => {}
     }
     println!(
-        "{:<6} {:<4} {:<7} {:>9} {:>6} {:>4} {:>6} {:>12} {:>7} {:>6} {:>9} {:>6}",
+        "{:<11} {:<4} {:<7} {:>9} {:>6} {:>4} {:>6} {:>12} {:>7} {:>6} {:>9} {:>6}",
         "method",
         "dev",
         "cast",
@@ -611,7 +868,7 @@ pub fn print(report: &Report, json: bool) {
     );
     for r in &report.rows {
         println!(
-            "{:<6} {:<4} {:<7} {:>9} {:>6} {:>4} {:>6} {:>12.4} {:>7} {:>6} {:>9} {:>6}",
+            "{:<11} {:<4} {:<7} {:>9} {:>6} {:>4} {:>6} {:>12.4} {:>7} {:>6} {:>9} {:>6}",
             r.method,
             r.backend,
             r.cast,
@@ -634,10 +891,15 @@ pub fn print(report: &Report, json: bool) {
     }
 }
 
+/// Size of the benchmark's box, m.
+pub const BOX_SIZE_M: [f64; 3] = [0.15, 0.12, 0.1];
+/// Cells of the benchmark's box along x, y, z.
+pub const BOX_CELLS: [usize; 3] = [45, 36, 29];
+
 /// The benchmark's box: the boundary of a 150 x 120 x 100 mm box with
 /// 45 x 36 x 29 cells, 15,876 triangles (the paper's phantom has 15,865).
 pub fn paper_sized_box() -> (Vec<Point3<f64>>, Vec<[u32; 3]>) {
-    let mesh = fissure_server::mesh::blocks::cuboid([0.15, 0.12, 0.1], [45, 36, 29]);
+    let mesh = fissure_server::mesh::blocks::cuboid(BOX_SIZE_M, BOX_CELLS);
     let s = mesh.boundary();
     let mut pos = Vec::new();
     s.gather(&mesh.nodes, &mut pos);
@@ -710,8 +972,53 @@ mod tests {
     /// wall, and all methods agree.
     #[test]
     fn phantom_fissure_rows_agree() {
-        let surf = BenchSurface::phantom("coarse").unwrap();
-        let report = run_collision_bench(&surf, &quick()).unwrap();
-        check_rows(&report);
+        for placement in [Placement::Aligned, Placement::Offset] {
+            let surf = BenchSurface::phantom("coarse", placement).unwrap();
+            let report = run_collision_bench(&surf, &quick()).unwrap();
+            assert_eq!(report.placement, placement.name());
+            check_rows(&report);
+        }
+    }
+
+    /// The offset placement moves the spatulas off the lattice within their
+    /// plate plane: same plate normal, same depth into the wall.
+    #[test]
+    fn offset_placement_shifts_the_plates_within_their_plane() {
+        let a = BenchSurface::phantom("coarse", Placement::Aligned).unwrap();
+        let b = BenchSurface::phantom("coarse", Placement::Offset).unwrap();
+        let h = fissure_server::mesh::phantom::preset_params("coarse")
+            .unwrap()
+            .spacing;
+        for (p, q) in a.poses.iter().zip(&b.poses) {
+            assert_eq!(p.rotation, q.rotation);
+            let d = p.rotation.inverse() * (q.translation.vector - p.translation.vector);
+            assert!(d.x.abs() < 1e-15, "no move along the plate normal: {d}");
+            assert!((d.y - OFFSET_FRACTIONS[0] * h).abs() < 1e-12);
+            assert!((d.z - OFFSET_FRACTIONS[1] * h).abs() < 1e-12);
+        }
+    }
+
+    /// The dumped rays are the query's rays: the file reads back, fissure's
+    /// BVH gives its answers, and it holds every node of both spatulas.
+    #[test]
+    fn dumped_rays_read_back_with_the_bvh_answers() {
+        let surf = BenchSurface::cuboid(Placement::Offset);
+        let dir = tempfile::tempdir().unwrap();
+        let opts = BenchOptions {
+            nodes_per_face: vec![30],
+            ..quick()
+        };
+        let files = dump_rays(&surf, &opts, dir.path()).unwrap();
+        assert_eq!(files.len(), 1);
+        assert!(files[0].ends_with("cuboid-offset-30.rays"), "{files:?}");
+        let f = crate::bench_rays::RayFile::read(&files[0]).unwrap();
+        assert!(f.origins.len() >= 2 * 2 * 30, "{}", f.origins.len());
+        assert!(
+            f.answers
+                .iter()
+                .any(|a| a.behind.is_some() || a.front.is_some())
+        );
+        let r = crate::bench_rays::bench_file(&f, "x", Duration::from_millis(1)).unwrap();
+        assert_eq!(r.same_answers, r.rays);
     }
 }

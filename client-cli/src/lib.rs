@@ -26,6 +26,8 @@ pub mod bench_haptic;
 #[cfg(feature = "lab")]
 pub mod bench_loop;
 #[cfg(feature = "lab")]
+pub mod bench_rays;
+#[cfg(feature = "lab")]
 pub mod demo;
 #[cfg(feature = "lab")]
 pub mod mesh_cmd;

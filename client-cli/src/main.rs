@@ -102,6 +102,11 @@ enum Bench {
     /// rows side by side, with two spatulas in the left Sylvian fissure of a
     /// phantom preset (or on a box of the paper's size): ms per query, speedup.
     Collision(fissure_cli::bench_collision::CollisionArgs),
+    /// The rays of `bench collision --dump-rays` cast again by the CPU BVH,
+    /// one thread by default: ns per line bounded and whole, bundled and per
+    /// ray, build and refit (the figures the Embree comparison sets beside
+    /// its own).
+    Rays(fissure_cli::bench_rays::RaysArgs),
     /// Force samples against a full solve at every sample, on every scene
     /// with bundled trajectories (stepped, 1 kHz): error, ripple at frame
     /// changes, onset, press/retract hysteresis, normal force, settling of
@@ -320,6 +325,7 @@ fn main() -> anyhow::Result<()> {
             }
             Bench::Loop(args) => rt.block_on(fissure_cli::bench_loop::main(&args))?,
             Bench::Collision(args) => fissure_cli::bench_collision::run(&args)?,
+            Bench::Rays(args) => fissure_cli::bench_rays::run(&args)?,
             Bench::Haptic(args) => fissure_cli::bench_haptic::main(&args)?,
             Bench::Bridge(args) => rt.block_on(fissure_cli::bench_bridge::main(&args))?,
         },

@@ -48,10 +48,12 @@ fn block(amp: f64) -> Block {
     }
 }
 
-fn instrument(reach: Option<f64>) -> Instrument {
+/// A flat plate with `per_face` nodes a face (from 64 on, the BVH casts each
+/// face's rays as one bundle) and rim nodes.
+fn instrument(reach: Option<f64>, per_face: usize) -> Instrument {
     let mut inst = Instrument::new(
         Plate::flat(1.0 * MM, 8.0 * MM, 15.0 * MM),
-        NodeLayout::WholeFace { per_face: 24 },
+        NodeLayout::WholeFace { per_face },
         Some(RimNodes {
             per_side: 4,
             tip: 3,
@@ -134,9 +136,10 @@ proptest! {
         step in 0.2e-3f64..6e-3,
         reach in proptest::option::of(0.5e-3f64..12e-3),
         use_brute in proptest::bool::ANY,
+        per_face in prop_oneof![Just(24usize), Just(80usize)],
     ) {
         let b = block(amp);
-        let inst = instrument(reach);
+        let inst = instrument(reach, per_face);
         // Down through the top face (z = 30 mm), past the bottom, and back.
         let mut path = Vec::new();
         let mut z = 0.032;
@@ -313,7 +316,7 @@ fn bounded_rays_cull_the_same_pairs_in_deep_penetration() {
         Some(12.0 * MM),
         Some(20.0 * MM),
     ] {
-        let inst = instrument(reach);
+        let inst = instrument(reach, 24);
         for tilt in [0.0, 0.2, 0.5] {
             let path: Vec<_> = (0..30)
                 .map(|k| {

@@ -61,7 +61,8 @@ proptest! {
     #![proptest_config(ProptestConfig { cases: 48, ..ProptestConfig::default() })]
 
     /// Instrument rays under random poses against a randomly deformed block,
-    /// refitted over several deformation steps.
+    /// refitted over several deformation steps; 100 nodes a face make runs
+    /// of parallel rays that the BVH casts as bundles (flat plates).
     #[test]
     fn bvh_equals_brute_force_on_instrument_rays(
         n in 2usize..6,
@@ -71,12 +72,13 @@ proptest! {
         tx in 0.0f64..0.03, ty in 0.0f64..0.02, tz in 0.0f64..0.03,
         ax in -1.0f64..1.0, ay in -1.0f64..1.0, az in -1.0f64..1.0, angle in 0.0f64..3.2,
         curved in proptest::bool::ANY,
+        per_face in prop_oneof![Just(30usize), Just(100usize)],
     ) {
         let (mut pos, tris) = surface(n, dup);
         let mut brute = BruteForce::new(&tris, &pos).unwrap();
         let mut bvh = Bvh::new(&tris, &pos).unwrap();
         let plate = if curved { Plate::curved(1e-3, 0.008, 0.02, 0.03) } else { Plate::flat(1e-3, 0.008, 0.02) };
-        let inst = Instrument::new(plate, NodeLayout::WholeFace { per_face: 30 },
+        let inst = Instrument::new(plate, NodeLayout::WholeFace { per_face },
             Some(RimNodes { per_side: 4, tip: 3, tip_reach: 1e-3 })).unwrap();
         let axis = Vector3::new(ax, ay, az + 1e-3);
         let pose = Isometry3::from_parts(

@@ -2,9 +2,17 @@
 //!
 //! # Method
 //! The rays of one spatula face share one direction `d` (bitwise equal) and
-//! their origins lie on a grid in the face's plane, each looking only within
-//! a bounded range. A run of at least [`BUNDLE_MIN`] such consecutive rays is
-//! cast as one bundle:
+//! their origins lie on a grid in the face's plane. A run of at least
+//! [`BUNDLE_MIN`] such consecutive rays is cast as one bundle:
+//!
+//! 0. A side of a ray that looks without bound (a whole line) is clipped to
+//!    the bundle's reach `R`, the shorter side of the origins' rectangle (the
+//!    longer one when the origins lie on a line). The nearest hit of a side
+//!    within `[0, R]` is the nearest of the whole side when it lies there
+//!    ([`RayRange::clip`]); a clipped side that finds nothing within `R` is
+//!    cast again alone by the caller, that side only, with the ray's own
+//!    bound ([`BundleCast`]), so answers do not depend on `R`, only the work
+//!    does.
 //!
 //! 1. The origins are projected onto two vectors `e1`, `e2` perpendicular to
 //!    `d` (m, in the plane of the face) and counting-sorted into a 2D grid of
@@ -16,9 +24,11 @@
 //!    the reach.
 //! 3. Each triangle of a reached leaf is projected the same way; only the rays
 //!    of the buckets its projected rectangle (widened far above rounding)
-//!    overlaps are tested, with the same [`PreparedRay`] test on the same
-//!    `f64` positions as [`Bvh::cast_one`], and each hit within the ray's range
-//!    is folded with [`keep_nearest`].
+//!    overlaps, and among them only those whose own projected origin lies in
+//!    that rectangle (four comparisons, far cheaper than the triangle test),
+//!    are tested, with the same [`PreparedRay`] test on the same `f64`
+//!    positions as [`Bvh::cast_one`], and each hit within the ray's range is
+//!    folded with [`keep_nearest`].
 //!
 //! A ray meets a triangle only where its line passes through it, so its
 //! origin projects into the triangle's projected rectangle (up to a rounding
@@ -48,12 +58,12 @@ use crate::collide::{Hit, NodeHits, RayRange};
 use nalgebra::{Point3, Vector3};
 use std::cell::RefCell;
 
-/// Fewest consecutive parallel bounded rays cast as a bundle; shorter runs
-/// are cast ray by ray (a bundle of ~30 rays measured slower than per-ray).
+/// Fewest consecutive parallel rays cast as a bundle; shorter runs are cast
+/// ray by ray (a bundle of ~30 rays measured slower than per-ray).
 pub const BUNDLE_MIN: usize = 64;
 
-/// How [`Bvh`] casts runs of bounded rays with bitwise-equal directions.
-/// Answers are identical either way.
+/// How [`Bvh`] casts runs of rays with bitwise-equal directions. Answers are
+/// identical either way.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Traversal {
     /// Every ray walks the tree on its own.
@@ -68,6 +78,8 @@ pub enum Traversal {
 #[derive(Default)]
 struct Workspace {
     rays: Vec<PreparedRay>,
+    /// The rays' ranges with unbounded sides clipped to the reach, m.
+    ranges: Vec<RayRange>,
     /// Projected origins `(e1 . o, e2 . o)`, m.
     uv: Vec<[f64; 2]>,
     /// Bucket `b` holds `bucket_rays[bucket_start[b]..bucket_start[b + 1]]`.
@@ -102,19 +114,60 @@ impl Grid {
     }
 }
 
-/// Casts the bundle `origins[i] + t dir` within `ranges[i]` (every ray
-/// bounded) into `out` (defaulted by the caller).
+/// What a bundle left to its caller: the reach `R` (m) its unbounded sides
+/// were clipped to (module documentation, step 0). A side of a ray must be
+/// cast again with its own bound when it looks farther than `R` and the
+/// bundle found nothing on it ([`BundleCast::recast_range`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) struct BundleCast {
+    /// The reach unbounded sides were clipped to, m (infinite: none was).
+    pub reach: f64,
+}
+
+impl BundleCast {
+    /// The range a ray of range `range` with the bundle's answer `hits` must
+    /// be cast again with: its own bound on each side left to recast, and
+    /// "nowhere" (-1) on a side the bundle answered; `None` when no side is
+    /// left. The answer of a recast side replaces the bundle's (none).
+    #[inline]
+    pub fn recast_range(&self, range: &RayRange, hits: &NodeHits) -> Option<RayRange> {
+        let front = range.front > self.reach && hits.front.is_none();
+        let behind = range.behind > self.reach && hits.behind.is_none();
+        (front || behind).then(|| RayRange {
+            behind: if behind { range.behind } else { -1.0 },
+            front: if front { range.front } else { -1.0 },
+        })
+    }
+}
+
+/// `range` with each side that looks without bound clipped to `reach`.
+#[inline]
+fn clip_unbounded(range: RayRange, reach: f64) -> RayRange {
+    let side = |b: f64| if b.is_finite() { b } else { reach };
+    RayRange {
+        behind: side(range.behind),
+        front: side(range.front),
+    }
+}
+
+/// Casts the bundle `origins[i] + t dir` within `ranges[i]` (whole lines
+/// where `ranges` is shorter) into `out` (defaulted by the caller); the rays
+/// [`BundleCast::needs_recast`] names are left to the caller.
 pub(super) fn cast_bundle(
     bvh: &Bvh,
     origins: &[Point3<f64>],
     dir: Vector3<f64>,
     ranges: &[RayRange],
     out: &mut [NodeHits],
-) {
+) -> BundleCast {
     if bvh.nodes.is_empty() || (dir.x == 0.0 && dir.y == 0.0 && dir.z == 0.0) {
-        return;
+        // Nothing to hit (an empty tree), or a direction no ray can follow:
+        // every answer is empty, whatever the range.
+        return BundleCast {
+            reach: f64::INFINITY,
+        };
     }
-    WORKSPACE.with(|ws| cast_in(bvh, origins, dir, ranges, out, &mut ws.borrow_mut()));
+    WORKSPACE.with(|ws| cast_in(bvh, origins, dir, ranges, out, &mut ws.borrow_mut()))
 }
 
 fn cast_in(
@@ -124,7 +177,7 @@ fn cast_in(
     ranges: &[RayRange],
     out: &mut [NodeHits],
     ws: &mut Workspace,
-) {
+) -> BundleCast {
     let n = origins.len();
     // Two vectors perpendicular to `dir`: `e1` across the smallest component.
     let d = dir / dir.norm();
@@ -133,20 +186,12 @@ fn cast_in(
     let e2 = d.cross(&e1);
     let e = [e1, e2];
 
-    // Segment box, projected rectangle and reach.
-    let mut lo = Point3::from([f64::INFINITY; 3]);
-    let mut hi = Point3::from([f64::NEG_INFINITY; 3]);
-    let mut reach = 0.0f64;
+    // Projected origins and their rectangle.
     ws.rays.clear();
     ws.uv.clear();
     let mut rlo = [f64::INFINITY; 2];
     let mut rhi = [f64::NEG_INFINITY; 2];
-    for (o, r) in origins.iter().zip(ranges) {
-        if let Some((p, q)) = segment(o, &dir, Some(r)) {
-            lo = lo.inf(&p.inf(&q));
-            hi = hi.sup(&p.sup(&q));
-            reach = reach.max((p - o).norm()).max((q - o).norm());
-        }
+    for o in origins {
         ws.rays.push(PreparedRay::new(bvh.test, *o, dir));
         let uv = [e1.dot(&o.coords), e2.dot(&o.coords)];
         for k in 0..2 {
@@ -154,6 +199,41 @@ fn cast_in(
             rhi[k] = rhi[k].max(uv[k]);
         }
         ws.uv.push(uv);
+    }
+    // The reach of unbounded sides (step 0); a NaN rectangle (a non-finite
+    // origin) gives NaN, which clips nothing finite and meets no box.
+    let (short, long) = {
+        let (w0, w1) = (rhi[0] - rlo[0], rhi[1] - rlo[1]);
+        (w0.min(w1), w0.max(w1))
+    };
+    let clip_to = if short > 0.0 { short } else { long };
+    let mut any_clipped = false;
+    ws.ranges.clear();
+    for i in 0..n {
+        let r = ranges.get(i).copied().unwrap_or(RayRange::LINE);
+        let c = clip_unbounded(r, clip_to);
+        any_clipped |= c != r;
+        ws.ranges.push(c);
+    }
+    let cast = BundleCast {
+        reach: if any_clipped { clip_to } else { f64::INFINITY },
+    };
+
+    // Segment box and reach.
+    let mut lo = Point3::from([f64::INFINITY; 3]);
+    let mut hi = Point3::from([f64::NEG_INFINITY; 3]);
+    let mut reach = 0.0f64;
+    for (o, r) in origins.iter().zip(&ws.ranges) {
+        if let Some((p, q)) = segment(o, &dir, Some(r)) {
+            lo = lo.inf(&p.inf(&q));
+            hi = hi.sup(&p.sup(&q));
+            reach = reach.max((p - o).norm()).max((q - o).norm());
+        }
+    }
+    if lo.x > hi.x {
+        // No ray looks anywhere within finite bounds: nothing to find here;
+        // the caller recasts what needs it.
+        return cast;
     }
     let (lo, hi) = crate::collide::widen_box(lo, hi);
     let size = rlo
@@ -227,6 +307,7 @@ fn cast_in(
             mid - half <= rhi[k] + margin && mid + half >= rlo[k] - margin
         })
     };
+    let ranges = &ws.ranges;
     ws.stack.clear();
     if enters(0) {
         ws.stack.push(0);
@@ -246,6 +327,7 @@ fn cast_in(
             let [a, b, c] = &bvh.verts[j];
             let mut cell_lo = [0usize; 2];
             let mut cell_hi = [0usize; 2];
+            let mut rect = [[0.0f64; 2]; 2];
             let mut outside = false;
             for k in 0..2 {
                 let (pa, pb, pc) = (
@@ -264,6 +346,7 @@ fn cast_in(
                 }
                 cell_lo[k] = grid.cell(k, tlo);
                 cell_hi[k] = grid.cell(k, thi);
+                rect[k] = [tlo, thi];
             }
             if outside {
                 continue;
@@ -275,6 +358,16 @@ fn cast_in(
                 let to = ws.bucket_start[row + cell_hi[0] + 1] as usize;
                 for &i in &ws.bucket_rays[from..to] {
                     let i = i as usize;
+                    let uv = ws.uv[i];
+                    // The origin's own projection must lie in the widened
+                    // rectangle too (the bucket only bounds it).
+                    if !(uv[0] >= rect[0][0]
+                        && uv[0] <= rect[0][1]
+                        && uv[1] >= rect[1][0]
+                        && uv[1] <= rect[1][1])
+                    {
+                        continue;
+                    }
                     if let Some(h) = ws.rays[i].intersect(a, b, c)
                         && ranges[i].contains(h.t)
                     {
@@ -292,4 +385,5 @@ fn cast_in(
             }
         }
     }
+    cast
 }

@@ -465,8 +465,10 @@ impl Bvh {
         for tri in &self.verts[n.index as usize..(n.index + n.count) as usize] {
             for p in tri {
                 for a in 0..3 {
-                    lo[a] = lo[a].min(p[a]);
-                    hi[a] = hi[a].max(p[a]);
+                    // Plain comparisons (one min/max instruction each) skip a
+                    // NaN coordinate as `f64::min` does: `lo` is never NaN.
+                    lo[a] = if p[a] < lo[a] { p[a] } else { lo[a] };
+                    hi[a] = if p[a] > hi[a] { p[a] } else { hi[a] };
                 }
             }
         }
@@ -494,13 +496,25 @@ impl Bvh {
     fn refit_all(&mut self, positions: &[Point3<f64>]) {
         self.seen.clear();
         self.seen.extend_from_slice(&positions[..self.needed]);
+        self.refit_all_seen(positions);
+    }
+
+    /// Recomputes every box from `positions`, whose first `needed` entries
+    /// `seen` already holds. Each leaf gathers its own triangles' vertices
+    /// just before its box is fitted, so they are still in cache.
+    fn refit_all_seen(&mut self, positions: &[Point3<f64>]) {
         self.verts
             .resize(self.triangles.len(), [Point3::origin(); 3]);
-        for (v, t) in self.verts.iter_mut().zip(&self.triangles) {
-            *v = t.map(|i| positions[i as usize]);
-        }
         for k in (0..self.nodes.len()).rev() {
-            if self.nodes[k].count > 0 {
+            let n = self.nodes[k];
+            if n.count > 0 {
+                let slots = n.index as usize..(n.index + n.count) as usize;
+                for (v, t) in self.verts[slots.clone()]
+                    .iter_mut()
+                    .zip(&self.triangles[slots])
+                {
+                    *v = t.map(|i| positions[i as usize]);
+                }
                 self.fit_leaf(k);
             } else {
                 self.fit_inner(k);
@@ -531,7 +545,8 @@ impl Bvh {
         }
         let moved = self.moved.len();
         if 4 * moved > self.needed {
-            self.refit_all(positions);
+            // `seen` took every moved position above.
+            self.refit_all_seen(positions);
             self.stats.moved_vertices = moved;
             return;
         }
@@ -796,8 +811,9 @@ impl Bvh {
     }
 
     /// The rays `first..first + out.len()` in sequence: each run of at least
-    /// [`BUNDLE_MIN`] consecutive bounded rays with bitwise-equal directions
-    /// as one bundle, every other ray alone.
+    /// [`BUNDLE_MIN`] consecutive rays with bitwise-equal directions as one
+    /// bundle (the rays it leaves unanswered again alone), every other ray
+    /// alone.
     fn cast_runs(
         &self,
         first: usize,
@@ -811,28 +827,45 @@ impl Bvh {
         let bounded = |i: usize| segment(&origins[i], &dirs[i], ranges.get(i)).is_some();
         let same =
             |a: &Vector3<f64>, b: &Vector3<f64>| (0..3).all(|k| a[k].to_bits() == b[k].to_bits());
+        let range = |k: usize| ranges.get(k).copied().unwrap_or(RayRange::LINE);
         let mut stack = EMPTY_STACK;
         let mut i = first;
         while i < end {
             let mut j = i + 1;
-            if bounded(i) {
-                while j < end && bounded(j) && same(&dirs[j], &dirs[i]) {
-                    j += 1;
-                }
+            while j < end && same(&dirs[j], &dirs[i]) {
+                j += 1;
             }
             if j - i >= BUNDLE_MIN {
-                bundle::cast_bundle(
+                let bundle = bundle::cast_bundle(
                     self,
                     &origins[i..j],
                     dirs[i],
-                    &ranges[i..j],
+                    ranges.get(i..j.min(ranges.len())).unwrap_or(&[]),
                     &mut out[i - first..j - first],
                 );
+                for k in i..j {
+                    let hits = &mut out[k - first];
+                    if let Some(again) = bundle.recast_range(&range(k), hits) {
+                        let start: &[u32] =
+                            if segment(&origins[k], &dirs[k], Some(&again)).is_some() {
+                                entry.nodes()
+                            } else {
+                                &[0]
+                            };
+                        let more = self.cast_one(origins[k], dirs[k], again, start, &mut stack);
+                        if again.front >= 0.0 {
+                            hits.front = more.front;
+                        }
+                        if again.behind >= 0.0 {
+                            hits.behind = more.behind;
+                        }
+                    }
+                }
             } else {
                 for k in i..j {
-                    let range = ranges.get(k).copied().unwrap_or(RayRange::LINE);
                     let start: &[u32] = if bounded(k) { entry.nodes() } else { &[0] };
-                    out[k - first] = self.cast_one(origins[k], dirs[k], range, start, &mut stack);
+                    out[k - first] =
+                        self.cast_one(origins[k], dirs[k], range(k), start, &mut stack);
                 }
             }
             i = j;
