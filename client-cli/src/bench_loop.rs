@@ -23,7 +23,7 @@ use crate::replay::{connect, haptic_request};
 use crate::trajectory::{BUNDLED, Trajectory, Waypoint};
 use anyhow::{Context, bail};
 use fissure_proto::v1 as pb;
-use fissure_server::scene::Scene;
+use fissure_server::scene::{Scene, Traversal};
 use fissure_server::service::{ServeOptions, Transport};
 use fissure_server::sim::stats::percentile;
 use fissure_server::sim::{SimOptions, Simulation, priority};
@@ -58,9 +58,21 @@ pub struct LoopBenchArgs {
     #[arg(long, default_value_t = fissure_server::sim::priority::DEFAULT_TRANSPORT_RT_PRIORITY,
           value_parser = clap::value_parser!(u8).range(0..=99))]
     pub transport_rt_priority: u8,
+    /// How the CPU BVH walks each face's parallel rays (the scene's
+    /// `collision.traversal` unless given): `bundled` or `per-ray`.
+    #[arg(long, value_parser = parse_traversal)]
+    pub traversal: Option<Traversal>,
     /// Print JSON instead of a table.
     #[arg(long)]
     pub json: bool,
+}
+
+fn parse_traversal(s: &str) -> Result<Traversal, String> {
+    match s {
+        "bundled" => Ok(Traversal::Bundled),
+        "per-ray" => Ok(Traversal::PerRay),
+        _ => Err(format!("{s:?}: expected \"bundled\" or \"per-ray\"")),
+    }
 }
 
 impl Default for LoopBenchArgs {
@@ -72,6 +84,7 @@ impl Default for LoopBenchArgs {
             rate_hz: 1000.0,
             rt_priority: fissure_server::sim::priority::DEFAULT_FORCE_LOOP_RT_PRIORITY,
             transport_rt_priority: fissure_server::sim::priority::DEFAULT_TRANSPORT_RT_PRIORITY,
+            traversal: None,
             json: false,
         }
     }
@@ -86,6 +99,8 @@ pub struct LoopBenchReport {
     pub surface_triangles: usize,
     /// Time to build the model and the solver, s.
     pub load_s: f64,
+    /// How the CPU BVH walked runs of parallel rays ("bundled", "per-ray").
+    pub traversal: String,
     /// Timed run, s.
     pub duration_s: f64,
     /// Haptic rate per client, Hz.
@@ -132,6 +147,11 @@ pub struct LoopBenchReport {
     pub server_force_p50_us: f64,
     pub server_force_p99_us: f64,
     pub server_force_max_us: f64,
+    /// Of that, the collision query of the sample's instrument (the
+    /// server's own record, over its last 65,536 samples).
+    pub force_collision_p50_us: f64,
+    pub force_collision_p99_us: f64,
+    pub force_collision_max_us: f64,
     /// How late poses left the client after their tick (scheduling of the
     /// client machine), 99th percentile.
     pub send_lag_p99_us: f64,
@@ -248,8 +268,12 @@ pub async fn run(args: &LoopBenchArgs) -> anyhow::Result<LoopBenchReport> {
     if !(args.duration_s > 0.0 && args.rate_hz > 0.0) {
         bail!("--duration-s and --rate-hz must be positive");
     }
-    let (scene, _) =
+    let (mut scene, _) =
         Scene::load(&args.scene).with_context(|| format!("loading scene {:?}", args.scene))?;
+    if let Some(t) = args.traversal {
+        scene.collision.traversal = t;
+    }
+    let traversal = scene.collision.traversal;
     let mut plans: Vec<(String, Trajectory)> = Vec::new();
     for spec in &scene.instruments {
         if let Some(b) = BUNDLED
@@ -295,6 +319,7 @@ pub async fn run(args: &LoopBenchArgs) -> anyhow::Result<LoopBenchReport> {
     let mut report = result?;
     report.scene = scene_name;
     report.load_s = load_s;
+    report.traversal = traversal.name().into();
     report.transport_realtime = transport_realtime;
     report.surface_triangles = sim.model().surface.triangles.len();
     Ok(report)
@@ -569,6 +594,9 @@ async fn drive(
         server_force_p50_us: percentile(&server, 0.5),
         server_force_p99_us: percentile(&server, 0.99),
         server_force_max_us: last(&server),
+        force_collision_p50_us: stats.force_collision.p50_us,
+        force_collision_p99_us: stats.force_collision.p99_us,
+        force_collision_max_us: stats.force_collision.max_us,
         send_lag_p99_us: percentile(&lag, 0.99),
         deform_hz: frames_published as f64 / duration,
         deform_step_p50_ms: stats.deformation_step.p50_us / 1e3,
@@ -586,12 +614,13 @@ async fn drive(
 /// The report as a table.
 pub fn table(r: &LoopBenchReport) -> String {
     let mut s = format!(
-        "bench loop — scene {} ({} surface triangles, loaded in {:.1} s), free-running\n\
+        "bench loop — scene {} ({} surface triangles, loaded in {:.1} s, BVH traversal {}), free-running\n\
          {} clients at {:.0} Hz (real-time ticks), {} watchers (full frames), {:.2} s\n\
          force loops and client threads: {}, server transport: {}\n\n",
         r.scene,
         r.surface_triangles,
         r.load_s,
+        r.traversal,
         r.clients,
         r.rate_hz,
         r.watchers,
@@ -619,6 +648,12 @@ pub fn table(r: &LoopBenchReport) -> String {
         r.server_force_p50_us,
         r.server_force_p99_us,
         r.server_force_max_us,
+    ));
+    s.push_str(&row(
+        "  of which collision query",
+        r.force_collision_p50_us,
+        r.force_collision_p99_us,
+        r.force_collision_max_us,
     ));
     s.push_str(&row("round trip", r.rtt_p50_us, r.rtt_p99_us, r.rtt_max_us));
     s.push_str(&format!(

@@ -17,7 +17,9 @@
 //! * only tissue the plate covers carries force;
 //! * Coulomb friction: the net force stays in the cone at every sample,
 //!   sticking and at the onset of slip, and a sliding plate feels `mu`
-//!   times the normal force.
+//!   times the normal force;
+//! * the skull surface keeps every node inside it, only pushes, and only
+//!   along the inward normal; an open region lets the tissue through.
 
 use fissure_server::fem::compliance::ColumnPolicy;
 use fissure_server::scene::Scene;
@@ -478,4 +480,92 @@ fn a_plate_dragged_with_friction_slides_with_mu_times_the_normal_force() {
         slid += 1;
     }
     assert!(slid >= 40, "{slid} samples while sliding");
+}
+
+/// The cube pressed 3 mm by one plate, stepped in eight full solves, with
+/// the cube's scene text extended by `extra`: the model and the last
+/// snapshot.
+fn pressed_cube(extra: &str) -> (Arc<Model>, fissure_server::sim::snapshot::Snapshot) {
+    let text = format!("{}\n{extra}", include_str!("../scenes/cube.toml"));
+    let scene = Scene::parse(&text, "cube (skull variant)").expect("the variant parses");
+    let model = Arc::new(Model::build(&scene).expect("the model builds"));
+    let mut engine = StepEngine::new(&scene, model.clone(), ColumnPolicy::Compute, None, None)
+        .expect("the engine starts");
+    let mut snap = engine.rest(0.0);
+    let n = scene.instruments.len();
+    for k in 1..=8 {
+        let mut poses: Vec<Isometry3<f64>> = (0..n).map(|i| home_pose(&scene, i)).collect();
+        poses[0] = flat(0.02, 0.005, TOUCH_Z - 0.003 * k as f64 / 8.0);
+        let (next, report) = engine.step(&snap, 0.02 * k as f64, &poses, vec![None; n]);
+        assert!(report.is_some(), "step {k} failed");
+        snap = next;
+    }
+    (model, snap)
+}
+
+/// The skull surface (the rest surface offset outward by the CSF gap,
+/// frictionless and unilateral): pressed, the cube bulges sideways by more
+/// than a 50 um gap without it; with it every supported node stays inside
+/// the skull (`n . u <= g` within 1 nm), the skull only pushes (every
+/// multiplier >= 0, some > 0) and only along each node's inward normal (no
+/// tangential force); nodes of a region named open pass through it.
+#[test]
+fn the_skull_surface_holds_every_node_inside_it_pushing_only_inwards_along_its_normal() {
+    let gap = 5e-5;
+    let (model, free) = pressed_cube("");
+    let skull = format!("[skull.surface]\ncsf_gap_m = {gap}\n");
+    let (held_model, held) = pressed_cube(&skull);
+    let s = held_model
+        .skull_surface
+        .as_ref()
+        .expect("the scene has a skull surface");
+    assert!(!s.nodes.is_empty());
+    let bulge = |u: &[Vector3<f64>]| {
+        s.nodes
+            .iter()
+            .map(|(v, n)| n.dot(&u[*v as usize]))
+            .fold(f64::NEG_INFINITY, f64::max)
+    };
+    assert!(
+        bulge(&free.displacements) > 2.0 * gap,
+        "without the skull the cube bulges past the gap: {} m",
+        bulge(&free.displacements)
+    );
+    assert!(
+        bulge(&held.displacements) <= gap + 1e-9,
+        "inside the skull: {} m (gap {gap} m)",
+        bulge(&held.displacements)
+    );
+    let fm = &held.force_model;
+    let mut pushing = 0;
+    for (r, l) in fm.step_rows.iter().zip(&fm.step_lambda) {
+        if r.owner != fissure_server::sim::rows::SKULL_OWNER {
+            continue;
+        }
+        assert!(
+            *l >= 0.0,
+            "the skull never pulls: {l} N at node {}",
+            r.row.node
+        );
+        let n = s
+            .nodes
+            .iter()
+            .find(|(v, _)| *v == r.row.node)
+            .expect("a skull row belongs to a supported node")
+            .1;
+        assert!(
+            (r.row.dir + n).norm() < 1e-15,
+            "along -n only: {:?}",
+            r.row.dir
+        );
+        pushing += usize::from(*l > 0.0);
+    }
+    assert!(pushing > 0, "the skull holds the bulge");
+    assert_eq!(model.skull_surface, None);
+    // Open over the whole block: no node is held.
+    let (open_model, open) = pressed_cube(&format!(
+        "{skull}open = [{{ box_min_m = [-1.0, -1.0, -1.0], box_max_m = [1.0, 1.0, 1.0] }}]\n"
+    ));
+    assert!(open_model.skull_surface.as_ref().unwrap().nodes.is_empty());
+    assert!((bulge(&open.displacements) - bulge(&free.displacements)).abs() < 1e-12);
 }

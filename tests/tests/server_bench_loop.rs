@@ -13,10 +13,12 @@ async fn bench_loop_reports_consistent_figures() -> anyhow::Result<()> {
         rate_hz: 1000.0,
         rt_priority: 0,
         transport_rt_priority: 0,
+        traversal: Some(fissure_server::scene::Traversal::PerRay),
         json: true,
     };
     let r = run(&args).await?;
     assert_eq!(r.scene, "cube");
+    assert_eq!(r.traversal, "per-ray", "the override reached the scene");
     assert_eq!(r.clients, 2);
     assert_eq!(r.watchers, 2);
     // 0 asks for no real-time scheduling, and the report says so.
@@ -51,6 +53,9 @@ async fn bench_loop_reports_consistent_figures() -> anyhow::Result<()> {
     }
     assert!(r.rtt_p50_us <= r.rtt_p99_us && r.rtt_p99_us <= r.rtt_max_us);
     assert!(r.server_force_p99_us <= r.server_force_max_us);
+    // The collision query is part of the force sample.
+    assert!(r.force_collision_p50_us > 0.0 && r.force_collision_p50_us <= r.server_force_p50_us);
+    assert!(r.force_collision_p99_us <= r.force_collision_max_us);
     // The server's compute time is part of the round trip.
     assert!(r.server_force_p50_us < r.rtt_p50_us);
     // The bundled cube trajectories press the surface: contact, steps, frames.

@@ -86,18 +86,16 @@ pub(crate) fn candidates(
         let entry = super::contact::entry_depth_m(band, inst.plate.thickness);
         // How deep behind a rim face a vertex may lie and still be its
         // candidate: its nodes' reach, at least the plate's thickness.
+        // And each face's deepest node reach (none: the face has no nodes).
         let mut rim_reach = [inst.plate.thickness; 5];
+        let mut face_reach = [f64::NEG_INFINITY; 5];
         for n in &inst.nodes {
             let f = FaceId::of(n.kind).index();
             rim_reach[f] = rim_reach[f].max(n.reach);
+            face_reach[f] = face_reach[f].max(n.reach);
         }
         for face in FaceId::ALL {
-            let reach = inst
-                .nodes
-                .iter()
-                .filter(|n| FaceId::of(n.kind) == face)
-                .map(|n| n.reach)
-                .fold(f64::NEG_INFINITY, f64::max);
+            let reach = face_reach[face.index()];
             if reach == f64::NEG_INFINITY {
                 continue;
             }

@@ -37,6 +37,33 @@ pub struct Skull {
     pub excluding: Option<Sphere>,
 }
 
+/// The skull as the brain's rest outer surface offset outward by the CSF
+/// layer: each supported surface node `v` (rest position `X_v`, unit outward
+/// area-weighted rest normal `n_v`) meets the skull at `X_v + g n_v`, and
+/// the skull there is taken as the plane through that point normal to
+/// `n_v` (the offset surface's tangent plane, exact for a flat patch and
+/// first-order accurate in `g` times the surface's curvature). The node
+/// may not cross it: `n_v . u_v <= g`, a unilateral contact row along `-n_v`
+/// with free gap `g`. Frictionless: the skull pushes along `-n_v` only, so
+/// the tissue slides along it. Nodes in an open region (the craniotomy
+/// window) and fixed nodes have no row.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct SkullSurface {
+    /// CSF gap `g`, m (> 0).
+    pub csf_gap_m: f64,
+    /// The supported surface nodes: volume node and unit outward rest normal.
+    pub nodes: Vec<(u32, Vector3<f64>)>,
+}
+
+impl SkullSurface {
+    /// The gap of node `k` (an index into [`Self::nodes`]) at displacement
+    /// `u`, m: `g - n . u` (negative: the node is beyond the skull).
+    #[inline]
+    pub fn gap_m(&self, k: usize, u: &Vector3<f64>) -> f64 {
+        self.csf_gap_m - self.nodes[k].1.dot(u)
+    }
+}
+
 #[derive(Debug, Clone, Copy)]
 struct Active {
     node: u32,

@@ -218,7 +218,7 @@ pub enum Region {
     },
     /// The volume nodes listed in a file (one 0-based index a line, `#`
     /// comments), relative to the scene file; for a user's mesh.
-    /// `foundation.open` only.
+    /// `foundation.open` and `skull.surface.open` only.
     Vertices {
         /// Path to the list.
         vertices_file: PathBuf,
@@ -319,6 +319,10 @@ impl CollisionBackend {
 /// When the contact history is renewed: the collision stage's own enum.
 pub use crate::collide::history::HistoryMode;
 
+/// How the CPU BVH walks runs of parallel rays: the collision stage's own
+/// enum.
+pub use crate::collide::bvh::Traversal;
+
 /// Collision settings.
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
@@ -327,6 +331,10 @@ pub struct CollisionSpec {
     pub method: CollisionMethod,
     /// Ray-casting backend.
     pub backend: CollisionBackend,
+    /// How the CPU BVH walks each face's run of parallel rays: once for the
+    /// run (`"bundled"`, the default) or once per ray (`"per-ray"`, for
+    /// comparison). The answers are the same.
+    pub traversal: Traversal,
     /// History renewal.
     pub history: HistoryMode,
     /// Whether history culling (B1-B3) is applied.
@@ -348,6 +356,7 @@ impl Default for CollisionSpec {
         Self {
             method: CollisionMethod::Bvh,
             backend: CollisionBackend::Cpu,
+            traversal: Traversal::Bundled,
             history: HistoryMode::ForceRate,
             culling: true,
             max_depth_m: DEFAULT_MAX_DEPTH_M,
@@ -596,7 +605,8 @@ fn identity_quaternion() -> [f64; 4] {
     [1.0, 0.0, 0.0, 0.0]
 }
 
-/// The skull: unilateral sphere constraints.
+/// The skull: a rigid surface around the brain, the paper's unilateral
+/// spheres, or both.
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct SkullSpec {
@@ -606,6 +616,32 @@ pub struct SkullSpec {
     /// Nodes may not enter this sphere.
     #[serde(default)]
     pub excluding: Option<SphereSpec>,
+    /// The brain's outer surface offset outward by a CSF gap: a rigid skull
+    /// the tissue slides along (frictionless, unilateral), open where named.
+    #[serde(default)]
+    pub surface: Option<SkullSurfaceSpec>,
+}
+
+/// Default of [`SkullSurfaceSpec::csf_gap_m`], m.
+pub const DEFAULT_CSF_GAP_M: f64 = 0.0015;
+
+/// The skull as the rest outer surface offset outward by the CSF layer
+/// ([`crate::fem::skull::SkullSurface`]).
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SkullSurfaceSpec {
+    /// Thickness of the CSF layer between the brain and the skull, m
+    /// (default 1.5 mm).
+    #[serde(default = "default_csf_gap_m")]
+    pub csf_gap_m: f64,
+    /// Regions with no skull (the craniotomy window, the fissure's walls): a
+    /// surface node inside one of them is free to move outward.
+    #[serde(default)]
+    pub open: Vec<Region>,
+}
+
+fn default_csf_gap_m() -> f64 {
+    DEFAULT_CSF_GAP_M
 }
 
 /// A sphere.
@@ -665,8 +701,14 @@ impl Scene {
                 *mesh = dir.join(&*mesh);
             }
         }
-        if let Some(f) = &mut scene.foundation {
-            for r in &mut f.open {
+        let skull_open = scene
+            .skull
+            .as_mut()
+            .and_then(|s| s.surface.as_mut())
+            .map(|s| &mut s.open);
+        let foundation_open = scene.foundation.as_mut().map(|f| &mut f.open);
+        for open in [foundation_open, skull_open].into_iter().flatten() {
+            for r in open.iter_mut() {
                 if let Region::Vertices { vertices_file } = r {
                     if vertices_file.is_relative() {
                         *vertices_file = dir.join(&*vertices_file);
@@ -774,7 +816,8 @@ impl Scene {
             if matches!(r, Region::Vertices { .. }) {
                 return Err(bad(
                     format!("fixed[{i}]"),
-                    "a vertex list is accepted in foundation.open only".into(),
+                    "a vertex list is accepted in foundation.open and skull.surface.open only"
+                        .into(),
                 ));
             }
             check_region(format!("fixed[{i}]"), r)?;
@@ -966,6 +1009,12 @@ impl Scene {
                 if let Some(s) = s {
                     finite3(format!("skull.{name}.centre_m"), &s.centre_m)?;
                     positive(&format!("skull.{name}.radius_m"), s.radius_m)?;
+                }
+            }
+            if let Some(s) = &skull.surface {
+                positive("skull.surface.csf_gap_m", s.csf_gap_m)?;
+                for (i, r) in s.open.iter().enumerate() {
+                    check_region(format!("skull.surface.open[{i}]"), r)?;
                 }
             }
         }
@@ -1197,6 +1246,25 @@ mod tests {
             Err(SceneError::Unknown { .. })
         ));
         assert_eq!(scene.name, "cube");
+    }
+
+    /// `collision.traversal` takes "bundled" (the default) or "per-ray";
+    /// another value is refused naming the field's values.
+    #[test]
+    fn the_bvh_traversal_is_a_collision_setting() {
+        let text = include_str!("../../scenes/cube.toml");
+        let (scene, _) = Scene::load("cube").unwrap();
+        assert_eq!(scene.collision.traversal, Traversal::Bundled);
+        let per_ray = text.replace("[collision]", "[collision]\ntraversal = \"per-ray\"");
+        assert_ne!(per_ray, text);
+        let scene = Scene::parse(&per_ray, "x.toml").unwrap();
+        assert_eq!(scene.collision.traversal, Traversal::PerRay);
+        let bad = text.replace("[collision]", "[collision]\ntraversal = \"sideways\"");
+        let err = Scene::parse(&bad, "x.toml").unwrap_err().to_string();
+        assert!(
+            err.contains("sideways") && err.contains("per-ray") && err.contains("bundled"),
+            "{err}"
+        );
     }
 
     /// The cube scene with a foundation of `k` Pa/m and `open` regions

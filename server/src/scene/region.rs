@@ -1,5 +1,6 @@
-//! Named regions of a scene resolved on the model, and the faces of the
-//! elastic foundation (`[foundation]`, DESIGN.md section 3c).
+//! Named regions of a scene resolved on the model, the faces of the
+//! elastic foundation (`[foundation]`) and the nodes of the skull surface
+//! (`[skull.surface]`), DESIGN.md section 3c.
 //!
 //! A region is geometric (a box, a sphere, or a landmark of the phantom: a
 //! sphere for `brain-stem`, a slab for a fissure's walls) or a list of
@@ -9,8 +10,9 @@
 //! open region. Triangles whose three nodes are fixed carry no spring
 //! either (they cannot move).
 
-use super::{FoundationSpec, Region};
+use super::{FoundationSpec, Region, SkullSurfaceSpec};
 use crate::fem::foundation::Foundation;
+use crate::fem::skull::SkullSurface;
 use crate::mesh::phantom::{FissureLandmark, Landmarks};
 use crate::mesh::{BoundarySurface, TetMesh};
 use nalgebra::{Point3, Vector3};
@@ -205,30 +207,98 @@ fn read_vertices(
     Ok(mask)
 }
 
-/// The supported faces of `spec` on `mesh` (its boundary `surface`,
-/// `fixed` per volume node): every outer triangle neither open nor fixed.
-pub fn foundation(
-    spec: &FoundationSpec,
-    mesh: &TetMesh,
-    surface: &BoundarySurface,
-    fixed: &[bool],
-    landmarks: Option<&Landmarks>,
-    to_full: Option<&[u32]>,
-) -> Result<Foundation, RegionError> {
-    let open = spec
-        .open
+/// The model a support's regions are resolved on.
+#[derive(Debug, Clone, Copy)]
+pub struct OnModel<'a> {
+    /// The volume mesh, m.
+    pub mesh: &'a TetMesh,
+    /// Its boundary.
+    pub surface: &'a BoundarySurface,
+    /// Per volume node: fixed.
+    pub fixed: &'a [bool],
+    /// The phantom's landmarks, when the model is one.
+    pub landmarks: Option<&'a Landmarks>,
+    /// With a region of interest, each node's index in the uncropped model.
+    pub to_full: Option<&'a [u32]>,
+}
+
+impl OnModel<'_> {
+    /// Resolves the list `regions`, named `field[i]` in errors.
+    pub fn resolve_all(
+        &self,
+        regions: &[Region],
+        field: &str,
+    ) -> Result<Vec<Resolved>, RegionError> {
+        regions
+            .iter()
+            .enumerate()
+            .map(|(i, r)| {
+                resolve(
+                    r,
+                    &format!("{field}[{i}]"),
+                    self.mesh.nodes.len(),
+                    self.landmarks,
+                    self.to_full,
+                )
+            })
+            .collect()
+    }
+}
+
+/// The skull surface of `spec` on the model `on`: every outer-surface node
+/// neither fixed nor in an open
+/// region, with its unit outward area-weighted rest normal. Unlike the
+/// foundation's faces, the open test is per node (the node's own position,
+/// or its membership of a vertex list).
+pub fn skull_surface(
+    spec: &SkullSurfaceSpec,
+    on: &OnModel<'_>,
+) -> Result<SkullSurface, RegionError> {
+    let OnModel {
+        mesh,
+        surface,
+        fixed,
+        ..
+    } = *on;
+    let open = on.resolve_all(&spec.open, "skull.surface.open")?;
+    let mut normals = vec![Vector3::zeros(); surface.to_volume.len()];
+    for t in &surface.triangles {
+        let [a, b, c] = t.map(|v| mesh.nodes[surface.to_volume[v as usize] as usize]);
+        let n = (b - a).cross(&(c - a));
+        for &v in t {
+            normals[v as usize] += n;
+        }
+    }
+    let nodes = surface
+        .to_volume
         .iter()
-        .enumerate()
-        .map(|(i, r)| {
-            resolve(
-                r,
-                &format!("foundation.open[{i}]"),
-                mesh.nodes.len(),
-                landmarks,
-                to_full,
-            )
+        .zip(&normals)
+        .filter_map(|(&node, n)| {
+            let p = mesh.nodes[node as usize];
+            let is_open = open.iter().any(|r| match r {
+                Resolved::Shape(s) => s.contains(&p),
+                Resolved::Nodes(m) => m[node as usize],
+            });
+            let len = n.norm();
+            (!fixed[node as usize] && !is_open && len > 0.0).then(|| (node, n / len))
         })
-        .collect::<Result<Vec<_>, _>>()?;
+        .collect();
+    Ok(SkullSurface {
+        csf_gap_m: spec.csf_gap_m,
+        nodes,
+    })
+}
+
+/// The supported faces of `spec` on the model `on`: every outer triangle
+/// neither open nor fixed.
+pub fn foundation(spec: &FoundationSpec, on: &OnModel<'_>) -> Result<Foundation, RegionError> {
+    let OnModel {
+        mesh,
+        surface,
+        fixed,
+        ..
+    } = *on;
+    let open = on.resolve_all(&spec.open, "foundation.open")?;
     let faces = surface
         .triangles
         .iter()

@@ -95,6 +95,7 @@ pub fn scene_description(scene: &Scene, model: &Model) -> pb::SceneDescription {
         collision_method: scene.collision.method.name().into(),
         collision_backend: scene.collision.backend.name().into(),
         history_mode: scene.collision.history.name().into(),
+        collision_traversal: scene.collision.traversal.name().into(),
         contact_law: scene.contact.law.name().into(),
         friction_coefficient: match scene.contact.law {
             ContactLaw::Coulomb => scene.contact.friction_coefficient.unwrap_or(0.0),
@@ -247,6 +248,7 @@ pub fn stats(s: &StatsSummary) -> pb::Stats {
         watchers: s.watchers,
         claimed: s.claimed.clone(),
         force_compute: Some(latency(&s.force_compute)),
+        force_collision: Some(latency(&s.force_collision)),
         deformation_step: Some(latency(&s.deformation_step)),
         failed_steps: s.failed_steps,
         recording_lost: s.recording_lost,

@@ -271,6 +271,8 @@ pub struct Simulation {
     thread: Mutex<Option<JoinHandle<()>>>,
     started: Instant,
     force_latency: LatencyRecorder,
+    /// The collision query of free-running force samples.
+    force_collision_latency: LatencyRecorder,
     step_latency: LatencyRecorder,
     force_samples: AtomicU64,
     rejected: AtomicU64,
@@ -369,6 +371,7 @@ impl Simulation {
             thread: Mutex::new(None),
             started: Instant::now(),
             force_latency: LatencyRecorder::default(),
+            force_collision_latency: LatencyRecorder::default(),
             step_latency: LatencyRecorder::default(),
             force_samples: AtomicU64::new(0),
             rejected: AtomicU64::new(0),
@@ -545,6 +548,7 @@ impl Simulation {
             watchers: self.watchers.load(Ordering::Relaxed) as u32,
             claimed,
             force_compute: self.force_latency.summary(),
+            force_collision: self.force_collision_latency.summary(),
             deformation_step: self.step_latency.summary(),
             failed_steps: self.failed_steps.load(Ordering::Relaxed),
             solver_cache_bytes: self.solver_cache_bytes.load(Ordering::Relaxed),
@@ -989,7 +993,10 @@ impl Claim {
             .force_loop
             .as_mut()
             .expect("free-running claims have a force loop");
+        let t_query = Instant::now();
         fl.query(&sim.model, &snap, &pose.pose);
+        sim.force_collision_latency
+            .record(t_query.elapsed().as_secs_f64() * 1e6);
         {
             let mut mine = sim.shared_rows[self.index].lock().expect("rows lock");
             mine.live = true;

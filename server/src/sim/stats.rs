@@ -103,6 +103,9 @@ pub struct StatsSummary {
     pub claimed: Vec<String>,
     /// Server-side force computation.
     pub force_compute: LatencySummary,
+    /// Of that, the collision query of the sample's instrument
+    /// (free-running force loops only).
+    pub force_collision: LatencySummary,
     /// Deformation steps.
     pub deformation_step: LatencySummary,
     /// Deformation steps that failed.

@@ -62,9 +62,11 @@ use std::cell::RefCell;
 /// ray by ray (a bundle of ~30 rays measured slower than per-ray).
 pub const BUNDLE_MIN: usize = 64;
 
-/// How [`Bvh`] casts runs of rays with bitwise-equal directions. Answers are
-/// identical either way.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+/// How [`Bvh`] casts runs of rays with bitwise-equal directions (a scene's
+/// `collision.traversal`: `"bundled"` or `"per-ray"`). Answers are identical
+/// either way.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum Traversal {
     /// Every ray walks the tree on its own.
     PerRay,
@@ -72,6 +74,16 @@ pub enum Traversal {
     /// (module documentation); shorter runs per ray.
     #[default]
     Bundled,
+}
+
+impl Traversal {
+    /// The name a scene file gives it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::PerRay => "per-ray",
+            Self::Bundled => "bundled",
+        }
+    }
 }
 
 /// Scratch of one thread's bundles (reused; grows to the largest bundle).

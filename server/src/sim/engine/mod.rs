@@ -130,10 +130,12 @@ impl StepEngine {
         // same answers).
         let search = ContactQuery::with_backend(
             scene,
-            Box::new(
-                Bvh::new(&model.surface.triangles, &model.rest_surface)
-                    .expect("surface checked at load"),
-            ),
+            Box::new({
+                let mut bvh = Bvh::new(&model.surface.triangles, &model.rest_surface)
+                    .expect("surface checked at load");
+                bvh.set_traversal(scene.collision.traversal);
+                bvh
+            }),
         );
         // A linearized contact searches the model's rest tree: no tree is
         // published, nor refitted.

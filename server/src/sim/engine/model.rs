@@ -31,6 +31,8 @@ pub struct Model {
     pub from_volume: Vec<u32>,
     /// The elastic foundation's springs, when the scene has one.
     pub foundation: Option<fem::foundation::Foundation>,
+    /// The skull surface's nodes, when the scene has one.
+    pub skull_surface: Option<fem::skull::SkullSurface>,
     /// Per surface vertex, its neighbours on the surface.
     pub surface_neighbours: crate::mesh::adjacency::Csr,
     /// The rest surface the contact search runs on, when the scene's
@@ -172,20 +174,23 @@ impl Model {
             .zip(&edge_count)
             .map(|(&s, &c)| if c > 0 { e * s / c as f64 } else { 0.0 })
             .collect();
+        let on = crate::scene::region::OnModel {
+            mesh: &mesh,
+            surface: &surface,
+            fixed: &fixed_mask,
+            landmarks: landmarks.as_ref(),
+            to_full: to_full.as_ref().map(|t| t.0.as_slice()),
+        };
         let foundation = scene
             .foundation
             .as_ref()
-            .map(|f| {
-                let to_full = to_full.as_ref().map(|t| t.0.as_slice());
-                crate::scene::region::foundation(
-                    f,
-                    &mesh,
-                    &surface,
-                    &fixed_mask,
-                    landmarks.as_ref(),
-                    to_full,
-                )
-            })
+            .map(|f| crate::scene::region::foundation(f, &on))
+            .transpose()?;
+        let skull_surface = scene
+            .skull
+            .as_ref()
+            .and_then(|s| s.surface.as_ref())
+            .map(|s| crate::scene::region::skull_surface(s, &on))
             .transpose()?;
         let mut from_volume = vec![u32::MAX; mesh.nodes.len()];
         for (s, &v) in surface.to_volume.iter().enumerate() {
@@ -195,9 +200,10 @@ impl Model {
             let tree = (scene.collision.method == CollisionMethod::Bvh
                 && scene.collision.backend == CollisionBackend::Cpu)
                 .then(|| {
-                    Arc::new(
-                        Bvh::new(&surface.triangles, &rest_surface).expect("surface checked above"),
-                    )
+                    let mut bvh =
+                        Bvh::new(&surface.triangles, &rest_surface).expect("surface checked above");
+                    bvh.set_traversal(scene.collision.traversal);
+                    Arc::new(bvh)
                 });
             RestContact {
                 surface: Arc::new(rest_surface.clone()),
@@ -221,6 +227,7 @@ impl Model {
             penalty_n_per_m,
             to_full,
             foundation,
+            skull_surface,
             history_mode,
         })
     }

@@ -8,13 +8,16 @@ use super::*;
 pub fn ray_backend(scene: &Scene, model: &Model, positions: &[Point3<f64>]) -> Box<dyn RayBackend> {
     let tris = &model.surface.triangles;
     let method = scene.collision.method;
+    let traversal = scene.collision.traversal;
     let cpu = move || -> Box<dyn RayBackend> {
         match method {
             CollisionMethod::Brute => {
                 Box::new(BruteForce::new(tris, positions).expect("surface checked at load"))
             }
             CollisionMethod::Bvh => {
-                Box::new(Bvh::new(tris, positions).expect("surface checked at load"))
+                let mut bvh = Bvh::new(tris, positions).expect("surface checked at load");
+                bvh.set_traversal(traversal);
+                Box::new(bvh)
             }
         }
     };
@@ -73,10 +76,12 @@ impl SurfaceBvhs {
         (scene.collision.method == CollisionMethod::Bvh
             && scene.collision.backend == CollisionBackend::Cpu)
             .then(|| Self {
-                current: Arc::new(
-                    Bvh::new(&model.surface.triangles, &model.rest_surface)
-                        .expect("surface checked at load"),
-                ),
+                current: Arc::new({
+                    let mut bvh = Bvh::new(&model.surface.triangles, &model.rest_surface)
+                        .expect("surface checked at load");
+                    bvh.set_traversal(scene.collision.traversal);
+                    bvh
+                }),
                 spare: None,
             })
     }

@@ -59,13 +59,17 @@ impl RowRule {
     }
 }
 
-/// The skull spheres as contact rows (DESIGN.md section 3b's machinery):
-/// each surface node within `band_m` of leaving the containing sphere (or
-/// of entering the excluding one) at its current position `x` gets a
-/// unilateral row along the radial direction `r = (x - c) / |x - c|`,
-/// linearised there: the containing sphere pushes inward (`dir = -r`, gap
-/// `R - r . (X + u - c)`), the excluding one outward (`dir = r`, gap
-/// `r . (X + u - c) - R`).
+/// The skull as contact rows (DESIGN.md section 3b's machinery).
+///
+/// * Spheres: each surface node within `band_m` of leaving the containing
+///   sphere (or of entering the excluding one) at its current position `x`
+///   gets a unilateral row along the radial direction
+///   `r = (x - c) / |x - c|`, linearised there: the containing sphere
+///   pushes inward (`dir = -r`, gap `R - r . (X + u - c)`), the excluding
+///   one outward (`dir = r`, gap `r . (X + u - c) - R`).
+/// * The skull surface ([`fem::skull::SkullSurface`], on the model): each
+///   supported node whose gap `g - n . u` is within `band_m` gets a
+///   unilateral row along `-n` with free gap `g`.
 #[derive(Debug, Clone)]
 pub struct SkullRows {
     skull: fem::skull::Skull,
@@ -129,6 +133,30 @@ impl SkullRows {
                 });
             }
         }
+        if let Some(s) = &model.skull_surface {
+            // A node gets one surface row: a later call (nodes found beyond
+            // the skull) adds only the nodes that have none.
+            let had: std::collections::HashSet<u64> = dst
+                .iter()
+                .filter(|r| r.owner == SKULL_OWNER)
+                .map(|r| r.key)
+                .collect();
+            for (k, &(v, n)) in s.nodes.iter().enumerate() {
+                let key = rows::key(v, SKULL_OWNER, 7, 2);
+                if (s.gap_m(k, &u[v as usize]) > self.band_m && !also.contains(&v))
+                    || had.contains(&key)
+                {
+                    continue;
+                }
+                dst.push(Row {
+                    key,
+                    owner: SKULL_OWNER,
+                    row: ContactRow::at_node(v, -n, s.csf_gap_m, RowKind::Unilateral),
+                    point: model.mesh.nodes[v as usize] + n * s.csf_gap_m,
+                    triangle: rows::NO_TRIANGLE,
+                });
+            }
+        }
     }
 
     /// Surface nodes that violate a sphere at displacements `u` by more
@@ -162,6 +190,13 @@ impl SkullRows {
                 .is_some_and(|s| (x - s.centre).norm() < s.radius - tol_m);
             if out_of || into {
                 out.push(v);
+            }
+        }
+        if let Some(s) = &model.skull_surface {
+            for (k, &(v, _)) in s.nodes.iter().enumerate() {
+                if s.gap_m(k, &u[v as usize]) < -tol_m && !held.contains(&v) && !out.contains(&v) {
+                    out.push(v);
+                }
             }
         }
     }
