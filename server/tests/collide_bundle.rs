@@ -100,8 +100,8 @@ fn bundled_cast_equals_per_ray_and_brute_force() {
 
 /// Whole lines, one-sided bounds and bounds past every hit, from a grid as
 /// wide as the cube (every hit within the bundle's reach) and from a narrow
-/// one (1.8 mm: every whole line is clipped short of its hits), inside and
-/// outside the block.
+/// one (2.2 x 1.8 mm: every whole line is clipped short of its hits and cast
+/// again), inside and outside the block.
 #[test]
 fn bundled_whole_lines_equal_per_ray_and_brute_force() {
     let (mut bvh, mut brute) = surface(|p| p.y += 0.2e-3 * (70.0 * p.z).sin());
@@ -109,6 +109,10 @@ fn bundled_whole_lines_equal_per_ray_and_brute_force() {
     for spacing in [0.03 / 8.0, 0.2e-3] {
         for (z, dir) in [
             (0.015, Vector3::z()),
+            // The narrow grid's reach is 2 x 2.2 mm: the top face is 4.5 mm
+            // in front, just past it (a recast that skipped too much would
+            // miss it).
+            (0.0255, Vector3::z()),
             (0.05, -Vector3::z()),
             (0.012, Vector3::new(0.2, 0.1, 1.0).normalize()),
         ] {

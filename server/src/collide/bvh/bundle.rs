@@ -6,12 +6,13 @@
 //! [`BUNDLE_MIN`] such consecutive rays is cast as one bundle:
 //!
 //! 0. A side of a ray that looks without bound (a whole line) is clipped to
-//!    the bundle's reach `R`, the shorter side of the origins' rectangle (the
-//!    longer one when the origins lie on a line). The nearest hit of a side
+//!    the bundle's reach `R`, [`LINE_REACH`] times the longer side of the
+//!    origins' rectangle. The nearest hit of a side
 //!    within `[0, R]` is the nearest of the whole side when it lies there
 //!    ([`RayRange::clip`]); a clipped side that finds nothing within `R` is
 //!    cast again alone by the caller, that side only, with the ray's own
-//!    bound ([`BundleCast`]), so answers do not depend on `R`, only the work
+//!    bound, skipping every box within `R` of the origin on that side
+//!    ([`BundleCast`]), so answers do not depend on `R`, only the work
 //!    does.
 //!
 //! 1. The origins are projected onto two vectors `e1`, `e2` perpendicular to
@@ -126,6 +127,13 @@ impl Grid {
     }
 }
 
+/// The reach of a bundle's unbounded sides, in lengths of the longer side
+/// of its origins' rectangle (step 0). On the phantom's spatula bundles
+/// (`fissure bench rays`, whole lines) twice the longer side was fastest
+/// among the shorter side and 1, 2 and 4 times the longer: a longer reach
+/// sweeps more triangles, a shorter one leaves more sides to cast again.
+const LINE_REACH: f64 = 2.0;
+
 /// What a bundle left to its caller: the reach `R` (m) its unbounded sides
 /// were clipped to (module documentation, step 0). A side of a ray must be
 /// cast again with its own bound when it looks farther than `R` and the
@@ -212,13 +220,10 @@ fn cast_in(
         }
         ws.uv.push(uv);
     }
-    // The reach of unbounded sides (step 0); a NaN rectangle (a non-finite
-    // origin) gives NaN, which clips nothing finite and meets no box.
-    let (short, long) = {
-        let (w0, w1) = (rhi[0] - rlo[0], rhi[1] - rlo[1]);
-        (w0.min(w1), w0.max(w1))
-    };
-    let clip_to = if short > 0.0 { short } else { long };
+    // The reach of unbounded sides (step 0). Origins on one point give 0 and
+    // no finite origin gives -inf: every unbounded side is then cast again
+    // alone (`min`/`max` above skip a NaN origin).
+    let clip_to = LINE_REACH * (rhi[0] - rlo[0]).max(rhi[1] - rlo[1]);
     let mut any_clipped = false;
     ws.ranges.clear();
     for i in 0..n {

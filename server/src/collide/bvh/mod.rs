@@ -624,11 +624,30 @@ impl Bvh {
 
     /// The nearest hits of one line within `range` (module documentation).
     /// `stack` is scratch (reused across rays: no per-ray initialisation).
+    #[inline]
     fn cast_one(
         &self,
         origin: Point3<f64>,
         dir: Vector3<f64>,
         range: RayRange,
+        entry: &[u32],
+        stack: &mut Stack,
+    ) -> NodeHits {
+        self.cast_beyond(origin, dir, range, 0.0, entry, stack)
+    }
+
+    /// [`Self::cast_one`] for a line known to have no hit with
+    /// `|t| <= beyond` on the sides it looks at (a bundle found none there):
+    /// a box whose slab interval on a side lies within `beyond` of the origin
+    /// is not entered (exact: every box holds its triangles with a margin far
+    /// above rounding, so a hit past `beyond` lies in an interval reaching
+    /// past it).
+    fn cast_beyond(
+        &self,
+        origin: Point3<f64>,
+        dir: Vector3<f64>,
+        range: RayRange,
+        beyond: f64,
         entry: &[u32],
         stack: &mut Stack,
     ) -> NodeHits {
@@ -648,8 +667,8 @@ impl Bvh {
         let useful = |t0: f64, t1: f64, hits: &NodeHits| {
             let front = hits.front.map_or(range.front, |h| h.t);
             let behind = hits.behind.map_or(range.behind, |h| -h.t);
-            (front > 0.0 && t1 > 0.0 && t0 <= front)
-                || (behind >= 0.0 && t0 <= 0.0 && t1 >= -behind)
+            (front > 0.0 && t1 > beyond && t0 <= front)
+                || (behind >= 0.0 && t0 <= -beyond && t1 >= -behind)
         };
         let dist = |t0: f64, t1: f64| {
             if t0 > 0.0 {
@@ -852,7 +871,16 @@ impl Bvh {
                             } else {
                                 &[0]
                             };
-                        let more = self.cast_one(origins[k], dirs[k], again, start, &mut stack);
+                        // Nothing on a recast side lies within the
+                        // bundle's reach.
+                        let more = self.cast_beyond(
+                            origins[k],
+                            dirs[k],
+                            again,
+                            bundle.reach,
+                            start,
+                            &mut stack,
+                        );
                         if again.front >= 0.0 {
                             hits.front = more.front;
                         }
