@@ -20,7 +20,7 @@
 //! the last update refitted.
 //!
 //! Boxes are stored in `f32` (32 bytes a node, half the cache footprint),
-//! rounded outwards from the `f64` box: the stored box always contains the
+//! rounded outwards from the `f64` box (by at most two `f32` units): the stored box always contains the
 //! exact one. The slab test runs in `f64` on the widened values.
 //!
 //! # Why our own tree
@@ -201,25 +201,64 @@ fn sah_split(items: &mut [Item], (clo, chi): (Point3<f64>, Point3<f64>)) -> Opti
 /// No node (the root's parent).
 const NONE: u32 = u32::MAX;
 
-/// Largest `f32` not above `x` (finite `x`).
+/// An `f32` not above `x` (finite `x`, `|x| < f32::MAX / 2`), at most two
+/// `f32` units below it: `x` less a margin of one unit (`2^-23 |x|`, plus
+/// the least normal `f32` for `x` near zero), rounded to nearest, lands
+/// within half a unit of `x - margin`, hence below `x`. Branch-free: an
+/// exact rounding tests whether the nearest `f32` overshot, a branch that a
+/// refit mispredicts about every other coordinate.
 #[inline]
 fn round_down(x: f64) -> f32 {
-    let f = x as f32;
-    if f64::from(f) <= x {
-        f
-    } else if f == 0.0 {
-        -f32::from_bits(1)
-    } else if f > 0.0 {
-        f32::from_bits(f.to_bits() - 1)
-    } else {
-        f32::from_bits(f.to_bits() + 1)
-    }
+    const UNIT: f64 = 1.0 / (1u32 << 23) as f64;
+    (x - (x.abs() * UNIT + f64::from(f32::MIN_POSITIVE))) as f32
 }
 
-/// Smallest `f32` not below `x` (finite `x`).
+/// An `f32` not below `x`, at most two units above it ([`round_down`]).
 #[inline]
 fn round_up(x: f64) -> f32 {
     -round_down(-x)
+}
+
+/// The `f64` box of a leaf's vertices while it is fitted.
+#[derive(Clone, Copy)]
+struct LeafBox {
+    lo: [f64; 3],
+    hi: [f64; 3],
+}
+
+impl LeafBox {
+    const EMPTY: Self = Self {
+        lo: [f64::INFINITY; 3],
+        hi: [f64::NEG_INFINITY; 3],
+    };
+
+    /// Takes in a triangle's vertices. Plain comparisons (one min/max
+    /// instruction each) skip a NaN coordinate as `f64::min` does: `lo` and
+    /// `hi` are never NaN.
+    #[inline]
+    fn add(&mut self, tri: &[Point3<f64>; 3]) {
+        for p in tri {
+            for a in 0..3 {
+                self.lo[a] = if p[a] < self.lo[a] { p[a] } else { self.lo[a] };
+                self.hi[a] = if p[a] > self.hi[a] { p[a] } else { self.hi[a] };
+            }
+        }
+    }
+
+    /// Writes the box, padded ([`PAD`]) and rounded outwards to `f32`, into
+    /// `node`.
+    #[inline]
+    fn store(&self, node: &mut Node) {
+        let mut scale = 0.0f64;
+        for a in 0..3 {
+            for x in [self.hi[a] - self.lo[a], self.lo[a].abs(), self.hi[a].abs()] {
+                scale = if x > scale { x } else { scale };
+            }
+        }
+        let pad = PAD * scale;
+        node.lo = self.lo.map(|x| round_down(x - pad));
+        node.hi = self.hi.map(|x| round_up(x + pad));
+    }
 }
 
 /// A tree node: an `f32` box rounded outwards, and its children or triangles.
@@ -460,26 +499,11 @@ impl Bvh {
     #[inline]
     fn fit_leaf(&mut self, k: usize) {
         let n = self.nodes[k];
-        let mut lo = [f64::INFINITY; 3];
-        let mut hi = [f64::NEG_INFINITY; 3];
+        let mut b = LeafBox::EMPTY;
         for tri in &self.verts[n.index as usize..(n.index + n.count) as usize] {
-            for p in tri {
-                for a in 0..3 {
-                    // Plain comparisons (one min/max instruction each) skip a
-                    // NaN coordinate as `f64::min` does: `lo` is never NaN.
-                    lo[a] = if p[a] < lo[a] { p[a] } else { lo[a] };
-                    hi[a] = if p[a] > hi[a] { p[a] } else { hi[a] };
-                }
-            }
+            b.add(tri);
         }
-        let mut scale = 0.0f64;
-        for a in 0..3 {
-            scale = scale.max(hi[a] - lo[a]).max(lo[a].abs()).max(hi[a].abs());
-        }
-        let pad = PAD * scale;
-        let node = &mut self.nodes[k];
-        node.lo = lo.map(|x| round_down(x - pad));
-        node.hi = hi.map(|x| round_up(x + pad));
+        b.store(&mut self.nodes[k]);
     }
 
     /// Unions the children of inner node `k`.
@@ -488,8 +512,8 @@ impl Bvh {
         let n = self.nodes[k];
         let (l, r) = (self.nodes[k + 1], self.nodes[n.index as usize]);
         let node = &mut self.nodes[k];
-        node.lo = [0, 1, 2].map(|a| l.lo[a].min(r.lo[a]));
-        node.hi = [0, 1, 2].map(|a| l.hi[a].max(r.hi[a]));
+        node.lo = [0, 1, 2].map(|a| if r.lo[a] < l.lo[a] { r.lo[a] } else { l.lo[a] });
+        node.hi = [0, 1, 2].map(|a| if r.hi[a] > l.hi[a] { r.hi[a] } else { l.hi[a] });
     }
 
     /// Takes every position and recomputes every box.
@@ -509,13 +533,15 @@ impl Bvh {
             let n = self.nodes[k];
             if n.count > 0 {
                 let slots = n.index as usize..(n.index + n.count) as usize;
+                let mut b = LeafBox::EMPTY;
                 for (v, t) in self.verts[slots.clone()]
                     .iter_mut()
                     .zip(&self.triangles[slots])
                 {
                     *v = t.map(|i| positions[i as usize]);
+                    b.add(v);
                 }
-                self.fit_leaf(k);
+                b.store(&mut self.nodes[k]);
             } else {
                 self.fit_inner(k);
             }
@@ -1079,5 +1105,31 @@ impl RayBackend for BvhView<'_> {
     ) {
         self.tree
             .cast_ranged_with(origins, dirs, ranges, self.par, out);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{round_down, round_up};
+
+    /// The outward roundings never cross `x` and stay within two `f32`
+    /// units of it, at every scale, both signs and zero.
+    #[test]
+    fn outward_roundings_bracket_x_within_two_units() {
+        let mut xs = vec![0.0, 1e-300, -1e-300, 1e-40, 1e-30, 0.1, 0.3, 1.0, 1e6, 1e30];
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        for _ in 0..10_000 {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1);
+            let m = (state >> 11) as f64 / (1u64 << 53) as f64;
+            let e = ((state >> 3) % 40) as i32 - 30;
+            xs.push(m * 10f64.powi(e));
+        }
+        for x in xs.iter().flat_map(|&x| [x, -x]) {
+            let (lo, hi) = (round_down(x), round_up(x));
+            assert!(f64::from(lo) <= x && f64::from(hi) >= x, "{x}: {lo} {hi}");
+            let unit = (x.abs() * 2f64.powi(-23)).max(f64::from(f32::MIN_POSITIVE));
+            assert!(x - f64::from(lo) <= 3.0 * unit, "{x}: {lo}");
+            assert!(f64::from(hi) - x <= 3.0 * unit, "{x}: {hi}");
+        }
     }
 }
