@@ -66,7 +66,7 @@ pub struct RayFile {
 #[derive(Debug, thiserror::Error)]
 pub enum RayFileError {
     /// The file cannot be read or written.
-    #[error("{path}: {source}")]
+    #[error("ray file {path}")]
     Io {
         /// The file.
         path: PathBuf,
