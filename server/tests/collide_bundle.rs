@@ -124,7 +124,7 @@ fn bundled_whole_lines_equal_per_ray_and_brute_force() {
                 &mut bvh, &mut brute, &o, &d, &lines, &what
             ));
             let mixed: Vec<RayRange> = (0..o.len())
-                .map(|i| match i % 5 {
+                .map(|i| match i % 8 {
                     0 => RayRange {
                         behind: inf,
                         front: 0.004,
@@ -140,6 +140,15 @@ fn bundled_whole_lines_equal_per_ray_and_brute_force() {
                     3 => RayRange {
                         behind: inf,
                         front: -1.0,
+                    },
+                    // Nowhere on one side, however it is written.
+                    5 => RayRange {
+                        behind: -inf,
+                        front: inf,
+                    },
+                    6 => RayRange {
+                        behind: inf,
+                        front: f64::NAN,
                     },
                     _ => RayRange {
                         behind: 0.1,

@@ -7,9 +7,9 @@
 //!
 //! 0. A side of a ray that looks without bound (a whole line) is clipped to
 //!    the bundle's reach `R`, [`LINE_REACH`] times the longer side of the
-//!    origins' rectangle. The nearest hit of a side
-//!    within `[0, R]` is the nearest of the whole side when it lies there
-//!    ([`RayRange::clip`]); a clipped side that finds nothing within `R` is
+//!    origins' rectangle. The nearest hit of a side within `[0, R]` is the
+//!    nearest of the whole side when it lies there ([`RayRange::clip`]); a
+//!    clipped side that finds nothing within `R` is
 //!    cast again alone by the caller, that side only, with the ray's own
 //!    bound, skipping every box within `R` of the origin on that side
 //!    ([`BundleCast`]), so answers do not depend on `R`, only the work
@@ -160,10 +160,12 @@ impl BundleCast {
     }
 }
 
-/// `range` with each side that looks without bound clipped to `reach`.
+/// `range` with each side that looks without bound (`+inf`) clipped to
+/// `reach`; a side that looks nowhere (negative, `-inf` included, or NaN)
+/// stays so.
 #[inline]
 fn clip_unbounded(range: RayRange, reach: f64) -> RayRange {
-    let side = |b: f64| if b.is_finite() { b } else { reach };
+    let side = |b: f64| if b == f64::INFINITY { reach } else { b };
     RayRange {
         behind: side(range.behind),
         front: side(range.front),
@@ -171,8 +173,8 @@ fn clip_unbounded(range: RayRange, reach: f64) -> RayRange {
 }
 
 /// Casts the bundle `origins[i] + t dir` within `ranges[i]` (whole lines
-/// where `ranges` is shorter) into `out` (defaulted by the caller); the rays
-/// [`BundleCast::needs_recast`] names are left to the caller.
+/// where `ranges` is shorter) into `out` (defaulted by the caller); the
+/// sides [`BundleCast::recast_range`] names are left to the caller.
 pub(super) fn cast_bundle(
     bvh: &Bvh,
     origins: &[Point3<f64>],

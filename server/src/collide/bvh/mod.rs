@@ -20,8 +20,9 @@
 //! the last update refitted.
 //!
 //! Boxes are stored in `f32` (32 bytes a node, half the cache footprint),
-//! rounded outwards from the `f64` box (by at most two `f32` units): the stored box always contains the
-//! exact one. The slab test runs in `f64` on the widened values.
+//! rounded outwards from the `f64` box (by at most two `f32` units): the
+//! stored box always contains the exact one. The slab test runs in `f64` on
+//! the widened values.
 //!
 //! # Why our own tree
 //! The collision method asks, per source node, for the nearest hit *behind*
