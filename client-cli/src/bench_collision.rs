@@ -541,8 +541,14 @@ fn time_queries(
     (start.elapsed().as_secs_f64() * 1e3 / n as f64, n)
 }
 
-/// Mean time of `update_positions` alternating `a` and `b`, ms.
-fn time_refit(bvh: &mut Bvh, a: &[Point3<f64>], b: &[Point3<f64>], min: Duration) -> f64 {
+/// Mean time of `update_positions` alternating `a` and `b` (at least 20
+/// and `min`), ms.
+pub(crate) fn time_refit(
+    bvh: &mut Bvh,
+    a: &[Point3<f64>],
+    b: &[Point3<f64>],
+    min: Duration,
+) -> f64 {
     bvh.update_positions(a);
     let start = Instant::now();
     let mut n = 0;

@@ -67,12 +67,13 @@ pub struct LoopBenchArgs {
     pub json: bool,
 }
 
+/// A traversal by the name a scene file gives it.
 fn parse_traversal(s: &str) -> Result<Traversal, String> {
-    match s {
-        "bundled" => Ok(Traversal::Bundled),
-        "per-ray" => Ok(Traversal::PerRay),
-        _ => Err(format!("{s:?}: expected \"bundled\" or \"per-ray\"")),
-    }
+    const ALL: [Traversal; 2] = [Traversal::Bundled, Traversal::PerRay];
+    ALL.into_iter().find(|t| t.name() == s).ok_or_else(|| {
+        let names: Vec<String> = ALL.iter().map(|t| format!("{:?}", t.name())).collect();
+        format!("{s:?}: expected {}", names.join(" or "))
+    })
 }
 
 impl Default for LoopBenchArgs {

@@ -30,6 +30,7 @@
 //! program too, and a fixed little-endian layout is the format both can read
 //! without a library.
 
+use crate::bench_collision::time_refit;
 use anyhow::Context;
 use fissure_server::collide::bvh::Traversal;
 use fissure_server::collide::{Bvh, Hit, NodeHits, RayBackend, RayRange};
@@ -380,18 +381,6 @@ fn time_cast(rays: usize, min: Duration, mut cast: impl FnMut()) -> (f64, usize)
     }
     let ns = start.elapsed().as_secs_f64() * 1e9 / (n * rays.max(1)) as f64;
     (ns, n)
-}
-
-/// Mean time of `update_positions` alternating `a` and `b`, ms.
-fn time_refit(bvh: &mut Bvh, a: &[Point3<f64>], b: &[Point3<f64>], min: Duration) -> f64 {
-    bvh.update_positions(a);
-    let start = Instant::now();
-    let mut n = 0;
-    while n < 20 || start.elapsed() < min {
-        bvh.update_positions(if n % 2 == 0 { b } else { a });
-        n += 1;
-    }
-    start.elapsed().as_secs_f64() * 1e3 / n as f64
 }
 
 fn same(a: &NodeHits, b: &NodeHits) -> bool {

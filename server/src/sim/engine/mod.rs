@@ -130,12 +130,11 @@ impl StepEngine {
         // same answers).
         let search = ContactQuery::with_backend(
             scene,
-            Box::new({
-                let mut bvh = Bvh::new(&model.surface.triangles, &model.rest_surface)
-                    .expect("surface checked at load");
-                bvh.set_traversal(scene.collision.traversal);
-                bvh
-            }),
+            Box::new(query::scene_bvh(
+                scene,
+                &model.surface.triangles,
+                &model.rest_surface,
+            )),
         );
         // A linearized contact searches the model's rest tree: no tree is
         // published, nor refitted.

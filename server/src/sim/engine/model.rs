@@ -200,10 +200,11 @@ impl Model {
             let tree = (scene.collision.method == CollisionMethod::Bvh
                 && scene.collision.backend == CollisionBackend::Cpu)
                 .then(|| {
-                    let mut bvh =
-                        Bvh::new(&surface.triangles, &rest_surface).expect("surface checked above");
-                    bvh.set_traversal(scene.collision.traversal);
-                    Arc::new(bvh)
+                    Arc::new(super::query::scene_bvh(
+                        scene,
+                        &surface.triangles,
+                        &rest_surface,
+                    ))
                 });
             RestContact {
                 surface: Arc::new(rest_surface.clone()),

@@ -4,21 +4,25 @@
 
 use super::*;
 
+/// A CPU BVH over a surface the model checked at load (`triangles` at
+/// `positions`), walking parallel rays as the scene's `collision.traversal`
+/// says.
+pub fn scene_bvh(scene: &Scene, triangles: &[[u32; 3]], positions: &[Point3<f64>]) -> Bvh {
+    let mut bvh = Bvh::new(triangles, positions).expect("surface checked at load");
+    bvh.set_traversal(scene.collision.traversal);
+    bvh
+}
+
 /// Builds the ray backend a scene asks for over the given surface positions.
 pub fn ray_backend(scene: &Scene, model: &Model, positions: &[Point3<f64>]) -> Box<dyn RayBackend> {
     let tris = &model.surface.triangles;
     let method = scene.collision.method;
-    let traversal = scene.collision.traversal;
     let cpu = move || -> Box<dyn RayBackend> {
         match method {
             CollisionMethod::Brute => {
                 Box::new(BruteForce::new(tris, positions).expect("surface checked at load"))
             }
-            CollisionMethod::Bvh => {
-                let mut bvh = Bvh::new(tris, positions).expect("surface checked at load");
-                bvh.set_traversal(traversal);
-                Box::new(bvh)
-            }
+            CollisionMethod::Bvh => Box::new(scene_bvh(scene, tris, positions)),
         }
     };
     match scene.collision.backend {
@@ -76,12 +80,11 @@ impl SurfaceBvhs {
         (scene.collision.method == CollisionMethod::Bvh
             && scene.collision.backend == CollisionBackend::Cpu)
             .then(|| Self {
-                current: Arc::new({
-                    let mut bvh = Bvh::new(&model.surface.triangles, &model.rest_surface)
-                        .expect("surface checked at load");
-                    bvh.set_traversal(scene.collision.traversal);
-                    bvh
-                }),
+                current: Arc::new(scene_bvh(
+                    scene,
+                    &model.surface.triangles,
+                    &model.rest_surface,
+                )),
                 spare: None,
             })
     }

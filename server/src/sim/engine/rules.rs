@@ -96,8 +96,15 @@ impl SkullRows {
     /// Rows of the surface nodes within the band of a sphere at
     /// displacements `u` (and of every node in `also`), appended to `dst`.
     pub fn rows(&self, model: &Model, u: &[Vector3<f64>], also: &[u32], dst: &mut Vec<Row>) {
+        // A skull surface alone has no sphere rows to look for.
+        let spheres = self.skull.containing.is_some() || self.skull.excluding.is_some();
+        let (nodes, extra): (&[u32], &[u32]) = if spheres {
+            (&model.surface.to_volume, also)
+        } else {
+            (&[], &[])
+        };
         let mut done = std::collections::HashSet::new();
-        for &v in model.surface.to_volume.iter().chain(also) {
+        for &v in nodes.iter().chain(extra) {
             if model.fixed_mask[v as usize] || !done.insert(v) {
                 continue;
             }
