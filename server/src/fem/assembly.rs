@@ -45,16 +45,34 @@ impl Pattern {
     /// Builds the pattern of a mesh with `n_nodes` nodes and tetrahedra `tets`
     /// (indices already validated). Every DOF has a diagonal entry.
     pub fn new(n_nodes: usize, tets: &[[u32; 4]]) -> Self {
+        Self::with_groups(n_nodes, tets, std::iter::empty())
+    }
+
+    /// The pattern of [`Pattern::new`] widened to couple every pair of nodes
+    /// within each of `groups` too (the stars of
+    /// [`super::nodal_pressure::NodalPressure`]); the element scatter map is
+    /// the same.
+    pub fn with_groups<'a>(
+        n_nodes: usize,
+        tets: &[[u32; 4]],
+        groups: impl Iterator<Item = &'a [u32]>,
+    ) -> Self {
         // Node adjacency (j >= i), sorted and deduplicated.
         let mut adj: Vec<Vec<u32>> = (0..n_nodes).map(|i| vec![i as u32]).collect();
-        for t in tets {
-            for &a in t {
-                for &b in t {
+        let mut couple = |group: &[u32]| {
+            for &a in group {
+                for &b in group {
                     if b > a {
                         adj[a as usize].push(b);
                     }
                 }
             }
+        };
+        for t in tets {
+            couple(t);
+        }
+        for g in groups {
+            couple(g);
         }
         for a in &mut adj {
             a.sort_unstable();
@@ -104,7 +122,7 @@ impl Pattern {
 
     /// Value index of entry `(row, col)`, `row >= col`; panics when absent
     /// (only called on entries the mesh creates).
-    fn index(&self, row: usize, col: usize) -> usize {
+    pub(crate) fn index(&self, row: usize, col: usize) -> usize {
         let (a, b) = (self.col_ptr[col], self.col_ptr[col + 1]);
         a + self.row_idx[a..b]
             .binary_search(&row)

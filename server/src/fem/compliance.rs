@@ -161,6 +161,8 @@ pub struct Compliance {
     local: LocalModel,
     support_reactions: Vec<Vector3<f64>>,
     support_elems: Vec<usize>,
+    /// Nodes whose nodal-pressure star holds a fixed node.
+    support_stars: Vec<u32>,
     fixed_index: Vec<u32>,
     prepared: bool,
     policy: ColumnPolicy,
@@ -210,6 +212,17 @@ impl Compliance {
                 &lift,
                 &mut values,
                 &mut rhs,
+            );
+        }
+        if let Some(p) = &model.pressure {
+            let mut star = Vec::new();
+            p.scatter(
+                &frame,
+                &model.pattern,
+                &lift,
+                &mut values,
+                &mut rhs,
+                &mut star,
             );
         }
         frame.finish(&model.pattern, &lift, &mut values, &mut rhs);
@@ -264,6 +277,16 @@ impl Compliance {
             .filter(|(_, t)| t.iter().any(|&n| fixed_index[n as usize] != NONE))
             .map(|(e, _)| e)
             .collect();
+        let support_stars = model.pressure.as_ref().map_or_else(Vec::new, |p| {
+            (0..n_nodes as u32)
+                .filter(|&a| {
+                    p.star(a as usize)
+                        .0
+                        .iter()
+                        .any(|&n| fixed_index[n as usize] != NONE)
+                })
+                .collect()
+        });
         Ok(Self {
             rows: StepRows::new(n_nodes),
             cache_slot: vec![NONE; n_nodes],
@@ -302,6 +325,7 @@ impl Compliance {
             },
             support_reactions: Vec::new(),
             support_elems,
+            support_stars,
             fixed_index,
             prepared: false,
             policy: ColumnPolicy::Compute,
@@ -813,6 +837,19 @@ impl Compliance {
                         self.support_reactions[fi as usize] += fe.fixed_rows::<3>(3 * a);
                     }
                 }
+            }
+            if let Some(p) = &self.model.pressure {
+                let (index, out) = (&self.fixed_index, &mut self.support_reactions);
+                p.for_each_force(
+                    self.support_stars.iter().copied(),
+                    &self.solution.displacements,
+                    |b, f| {
+                        let fi = index[b as usize];
+                        if fi != NONE {
+                            out[fi as usize] += f;
+                        }
+                    },
+                );
             }
         }
     }

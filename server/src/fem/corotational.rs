@@ -213,6 +213,11 @@ impl Corotational {
     /// Factors the rest-state supported stiffness; element loops run with
     /// every thread of the current rayon pool (see [`Self::set_parallelism`]).
     pub fn new(model: Model, opts: IterativeOptions) -> Result<Self, SolveError> {
+        if model.pressure.is_some() {
+            return Err(SolveError::InvalidModel(
+                "the nodal-pressure element is linear: strategy corotational takes tet4".into(),
+            ));
+        }
         let n = model.pattern.n_dofs;
         let ne = model.tets.len();
         let nn = model.n_nodes();

@@ -8,7 +8,6 @@
 //! solve. Normal-only constraints rotate the node's DOFs into a basis whose
 //! first axis is the normal (`K' = T^T K T`, element by element).
 
-use super::assembly::element_matvec;
 use super::constraint::{Constraint, Frame, StepRows};
 use super::factor::SparseLlt;
 use super::model::Model;
@@ -24,6 +23,8 @@ pub struct Direct {
     values: Vec<f64>,
     rhs: Vec<f64>,
     ku: Vec<f64>,
+    /// Rotated star weights of the nodal-pressure scatter.
+    star: Vec<Vector3<f64>>,
     factor: SparseLlt,
     solution: Solution,
     support_reactions: Vec<Vector3<f64>>,
@@ -40,6 +41,7 @@ impl Direct {
             values: vec![0.0; model.pattern.nnz()],
             rhs: vec![0.0; n_dofs],
             ku: vec![0.0; n_dofs],
+            star: Vec::new(),
             factor,
             solution: Solution {
                 displacements: vec![Vector3::zeros(); model.n_nodes()],
@@ -86,7 +88,7 @@ impl Direct {
     /// Reactions of the rows from `K u` minus the applied loads.
     fn reactions_with_loads(&mut self, loads: &[(u32, Vector3<f64>)]) {
         let m = &self.model;
-        element_matvec(&m.tets, &m.kel, &self.rhs, &mut self.ku);
+        m.matvec(&self.rhs, &mut self.ku);
         for &(node, load) in loads {
             for a in 0..3 {
                 self.ku[3 * node as usize + a] -= load[a];
@@ -124,6 +126,16 @@ impl Direct {
                 &self.frame.value,
                 &mut self.values,
                 &mut self.rhs,
+            );
+        }
+        if let Some(p) = &m.pressure {
+            p.scatter(
+                &self.frame,
+                &m.pattern,
+                &self.frame.value,
+                &mut self.values,
+                &mut self.rhs,
+                &mut self.star,
             );
         }
         self.frame.finish(

@@ -67,6 +67,7 @@ pub mod foundation;
 pub mod lcp;
 pub mod model;
 pub mod neo_hookean;
+pub mod nodal_pressure;
 pub mod par;
 pub mod reactions;
 pub mod roi;
@@ -366,6 +367,45 @@ impl std::str::FromStr for Strategy {
     }
 }
 
+/// The element formulation on the 4-node tetrahedral mesh.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Element {
+    /// Linear tetrahedra, one point (P1; locks as `nu -> 0.5`).
+    #[default]
+    Tet4,
+    /// Linear tetrahedra with the volumetric strain averaged over each
+    /// node's star ([`nodal_pressure`], Bonet and Burton 1998): locking-free
+    /// near incompressibility, a wider stiffness pattern. Linear strategies
+    /// (`direct`, `compliance`) only.
+    Tet4NodalPressure,
+}
+
+impl Element {
+    /// All formulations.
+    pub const ALL: [Element; 2] = [Self::Tet4, Self::Tet4NodalPressure];
+
+    /// The scene-file name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Tet4 => "tet4",
+            Self::Tet4NodalPressure => "tet4-nodal-pressure",
+        }
+    }
+}
+
+impl std::str::FromStr for Element {
+    type Err = SolveError;
+    fn from_str(s: &str) -> Result<Self, SolveError> {
+        Self::ALL
+            .into_iter()
+            .find(|k| k.name() == s)
+            .ok_or_else(|| {
+                let names: Vec<&str> = Self::ALL.iter().map(|k| k.name()).collect();
+                SolveError::InvalidModel(format!("unknown element {s:?} ({})", names.join(", ")))
+            })
+    }
+}
+
 /// Options of [`build_solver`].
 #[derive(Debug, Clone)]
 pub struct SolverOptions {
@@ -393,6 +433,8 @@ pub struct SolverOptions {
     /// `corotational`, in contact nodes (least recently used evicted);
     /// `None`: [`compliance::DEFAULT_CACHE_BYTES`] worth of columns.
     pub cache_nodes: Option<usize>,
+    /// The element formulation (default [`Element::Tet4`]).
+    pub element: Element,
 }
 
 impl Default for SolverOptions {
@@ -405,6 +447,7 @@ impl Default for SolverOptions {
             foundation: None,
             parallelism: par::default_par(),
             cache_nodes: None,
+            element: Element::default(),
         }
     }
 }
@@ -420,6 +463,16 @@ pub fn build_solver(
     options: &SolverOptions,
 ) -> Result<Box<dyn DeformationSolver>, SolveError> {
     let mut model = model::Model::new(mesh, material, fixed, &options.axis_supports)?;
+    if options.element == Element::Tet4NodalPressure {
+        if !strategy.is_linear() {
+            return Err(SolveError::InvalidModel(format!(
+                "element {} needs the direct or compliance strategy, not {}",
+                options.element.name(),
+                strategy.name()
+            )));
+        }
+        model.use_nodal_pressure();
+    }
     if let Some(f) = &options.foundation {
         if !strategy.is_linear() {
             return Err(SolveError::InvalidModel(format!(

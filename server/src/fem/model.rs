@@ -3,6 +3,7 @@
 
 use super::assembly::Pattern;
 use super::element::{ElementMatrix, TetGeometry};
+use super::nodal_pressure::NodalPressure;
 use super::{Material, SolveError};
 use crate::mesh::TetMesh;
 use nalgebra::Point3;
@@ -44,6 +45,10 @@ pub struct Model {
     pub youngs_modulus_pa: f64,
     /// Characteristic length: the diagonal of the rest bounding box, m.
     pub length_m: f64,
+    /// The volumetric part on the nodes, when the model uses the
+    /// average-nodal-pressure element ([`Model::use_nodal_pressure`]); `kel`
+    /// is then the deviatoric part alone.
+    pub pressure: Option<NodalPressure>,
 }
 
 impl Model {
@@ -130,7 +135,33 @@ impl Model {
             fixed: fixed.to_vec(),
             youngs_modulus_pa: e,
             length_m,
+            pressure: None,
         })
+    }
+
+    /// Switches to the average-nodal-pressure element
+    /// ([`super::nodal_pressure`]): the element matrices keep the deviatoric
+    /// part (`lambda = -2 mu / 3`), the volumetric part `kappa = lambda +
+    /// 2 mu / 3` moves to the nodes, and the pattern widens to the nodes'
+    /// stars. Call before folding a foundation into `kel`.
+    pub fn use_nodal_pressure(&mut self) {
+        let mu = self.mu;
+        let kappa = self.lambda + 2.0 * mu / 3.0;
+        for (k, g) in self.kel.iter_mut().zip(&self.geoms) {
+            *k = g.stiffness(-2.0 * mu / 3.0, mu);
+        }
+        let p = NodalPressure::new(self.n_nodes(), &self.tets, &self.geoms, kappa);
+        self.pattern = Pattern::with_groups(self.n_nodes(), &self.tets, p.stars());
+        self.pressure = Some(p);
+    }
+
+    /// Adds `K x` of the element matrices and the nodal volumetric part
+    /// into `y` (DOF vectors; `y` is overwritten).
+    pub fn matvec(&self, x: &[f64], y: &mut [f64]) {
+        super::assembly::element_matvec(&self.tets, &self.kel, x, y);
+        if let Some(p) = &self.pressure {
+            p.add_matvec(x, y);
+        }
     }
 
     /// The absolute force floor of the iterative strategies' convergence

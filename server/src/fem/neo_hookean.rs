@@ -79,6 +79,11 @@ fn corner_u(t: &[u32; 4], u: &[f64]) -> [Vector3<f64>; 4] {
 impl NeoHookean {
     /// Builds the strategy (symbolic analysis of the pattern).
     pub fn new(model: Model, opts: IterativeOptions) -> Result<Self, SolveError> {
+        if model.pressure.is_some() {
+            return Err(SolveError::InvalidModel(
+                "the nodal-pressure element is linear: strategy neo-hookean takes tet4".into(),
+            ));
+        }
         let n = model.pattern.n_dofs;
         Ok(Self {
             factor: SparseLlt::new(&model.pattern)?,

@@ -243,7 +243,12 @@ impl Region {
     }
 }
 
-pub use crate::fem::Strategy;
+pub use crate::fem::{Element, Strategy};
+
+fn de_element<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Element, D::Error> {
+    let s = String::deserialize(d)?;
+    s.parse().map_err(serde::de::Error::custom)
+}
 
 fn de_strategy<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Strategy, D::Error> {
     let s = String::deserialize(d)?;
@@ -262,6 +267,12 @@ pub struct SolverSpec {
     pub tolerance: f64,
     /// Most outer (Newton) iterations per step of the iterative strategies.
     pub max_iterations: u32,
+    /// Element formulation: `tet4` (linear tetrahedra, the default) or
+    /// `tet4-nodal-pressure` (the volumetric strain averaged over each
+    /// node's star: no locking as `nu -> 0.5`; `compliance` and `direct`
+    /// only).
+    #[serde(deserialize_with = "de_element")]
+    pub element: Element,
 }
 
 impl Default for SolverSpec {
@@ -270,6 +281,7 @@ impl Default for SolverSpec {
             strategy: Strategy::Compliance,
             tolerance: crate::fem::corotational::IterativeOptions::INTERACTIVE_TOLERANCE,
             max_iterations: 30,
+            element: Element::Tet4,
         }
     }
 }
@@ -836,6 +848,16 @@ impl Scene {
                     ),
                 ));
             }
+        }
+        if self.solver.element != Element::Tet4 && !self.solver.strategy.is_linear() {
+            return Err(bad(
+                "solver.element".into(),
+                format!(
+                    "{:?} is a linear element: it needs solver.strategy = \"compliance\" or \"direct\" (the scene has {:?})",
+                    self.solver.element.name(),
+                    self.solver.strategy.name()
+                ),
+            ));
         }
         positive("collision.max_depth_m", self.collision.max_depth_m)?;
         positive("contact.band_m", self.contact.band_m)?;

@@ -56,6 +56,7 @@ pub fn scene_description(scene: &Scene, model: &Model) -> pb::SceneDescription {
             model: material_model(scene.solver.strategy).into(),
             youngs_modulus_pa: scene.material.youngs_modulus_pa,
             poisson_ratio: scene.material.poisson_ratio,
+            element: scene.solver.element.name().into(),
         }),
         instruments: scene
             .instruments

@@ -101,6 +101,7 @@ impl Deformer {
         options.iterative.tolerance = scene.solver.tolerance;
         options.iterative.max_outer = scene.solver.max_iterations;
         options.foundation = model.foundation.clone();
+        options.element = scene.solver.element;
         let mut solver = fem::build_solver(strategy, &model.mesh, material, &model.fixed, &options)
             .map_err(SimError::Solver)?;
         solver.set_column_policy(columns, hook);
