@@ -5,9 +5,13 @@
 //! Each (strategy, contact count) runs one untimed warm-up step (it caches
 //! the compliance columns of the new contact nodes) and then `steps` timed
 //! steps at increasing indentation depth; `ms_per_step` is their mean.
+//! The linear strategies run with each element formulation asked for
+//! (`tet4`, `tet4-nodal-pressure`), side by side in one run.
 
 use fissure_server::fem::compliance::Recover;
-use fissure_server::fem::{Material, Par, Prescribed, SolverOptions, Strategy, build_solver};
+use fissure_server::fem::{
+    Element, Material, Par, Prescribed, SolverOptions, Strategy, build_solver,
+};
 use fissure_server::mesh::TetMesh;
 use nalgebra::{Point3, Vector3};
 use serde::Serialize;
@@ -30,6 +34,8 @@ pub struct FemBenchOptions {
     pub compliance_surface_too: bool,
     /// Parallelism given to the solvers (default: every rayon thread).
     pub parallelism: Par,
+    /// Element formulations (the nonlinear strategies take `tet4` only).
+    pub elements: Vec<Element>,
 }
 
 impl Default for FemBenchOptions {
@@ -45,6 +51,7 @@ impl Default for FemBenchOptions {
             depth_m: 1e-3,
             compliance_surface_too: true,
             parallelism: Par::rayon(0),
+            elements: Element::ALL.to_vec(),
         }
     }
 }
@@ -60,6 +67,8 @@ pub struct Row {
     pub nodes: usize,
     /// Strategy name (`compliance-surface` for surface-only recovery).
     pub strategy: String,
+    /// Element formulation.
+    pub element: String,
     /// Contact vertices.
     pub contact_vertices: usize,
     /// Mean time per timed step, ms.
@@ -93,15 +102,20 @@ pub fn run_fem_bench(mesh: &TetMesh, preset_name: &str, opts: &FemBenchOptions) 
         let db = (mesh.nodes[b as usize] - top).norm();
         da.total_cmp(&db).then(a.cmp(&b))
     });
-    let mut variants: Vec<(Strategy, Recover, String)> = Vec::new();
+    let mut variants: Vec<(Strategy, Element, Recover, String)> = Vec::new();
     for &s in &opts.strategies {
-        variants.push((s, Recover::All, s.name().to_string()));
-        if s == Strategy::Compliance && opts.compliance_surface_too {
-            variants.push((s, Recover::Surface, "compliance-surface".into()));
+        for &e in &opts.elements {
+            if e != Element::Tet4 && !s.is_linear() {
+                continue;
+            }
+            variants.push((s, e, Recover::All, s.name().to_string()));
+            if s == Strategy::Compliance && opts.compliance_surface_too {
+                variants.push((s, e, Recover::Surface, "compliance-surface".into()));
+            }
         }
     }
     let mut rows = Vec::new();
-    for (strategy, recover, label) in variants {
+    for (strategy, element, recover, label) in variants {
         let t0 = Instant::now();
         let solver = build_solver(
             strategy,
@@ -111,6 +125,7 @@ pub fn run_fem_bench(mesh: &TetMesh, preset_name: &str, opts: &FemBenchOptions) 
             &SolverOptions {
                 recover,
                 parallelism: opts.parallelism,
+                element,
                 ..Default::default()
             },
         );
@@ -123,6 +138,7 @@ pub fn run_fem_bench(mesh: &TetMesh, preset_name: &str, opts: &FemBenchOptions) 
                     tets: mesh.tets.len(),
                     nodes: mesh.nodes.len(),
                     strategy: label.clone(),
+                    element: element.name().into(),
                     contact_vertices: 0,
                     ms_per_step: f64::NAN,
                     first_step_ms: f64::NAN,
@@ -184,6 +200,7 @@ pub fn run_fem_bench(mesh: &TetMesh, preset_name: &str, opts: &FemBenchOptions) 
                 tets: mesh.tets.len(),
                 nodes: mesh.nodes.len(),
                 strategy: label.clone(),
+                element: element.name().into(),
                 contact_vertices: m,
                 ms_per_step: if done > 0 { ms } else { f64::NAN },
                 first_step_ms,
@@ -208,10 +225,11 @@ pub fn print(rows: &[Row], json: bool) {
         return;
     }
     println!(
-        "{:<12} {:>7} {:<20} {:>8} {:>11} {:>13} {:>10} {:>6} {:>7}  error",
+        "{:<12} {:>7} {:<20} {:<20} {:>8} {:>11} {:>13} {:>10} {:>6} {:>7}  error",
         "preset",
         "tets",
         "strategy",
+        "element",
         "contact",
         "ms/step",
         "first step ms",
@@ -221,10 +239,11 @@ pub fn print(rows: &[Row], json: bool) {
     );
     for r in rows {
         println!(
-            "{:<12} {:>7} {:<20} {:>8} {:>11.2} {:>13.2} {:>10.1} {:>6.1} {:>7}  {}",
+            "{:<12} {:>7} {:<20} {:<20} {:>8} {:>11.2} {:>13.2} {:>10.1} {:>6.1} {:>7}  {}",
             r.preset,
             r.tets,
             r.strategy,
+            r.element,
             r.contact_vertices,
             r.ms_per_step,
             r.first_step_ms,

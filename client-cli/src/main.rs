@@ -87,6 +87,10 @@ enum Bench {
         /// Strategies (direct, compliance, corotational, neo-hookean); all by default.
         #[arg(long, value_delimiter = ',')]
         strategy: Vec<String>,
+        /// Element formulations (tet4, tet4-nodal-pressure); both by default,
+        /// the nonlinear strategies run tet4 only.
+        #[arg(long, value_delimiter = ',')]
+        element: Vec<String>,
         /// Timed steps per row.
         #[arg(long, default_value_t = 5)]
         steps: usize,
@@ -300,6 +304,7 @@ fn main() -> anyhow::Result<()> {
                 preset,
                 contacts,
                 strategy,
+                element,
                 steps,
                 json,
             } => {
@@ -313,6 +318,12 @@ fn main() -> anyhow::Result<()> {
                     opts.strategies = strategy
                         .iter()
                         .map(|s| s.parse().map_err(|e| anyhow::anyhow!("--strategy: {e}")))
+                        .collect::<anyhow::Result<_>>()?;
+                }
+                if !element.is_empty() {
+                    opts.elements = element
+                        .iter()
+                        .map(|s| s.parse().map_err(|e| anyhow::anyhow!("--element: {e}")))
                         .collect::<anyhow::Result<_>>()?;
                 }
                 let mut rows = Vec::new();

@@ -3,7 +3,7 @@
 //! interest, ray-casting backend, threads) and the material and speed knobs
 //! of the stability sweep.
 
-use fissure_server::fem::Strategy;
+use fissure_server::fem::{Element, Strategy};
 use fissure_server::scene::{CollisionMethod, ContactLaw, Scene, SceneError};
 use serde::{Deserialize, Serialize};
 
@@ -62,6 +62,22 @@ pub struct Config {
     /// The contact law (the reference's is frictionless).
     #[serde(serialize_with = "ser_law")]
     pub contact_law: ContactLaw,
+    /// The element formulation (`tet4` unless a run names another).
+    #[serde(
+        default,
+        serialize_with = "ser_element",
+        deserialize_with = "de_element"
+    )]
+    pub element: Element,
+}
+
+fn ser_element<S: serde::Serializer>(e: &Element, ser: S) -> Result<S::Ok, S::Error> {
+    ser.serialize_str(e.name())
+}
+
+fn de_element<'de, D: serde::Deserializer<'de>>(de: D) -> Result<Element, D::Error> {
+    let name = String::deserialize(de)?;
+    name.parse().map_err(serde::de::Error::custom)
 }
 
 fn ser_law<S: serde::Serializer>(l: &ContactLaw, ser: S) -> Result<S::Ok, S::Error> {
@@ -100,6 +116,7 @@ impl Config {
             nu: 0.45,
             time_scale: 1.0,
             contact_law: ContactLaw::Frictionless,
+            element: Element::Tet4,
         }
         .labelled()
     }
@@ -138,6 +155,9 @@ impl Config {
         if self.nu != 0.45 {
             l.push_str(&format!("/nu{}", self.nu));
         }
+        if self.element == Element::Tet4NodalPressure {
+            l.push_str("/np");
+        }
         if self.contact_law != ContactLaw::Frictionless {
             l.push_str(&format!("/{}", self.contact_law.name()));
         }
@@ -168,6 +188,7 @@ impl Config {
         scene.material.youngs_modulus_pa = self.youngs_pa;
         scene.material.poisson_ratio = self.nu;
         scene.solver.strategy = self.strategy;
+        scene.solver.element = self.element;
         scene.solver.tolerance = self.tolerance;
         scene.contact.law = self.contact_law;
         scene.collision.method = match self.backend {

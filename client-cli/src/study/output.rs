@@ -88,15 +88,16 @@ fn grid_csv_row(r: &Row) -> String {
     )
 }
 
-const STAB_HEADER: &str = "label,dimension,strategy,youngs_pa,nu,speed_mps,steps,finite,min_det_f,iterations_mean,iterations_max,failed_steps,final_force_left_n,final_force_right_n,force_ratio,force_error_pct,stable,reason,ms_per_step";
+const STAB_HEADER: &str = "label,dimension,strategy,element,youngs_pa,nu,speed_mps,steps,finite,min_det_f,iterations_mean,iterations_max,failed_steps,final_force_left_n,final_force_right_n,force_ratio,force_error_pct,stable,reason,ms_per_step";
 
 fn stab_csv_row(s: &StabilityRow) -> String {
     let r = &s.row;
     format!(
-        "{},{},{},{},{},{:.4},{},{},{:.4},{:.2},{},{},{:.5},{:.5},{:.4},{},{},\"{}\",{:.3}",
+        "{},{},{},{},{},{},{:.4},{},{},{:.4},{:.2},{},{},{:.5},{:.5},{:.4},{},{},\"{}\",{:.3}",
         r.config.label,
         s.dimension,
         r.config.strategy.name(),
+        r.config.element.name(),
         r.config.youngs_pa,
         r.config.nu,
         r.speed_mps,
@@ -204,16 +205,17 @@ pub fn markdown(res: &StudyResult) -> String {
         let _ = writeln!(md, "### Stability at the extremes\n");
         let _ = writeln!(
             md,
-            "| run | strategy | E (Pa) | nu | speed (mm/s) | finite | min det F | iterations (mean/max) | F/F0 | force err | verdict |"
+            "| run | strategy (element) | E (Pa) | nu | speed (mm/s) | finite | min det F | iterations (mean/max) | F/F0 | force err | verdict |"
         );
         let _ = writeln!(md, "|---|---|---:|---:|---:|---|---:|---:|---:|---:|---|");
         for s in &res.stability {
             let r = &s.row;
             let _ = writeln!(
                 md,
-                "| {} | {} | {} | {} | {:.1} | {} | {:.3} | {:.1} / {} | {:.3} | {} | {} |",
+                "| {} | {} ({}) | {} | {} | {:.1} | {} | {:.3} | {:.1} / {} | {:.3} | {} | {} |",
                 r.config.label,
                 r.config.strategy.name(),
+                r.config.element.name(),
                 r.config.youngs_pa,
                 r.config.nu,
                 r.speed_mps * 1e3,

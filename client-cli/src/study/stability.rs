@@ -14,7 +14,12 @@
 //!   end state should not depend on speed unless contact is lost);
 //! * Poisson's ratio: reported as the ratio `F(nu) / F(0.45)` (not an error:
 //!   a stiffer response near incompressibility is physical, but linear
-//!   tetrahedra overshoot it by locking).
+//!   tetrahedra overshoot it by locking). The locking-free
+//!   `tet4-nodal-pressure` element is swept too, and its ratio at the
+//!   largest `nu` is checked against the same ratio of a reference of that
+//!   element on the finest mesh (`paper-48k`), the converged nearly
+//!   incompressible answer of the sweep, within
+//!   [`NEARLY_INCOMPRESSIBLE_TOL_PCT`].
 //!
 //! A run *fails* when it produced a non-finite value, a solver step failed, an
 //! element inverted (`det F <= 0`), or its force error exceeds
@@ -27,7 +32,7 @@ use super::Row;
 use super::config::Config;
 use super::scenario::ScenarioSpec;
 use crate::trajectory::TrajectoryError;
-use fissure_server::fem::Strategy;
+use fissure_server::fem::{Element, Strategy};
 use serde::Serialize;
 
 /// Force error beyond which a run is listed as failing, %.
@@ -37,18 +42,72 @@ pub const LINEAR_IN_E_TOL_PCT: f64 = 1.0;
 /// Smallest `F(0.499) / F(0.45)` of the linear strategy the check accepts:
 /// linear tetrahedra lock near incompressibility.
 pub const LOCKING_MIN_RATIO: f64 = 1.5;
+/// Largest deviation of the nodal-pressure element's `F(nu) / F(0.45)` at
+/// the sweep's largest `nu` from the same ratio of its reference on the
+/// finest mesh, %.
+pub const NEARLY_INCOMPRESSIBLE_TOL_PCT: f64 = 10.0;
+/// The finest mesh of the sweep, where the nodal-pressure reference runs.
+pub const REFERENCE_PRESET: &str = "paper-48k";
 
 /// The values swept for one strategy.
 #[derive(Debug, Clone)]
 pub struct StrategySweep {
     /// The strategy.
     pub strategy: Strategy,
+    /// The element formulation.
+    pub element: Element,
+    /// The phantom preset of these runs when not the sweep's (the
+    /// nodal-pressure reference runs on [`REFERENCE_PRESET`]).
+    pub preset: Option<String>,
     /// Poisson's ratios (0.45 is the nominal run).
     pub nus: Vec<f64>,
     /// Young's moduli, Pa (3 kPa is the nominal run).
     pub youngs_pa: Vec<f64>,
     /// Mean spatula speeds, m/s.
     pub speeds_mps: Vec<f64>,
+}
+
+impl StrategySweep {
+    /// `compliance` with `element` on the sweep's preset, no values yet.
+    pub fn linear(element: Element) -> Self {
+        Self {
+            strategy: Strategy::Compliance,
+            element,
+            preset: None,
+            nus: Vec::new(),
+            youngs_pa: Vec::new(),
+            speeds_mps: Vec::new(),
+        }
+    }
+
+    /// The converged nearly incompressible reference: the nodal-pressure
+    /// element on [`REFERENCE_PRESET`], at 0.45 and 0.4999.
+    pub fn nearly_incompressible_reference() -> Self {
+        Self {
+            preset: Some(REFERENCE_PRESET.into()),
+            nus: vec![0.4999],
+            ..Self::linear(Element::Tet4NodalPressure)
+        }
+    }
+
+    /// Whether `r` is one of its runs.
+    fn owns(&self, sweep_preset: &str, r: &Row) -> bool {
+        r.config.strategy == self.strategy
+            && r.config.element == self.element
+            && r.config.preset == self.preset.as_deref().unwrap_or(sweep_preset)
+    }
+
+    /// Its name in the checks.
+    fn name(&self) -> String {
+        let mut n = self.strategy.name().to_string();
+        if self.element != Element::Tet4 {
+            n.push_str(&format!(" {}", self.element.name()));
+        }
+        if let Some(p) = &self.preset {
+            n.push_str(&format!(" on {p}"));
+        }
+        n
+    }
 }
 
 /// What is swept.
@@ -81,22 +140,31 @@ impl Sweep {
             nodes_per_face: 150,
             strategies: vec![
                 StrategySweep {
-                    strategy: Strategy::Compliance,
-                    nus: vec![0.3, 0.49, 0.499],
+                    nus: vec![0.3, 0.49, 0.499, 0.4999],
                     youngs_pa: vec![100.0, 1e3, 1e4, 1e5, 1e6],
                     speeds_mps: vec![0.001, 0.01, 0.1, 1.0],
+                    ..StrategySweep::linear(Element::Tet4)
                 },
+                StrategySweep {
+                    nus: vec![0.3, 0.49, 0.499, 0.4999],
+                    youngs_pa: vec![100.0, 1e6],
+                    speeds_mps: vec![0.01, 1.0],
+                    ..StrategySweep::linear(Element::Tet4NodalPressure)
+                },
+                StrategySweep::nearly_incompressible_reference(),
                 StrategySweep {
                     strategy: Strategy::Corotational,
                     nus: vec![0.3, 0.499],
                     youngs_pa: vec![100.0, 1e6],
                     speeds_mps: vec![0.1, 1.0],
+                    ..StrategySweep::linear(Element::Tet4)
                 },
                 StrategySweep {
                     strategy: Strategy::NeoHookean,
                     nus: vec![0.499],
                     youngs_pa: vec![1e6],
                     speeds_mps: vec![1.0],
+                    ..StrategySweep::linear(Element::Tet4)
                 },
             ],
             speed_rate_hz: 1000.0,
@@ -105,29 +173,39 @@ impl Sweep {
         }
     }
 
-    /// The CI sweep: coarse, 30 nodes a face, linear `compliance`, the
-    /// extremes only.
+    /// The CI sweep: coarse, 30 nodes a face, linear `compliance` with both
+    /// elements, the extremes only, and the nodal-pressure reference.
     pub fn quick() -> Self {
         Self {
             preset: "coarse".into(),
             nodes_per_face: 30,
-            strategies: vec![StrategySweep {
-                strategy: Strategy::Compliance,
-                nus: vec![0.3, 0.499],
-                youngs_pa: vec![100.0, 1e6],
-                speeds_mps: vec![0.01, 1.0],
-            }],
+            strategies: vec![
+                StrategySweep {
+                    nus: vec![0.3, 0.499, 0.4999],
+                    youngs_pa: vec![100.0, 1e6],
+                    speeds_mps: vec![0.01, 1.0],
+                    ..StrategySweep::linear(Element::Tet4)
+                },
+                StrategySweep {
+                    nus: vec![0.499, 0.4999],
+                    youngs_pa: vec![],
+                    speeds_mps: vec![],
+                    ..StrategySweep::linear(Element::Tet4NodalPressure)
+                },
+                StrategySweep::nearly_incompressible_reference(),
+            ],
             speed_rate_hz: 500.0,
             window_s: 1.4,
             rate_hz: 50.0,
         }
     }
 
-    fn nominal(&self, strategy: Strategy) -> Config {
+    fn nominal(&self, ss: &StrategySweep) -> Config {
         Config {
             sweep: "stability".into(),
-            preset: self.preset.clone(),
-            strategy,
+            preset: ss.preset.clone().unwrap_or_else(|| self.preset.clone()),
+            strategy: ss.strategy,
+            element: ss.element,
             nodes_per_face: self.nodes_per_face,
             ..Config::baseline()
         }
@@ -146,7 +224,7 @@ impl Sweep {
         let v0 = base.scenario()?.mean_speed_mps;
         let mut out = Vec::new();
         for ss in &self.strategies {
-            let nominal = self.nominal(ss.strategy);
+            let nominal = self.nominal(ss);
             let mut push = |config: Config, spec: ScenarioSpec| out.push((config.labelled(), spec));
             push(
                 Config {
@@ -235,8 +313,24 @@ pub fn evaluate(sweep: &Sweep, runs: Vec<Row>) -> (Vec<StabilityRow>, Vec<Check>
     if runs.is_empty() {
         return (rows, checks);
     }
-    for s in sweep.strategies.iter().map(|ss| ss.strategy) {
-        let mine: Vec<&Row> = runs.iter().filter(|r| r.config.strategy == s).collect();
+    // F(nu) / F(0.45) of the nodal-pressure reference, per nu.
+    let reference = sweep
+        .strategies
+        .iter()
+        .find(|ss| ss.element == Element::Tet4NodalPressure && ss.preset.is_some());
+    let reference_ratio = |nu: f64| -> Option<f64> {
+        let ss = reference?;
+        let mine: Vec<&Row> = runs.iter().filter(|r| ss.owns(&sweep.preset, r)).collect();
+        let f0 = mine.iter().find(|r| r.config.sweep == "nominal")?;
+        let f = mine
+            .iter()
+            .find(|r| r.config.sweep == "nu" && r.config.nu == nu)?;
+        Some(total_force(f) / total_force(f0))
+    };
+    for ss in &sweep.strategies {
+        let s = ss.strategy;
+        let owned = |r: &Row| ss.owns(&sweep.preset, r);
+        let mine: Vec<&Row> = runs.iter().filter(|r| owned(r)).collect();
         let Some(nominal) = mine.iter().find(|r| r.config.sweep == "nominal") else {
             continue;
         };
@@ -279,7 +373,7 @@ pub fn evaluate(sweep: &Sweep, runs: Vec<Row>) -> (Vec<StabilityRow>, Vec<Check>
         // Linear in E.
         let e_err: Vec<f64> = rows
             .iter()
-            .filter(|r| r.row.config.strategy == s && r.dimension == "E")
+            .filter(|r| owned(&r.row) && r.dimension == "E")
             .filter_map(|r| r.force_error_pct)
             .collect();
         if !e_err.is_empty() {
@@ -287,7 +381,7 @@ pub fn evaluate(sweep: &Sweep, runs: Vec<Row>) -> (Vec<StabilityRow>, Vec<Check>
             checks.push(Check {
                 name: format!(
                     "{}: force linear in E within {LINEAR_IN_E_TOL_PCT}%",
-                    s.name()
+                    ss.name()
                 ),
                 passed: worst <= LINEAR_IN_E_TOL_PCT,
                 detail: format!("worst |F(E) E0/E - F(E0)| / F(E0) = {worst:.2e}%"),
@@ -295,9 +389,11 @@ pub fn evaluate(sweep: &Sweep, runs: Vec<Row>) -> (Vec<StabilityRow>, Vec<Check>
         }
         // Locking of linear tetrahedra.
         if s == Strategy::Compliance
-            && let Some(r) = rows.iter().find(|r| {
-                r.row.config.strategy == s && r.dimension == "nu" && r.row.config.nu >= 0.499
-            })
+            && ss.element == Element::Tet4
+            && ss.preset.is_none()
+            && let Some(r) = rows
+                .iter()
+                .find(|r| owned(&r.row) && r.dimension == "nu" && r.row.config.nu == 0.499)
         {
             checks.push(Check {
                 name: format!(
@@ -305,6 +401,38 @@ pub fn evaluate(sweep: &Sweep, runs: Vec<Row>) -> (Vec<StabilityRow>, Vec<Check>
                 ),
                 passed: r.force_ratio >= LOCKING_MIN_RATIO,
                 detail: format!("F(0.499) / F(0.45) = {:.3}", r.force_ratio),
+            });
+        }
+        // No locking with nodal pressure: the ratio at the largest nu
+        // follows the converged reference.
+        if ss.element == Element::Tet4NodalPressure
+            && ss.preset.is_none()
+            && let Some(r) = rows
+                .iter()
+                .filter(|r| owned(&r.row) && r.dimension == "nu")
+                .max_by(|a, b| a.row.config.nu.total_cmp(&b.row.config.nu))
+        {
+            let nu = r.row.config.nu;
+            let (passed, detail) = match reference_ratio(nu) {
+                Some(want) => {
+                    let dev = 100.0 * (r.force_ratio - want) / want;
+                    (
+                        dev.abs() <= NEARLY_INCOMPRESSIBLE_TOL_PCT,
+                        format!(
+                            "F({nu}) / F(0.45) = {:.3}, reference {want:.3} ({dev:+.1}%)",
+                            r.force_ratio
+                        ),
+                    )
+                }
+                None => (false, "the reference's runs are missing".to_string()),
+            };
+            checks.push(Check {
+                name: format!(
+                    "{}: F({nu}) / F(0.45) within {NEARLY_INCOMPRESSIBLE_TOL_PCT}% of the {REFERENCE_PRESET} reference",
+                    ss.name()
+                ),
+                passed,
+                detail,
             });
         }
     }

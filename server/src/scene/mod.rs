@@ -1289,6 +1289,42 @@ mod tests {
         );
     }
 
+    /// `solver.element` takes "tet4" (the default) or
+    /// "tet4-nodal-pressure"; the latter is refused with a nonlinear
+    /// strategy, and an unknown value is refused naming the values.
+    #[test]
+    fn the_element_is_a_solver_setting_for_the_linear_strategies() {
+        let text = include_str!("../../scenes/cube.toml");
+        let (scene, _) = Scene::load("cube").unwrap();
+        assert_eq!(scene.solver.element, Element::Tet4);
+        let with = |strategy: &str, element: &str| {
+            let t = text.replace(
+                "[solver]\nstrategy = \"compliance\"",
+                &format!("[solver]\nstrategy = \"{strategy}\"\nelement = \"{element}\""),
+            );
+            assert_ne!(t, text);
+            Scene::parse(&t, "x.toml")
+        };
+        for strategy in ["compliance", "direct"] {
+            let scene = with(strategy, "tet4-nodal-pressure").unwrap();
+            assert_eq!(scene.solver.element, Element::Tet4NodalPressure);
+        }
+        for strategy in ["corotational", "neo-hookean"] {
+            let err = with(strategy, "tet4-nodal-pressure")
+                .unwrap_err()
+                .to_string();
+            assert!(
+                err.contains("solver.element") && err.contains(strategy),
+                "{err}"
+            );
+        }
+        let err = with("compliance", "tet10").unwrap_err().to_string();
+        assert!(
+            err.contains("tet10") && err.contains("tet4-nodal-pressure"),
+            "{err}"
+        );
+    }
+
     /// The cube scene with a foundation of `k` Pa/m and `open` regions
     /// (TOML inline tables).
     fn cube_on_foundation(open: &str) -> String {
