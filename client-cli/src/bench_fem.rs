@@ -261,7 +261,7 @@ mod tests {
     use fissure_server::mesh::blocks::cuboid;
 
     #[test]
-    fn small_bench_produces_rows_for_every_strategy() {
+    fn small_bench_produces_rows_for_every_strategy_and_element() {
         let mesh = cuboid([0.02, 0.02, 0.01], [4, 4, 2]);
         let opts = FemBenchOptions {
             contact_counts: vec![3, 6],
@@ -269,7 +269,15 @@ mod tests {
             ..Default::default()
         };
         let rows = run_fem_bench(&mesh, "tiny", &opts);
-        assert_eq!(rows.len(), 5 * 2);
+        // 4 strategies and compliance-surface with tet4, the 3 linear
+        // variants again with the nodal-pressure element; 2 contact counts.
+        assert_eq!(rows.len(), (5 + 3) * 2);
+        assert_eq!(
+            rows.iter()
+                .filter(|r| r.element == "tet4-nodal-pressure")
+                .count(),
+            3 * 2
+        );
         for r in &rows {
             assert!(r.error.is_none(), "{r:?}");
             assert!(r.ms_per_step.is_finite() && r.ms_per_step >= 0.0);

@@ -24,6 +24,11 @@
 //! rows on its own previous shape, 1 ms old; `hold_variation_full_rel`
 //! shows whether it settles at a held pose.)
 //!
+//! `--strategy` runs every scene with another strategy: with
+//! `corotational` or `neo-hookean` the force loop solves on the tangent
+//! compliance of the last step, and the measures give the error of that
+//! linearization against a full nonlinear solve at every sample.
+//!
 //! # Measures (per run; N, s)
 //! `P` is the run's peak `|F_full|` over all instruments and samples. A
 //! sample is *in contact* when `F_sample` or `F_full` is non-zero.
@@ -129,6 +134,13 @@ pub struct HapticArgs {
     /// Cut every run after this long, s (whole trajectories by default).
     #[arg(long)]
     pub duration_s: Option<f64>,
+    /// Run every scene with this solver strategy (direct, compliance,
+    /// corotational, neo-hookean) instead of its own: the nonlinear ones
+    /// give the force loop the tangent compliance of their last step. A
+    /// scene the strategy cannot run (an elastic foundation needs a linear
+    /// one) is refused, naming why.
+    #[arg(long)]
+    pub strategy: Option<String>,
     /// Window after contact begins of the onset error, ms.
     #[arg(long, default_value_t = 20.0)]
     pub onset_window_ms: f64,
@@ -154,6 +166,7 @@ impl Default for HapticArgs {
             scene: Vec::new(),
             trajectory: Vec::new(),
             duration_s: None,
+            strategy: None,
             onset_window_ms: 20.0,
             hold_window_ms: 100.0,
             hysteresis_min_depth_m: 0.0,
@@ -316,6 +329,8 @@ pub struct InstrumentSeries {
 pub struct Measurement {
     /// The scene.
     pub scene: String,
+    /// The solver strategy it ran with.
+    pub strategy: String,
     /// The deformation interval, s.
     pub dt_s: f64,
     /// Whether the scene's model is the cube (a flat top: depths mean
@@ -449,6 +464,7 @@ pub fn measure(
         .fold(f64::NEG_INFINITY, f64::max);
     let mut m = Measurement {
         scene: scene.name.clone(),
+        strategy: scene.solver.strategy.name().into(),
         dt_s: scene.loops.deformation_interval_s,
         flat_top: matches!(scene.model, ModelSpec::Cube { .. }),
         times: Vec::with_capacity(times.len()),
@@ -552,6 +568,8 @@ pub fn measure(
 pub struct HapticRow {
     /// The scene.
     pub scene: String,
+    /// The solver strategy.
+    pub strategy: String,
     /// The bundled trajectories of the run.
     pub trajectories: Vec<String>,
     /// Answered samples (all instruments).
@@ -734,6 +752,7 @@ fn variation(x: &[f64]) -> Option<f64> {
 pub fn summarise(m: &Measurement, trajectories: &[String], o: &SummaryOptions) -> HapticRow {
     let mut row = HapticRow {
         scene: m.scene.clone(),
+        strategy: m.strategy.clone(),
         trajectories: trajectories.to_vec(),
         samples: m.compute_us.len(),
         steps: m.step_us.len(),
@@ -961,9 +980,20 @@ pub fn run(args: &HapticArgs) -> anyhow::Result<HapticReport> {
             .collect(),
         ..HapticReport::default()
     };
+    let strategy: Option<fissure_server::fem::Strategy> = args
+        .strategy
+        .as_deref()
+        .map(|s| s.parse().map_err(|e| anyhow::anyhow!("--strategy: {e}")))
+        .transpose()?;
     for (r, plan) in runs.iter().enumerate() {
-        let (scene, _) =
+        let (mut scene, _) =
             Scene::load(&plan.scene).with_context(|| format!("loading scene {:?}", plan.scene))?;
+        if let Some(s) = strategy {
+            scene.solver.strategy = s;
+            scene
+                .validate(&plan.scene)
+                .with_context(|| format!("scene {:?} with --strategy {}", plan.scene, s.name()))?;
+        }
         let names: Vec<String> = plan.tracks.iter().map(|t| t.1.clone()).collect();
         let label = format!("{} ({})", plan.scene, names.join(", "));
         if !args.quiet {
@@ -1043,7 +1073,14 @@ pub fn table(r: &HapticReport) -> String {
     let mut s = String::from(
         "bench haptic — force samples of the stepped runner against a full solve at every sample\n\n",
     );
-    let label = |row: &HapticRow| format!("{} ({})", row.scene, row.trajectories.join(", "));
+    let label = |row: &HapticRow| {
+        format!(
+            "{} ({}; {})",
+            row.scene,
+            row.trajectories.join(", "),
+            row.strategy
+        )
+    };
     let w = r
         .runs
         .iter()

@@ -131,8 +131,10 @@ async fn failed_deformation_steps_serve_the_last_good_state() -> anyhow::Result<
         assert!(f.x.is_finite() && f.y.is_finite() && f.z.is_finite());
         if s.safety_flags & flags::SOLVER_FAILED != 0 {
             flagged += 1;
-            // The last good state is the rest state: no force model.
-            assert_eq!((f.x, f.y, f.z), (0.0, 0.0, 0.0), "{s:?}");
+            // The last good state is the rest state: the force loop answers
+            // on its tangent (the rest stiffness), so the tissue pushes the
+            // plate back up, never pulls it, and only along the press.
+            assert!(f.z >= 0.0 && f.x.abs() < 1e-9 && f.y.abs() < 1e-9, "{s:?}");
         }
         tokio::time::sleep(Duration::from_millis(1)).await;
     }

@@ -198,10 +198,16 @@ fn region_of_interest_crops_and_converges() {
     );
 }
 
-/// Strategies without a local model (corotational) still give the haptic
-/// client the step's force: the force loop holds the last step's reactions.
+/// A nonlinear strategy (corotational) gives the force loop the tangent
+/// compliance of its last step (`fem::tangent`): the force loop's contact
+/// problem is the expansion of the full one about that step, so a sample at
+/// the step's own pose gives the step's force: to 1% here (measured 0.5%),
+/// since the step searched its rows on the shape of the step before it and
+/// a sample searches them on the step's own shape (the deformed contact
+/// geometry of the nonlinear strategies), so the two see slightly different
+/// rows.
 #[test]
-fn corotational_force_loop_holds_the_step_force() {
+fn corotational_force_samples_at_the_step_pose_give_the_step_force() {
     let (mut scene, _) = Scene::load("cube").unwrap();
     scene.solver.strategy = fissure_server::scene::Strategy::Corotational;
     let home = scene.instruments[0].home_position_m;
@@ -223,7 +229,7 @@ fn corotational_force_loop_holds_the_step_force() {
         f.force_n
     );
     assert!(
-        (f.force_n - step_force).norm() <= 1e-9 * step_force.norm().max(1e-12),
+        (f.force_n - step_force).norm() <= 1e-2 * step_force.norm().max(1e-12),
         "{:?} vs {step_force:?}",
         f.force_n
     );

@@ -6,7 +6,8 @@
 //!   `compliance`, 150 source nodes a face, whole brain, CPU BVH, 2 threads)
 //!   and one-dimension-at-a-time sweeps around it: mesh preset, strategy
 //!   (`corotational`, `neo-hookean`), solver tolerance, nodes a face, region
-//!   of interest, ray backend, threads, and the contact law (the paper's
+//!   of interest, ray backend, threads, the element (the locking-free
+//!   `tet4-nodal-pressure` beside `tet4`) and the contact law (the paper's
 //!   projection beside the frictionless default). Every run is compared with
 //!   the **reference**, the finest preset with `neo-hookean` at a tight
 //!   tolerance and frictionless contact ([`compare`]).
@@ -42,7 +43,7 @@ pub mod stability;
 use compare::Errors;
 use config::{Backend, Config};
 use driver::RunResult;
-use fissure_server::fem::Strategy;
+use fissure_server::fem::{Element, Strategy};
 use fissure_server::scene::ContactLaw;
 use indicatif::{ProgressBar, ProgressStyle};
 use plan::{PlanOptions, Shard, StudyPlan};
@@ -322,6 +323,7 @@ impl Plan {
                     "tolerance",
                 ),
                 v(&|c| c.contact_law = ContactLaw::Paper, "contact"),
+                v(&|c| c.element = Element::Tet4NodalPressure, "element"),
                 v(&|c| c.nodes_per_face = 30, "nodes-per-face"),
                 v(&|c| c.nodes_per_face = 500, "nodes-per-face"),
                 v(&|c| c.roi_m = Some(0.03), "roi"),

@@ -63,7 +63,8 @@ use super::constraint::Constraint;
 use super::element::polar_rotation_fast;
 use super::model::Model;
 use super::par::{NodeGather, Par, for_each_chunk, try_for_each_chunk_pair};
-use super::{Solution, SolveError};
+use super::tangent::TangentPatch;
+use super::{CompliancePatch, Solution, SolveError};
 use nalgebra::{Matrix3, Vector3};
 
 /// Tolerances of the iterative strategies (`corotational`, `neo-hookean`).
@@ -195,6 +196,8 @@ pub struct Corotational {
     floor: f64,
     /// Total inner (CG) iterations of the last step.
     pub last_inner_iterations: u32,
+    /// The tangent compliance of the last step, for the force loop.
+    tangent: TangentPatch,
 }
 
 impl std::fmt::Debug for Corotational {
@@ -224,6 +227,7 @@ impl Corotational {
         let gather_map = NodeGather::new(nn, &model.tets);
         let par = super::par::default_par();
         let floor = model.force_floor(opts.floor_strain);
+        let tangent = TangentPatch::new(&model)?;
         let mut lin = Compliance::new(model, Recover::All)?;
         lin.set_parallelism(par);
         lin.keep_single();
@@ -255,6 +259,7 @@ impl Corotational {
             support_reactions: Vec::new(),
             floor,
             last_inner_iterations: 0,
+            tangent,
         })
     }
 
@@ -508,6 +513,7 @@ impl Corotational {
     }
 
     fn step<C: Into<Constraint> + Copy>(&mut self, cons: &[C]) -> Result<&Solution, SolveError> {
+        self.tangent.invalidate();
         self.lin.prepare_constraints(cons)?;
         let iterations = if self.lin.step_rows().rows.is_empty() {
             // Nothing enforced: the rest state is the equilibrium.
@@ -571,7 +577,56 @@ fn write_forces(g: &super::element::TetGeometry, p: &Matrix3<f64>, o: &mut [f64]
     }
 }
 
-stepping_solver!(Corotational, "corotational", [lin.model()]);
+impl Corotational {
+    /// The force loop's patch: the compliance of the frozen-rotation
+    /// tangent `K_R = sum_e R_e K_e R_e^T` at the last good state (the
+    /// tangent the outer iterations solve with; [`super::tangent`]).
+    /// `false` when the state cannot be evaluated or factored.
+    fn tangent_patch(&mut self, nodes: &[u32], patch: &mut CompliancePatch) -> bool {
+        if !self.tangent.is_fresh() {
+            // Rotations and internal force of the last good state (after a
+            // failed step they are of a trial).
+            self.u.copy_from_slice(&self.good);
+            if self.rotations_and_force().is_err() {
+                return false;
+            }
+        }
+        let m = self.lin.model();
+        let rot = &self.rot;
+        let refactored = self.tangent.refactor(m, |e| {
+            let r = rot[e];
+            let mut k = m.kel[e];
+            for a in 0..4 {
+                for b in 0..4 {
+                    let kab: Matrix3<f64> = k.fixed_view::<3, 3>(3 * a, 3 * b).into_owned();
+                    k.fixed_view_mut::<3, 3>(3 * a, 3 * b)
+                        .copy_from(&(r * kab * r.transpose()));
+                }
+            }
+            Some(k)
+        });
+        if refactored.is_err() {
+            return false;
+        }
+        self.tangent.fill(
+            self.lin.model(),
+            nodes,
+            &self.solution.displacements,
+            &self.f,
+            patch,
+        );
+        true
+    }
+}
+
+stepping_solver!(
+    Corotational,
+    "corotational",
+    [lin.model()]
+    fn compliance_patch(&mut self, nodes: &[u32], patch: &mut CompliancePatch) -> bool {
+        self.tangent_patch(nodes, patch)
+    }
+);
 
 #[cfg(test)]
 mod tests {

@@ -72,6 +72,7 @@ pub mod par;
 pub mod reactions;
 pub mod roi;
 pub mod skull;
+pub mod tangent;
 
 pub use constraint::{Constraint, ConstraintKind};
 pub use contact::{CompliancePatch, ContactAnswer, ContactRow};

@@ -35,7 +35,8 @@ use super::corotational::IterativeOptions;
 use super::element::{neo_hookean_element_h, neo_hookean_energy, neo_hookean_forces};
 use super::factor::SparseLlt;
 use super::model::Model;
-use super::{Solution, SolveError};
+use super::tangent::TangentPatch;
+use super::{CompliancePatch, Solution, SolveError};
 use nalgebra::{SVector, Vector3};
 
 /// The `neo-hookean` strategy.
@@ -59,6 +60,10 @@ pub struct NeoHookean {
     support_reactions: Vec<Vector3<f64>>,
     /// Absolute floor of the convergence test, N.
     floor: f64,
+    /// The tangent compliance of the last step, for the force loop.
+    tangent: TangentPatch,
+    /// Internal force at the last good state (the patch's), N.
+    f_good: Vec<f64>,
 }
 
 /// Sufficient-decrease constant of the line search (Armijo's `c1`).
@@ -86,6 +91,8 @@ impl NeoHookean {
         }
         let n = model.pattern.n_dofs;
         Ok(Self {
+            tangent: TangentPatch::new(&model)?,
+            f_good: vec![0.0; n],
             factor: SparseLlt::new(&model.pattern)?,
             rows: StepRows::new(model.n_nodes()),
             frame: Frame::new(model.support.clone()),
@@ -323,6 +330,7 @@ impl NeoHookean {
     }
 
     fn step<C: Into<Constraint> + Copy>(&mut self, cons: &[C]) -> Result<&Solution, SolveError> {
+        self.tangent.invalidate();
         self.rows.set(cons, &self.model.support)?;
         self.frame.set(&self.rows);
         let iterations = if self.rows.rows.is_empty() {
@@ -364,4 +372,44 @@ fn inverted(element: usize, h: &nalgebra::Matrix3<f64>) -> SolveError {
     }
 }
 
-stepping_solver!(NeoHookean, "neo-hookean", [model]);
+impl NeoHookean {
+    /// The force loop's patch: the tangent compliance at the last good
+    /// state ([`super::tangent`]); `false` when its factorization fails.
+    fn tangent_patch(&mut self, nodes: &[u32], patch: &mut CompliancePatch) -> bool {
+        let (m, u, f) = (&self.model, &self.good, &mut self.f_good);
+        if !self.tangent.is_fresh() {
+            f.fill(0.0);
+        }
+        let refactored = self.tangent.refactor(m, |e| {
+            let t = &m.tets[e];
+            let h = m.geoms[e].displacement_gradient(&corner_u(t, u));
+            let (forces, k) = neo_hookean_element_h(&m.geoms[e], &h, m.lambda, m.mu)?;
+            let mut fe = SVector::<f64, 12>::zeros();
+            for a in 0..4 {
+                fe.fixed_rows_mut::<3>(3 * a).copy_from(&forces[a]);
+            }
+            scatter_add(t, &fe, f);
+            Some(k)
+        });
+        if refactored.is_err() {
+            return false;
+        }
+        self.tangent.fill(
+            &self.model,
+            nodes,
+            &self.solution.displacements,
+            &self.f_good,
+            patch,
+        );
+        true
+    }
+}
+
+stepping_solver!(
+    NeoHookean,
+    "neo-hookean",
+    [model]
+    fn compliance_patch(&mut self, nodes: &[u32], patch: &mut CompliancePatch) -> bool {
+        self.tangent_patch(nodes, patch)
+    }
+);

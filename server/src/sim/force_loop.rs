@@ -127,15 +127,9 @@ impl ForceLoop {
             .query
             .query(model, snap, self.index, pose, &mut self.history);
         let fm = &snap.force_model;
-        let free = if fm.patch.linear || !fm.has_patch {
-            FreePositions::Rest(&model.mesh.nodes)
-        } else {
-            FreePositions::Tangent {
-                rest: &model.mesh.nodes,
-                index: &fm.patch_index,
-                positions: &fm.patch.free_positions,
-            }
-        };
+        // Written on the rest positions, as the step's rows are; a tangent
+        // patch rewrites them all at the solve ([`rows::to_tangent`]).
+        let free = FreePositions::Rest(&model.mesh.nodes);
         self.poses.clear();
         self.poses.resize(self.index + 1, *pose);
         self.rows.clear();
@@ -208,6 +202,16 @@ impl ForceLoop {
             }
         }
         rows::append_owner(&mut self.all, &fm.step_rows, SKULL_OWNER);
+        if !fm.patch.linear {
+            rows::to_tangent(
+                &mut self.all,
+                &FreePositions::Tangent {
+                    rest: &model.mesh.nodes,
+                    index: &fm.patch_index,
+                    positions: &fm.patch.free_positions,
+                },
+            );
+        }
         let mut out_flags = 0;
         if let Err(e) = self.solver.solve(fm, &self.all, &mut self.answer) {
             tracing::debug!(instrument = self.index, error = %e, "force-loop contact solve failed");

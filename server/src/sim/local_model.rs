@@ -12,7 +12,10 @@
 //! the complementarity conditions of [`crate::fem::lcp`]. For linear
 //! elasticity this is the problem a full solve at the sample's poses
 //! poses, so a sample equals that solve (to the solver's tolerance) as long
-//! as every row's node is in the patch.
+//! as every row's node is in the patch. For a nonlinear strategy the patch
+//! is the tangent compliance of the last step ([`crate::fem::tangent`]) and
+//! the rows are rewritten for it ([`super::rows::to_tangent`]): a sample
+//! then solves the first-order expansion of the step's problem.
 //!
 //! [`ForceSolver`] keeps, from one sample to the next of one frame, the
 //! rows it has seen in slots of a dense `W` and the solver's Cholesky factor

@@ -104,6 +104,22 @@ impl FreePositions<'_> {
     }
 }
 
+/// Rows written on the rest positions (`g = g_free + dir . u`, `u` the
+/// displacement from rest) rewritten for a tangent patch, whose unknown is
+/// the motion from the free positions (`x = free + C f`): a point row on
+/// its heaviest node, as the nonlinear strategies' steps take it (see
+/// [`crate::fem::contact`]), so that a sample and a step solve one
+/// problem; and every gap shifted by `dir . (free - rest)` of that node
+/// (nothing for a node the patch lacks: its free position is its rest
+/// one). Frictionless rows only (friction needs a linear strategy).
+pub fn to_tangent(rows: &mut [Row], free: &FreePositions<'_>) {
+    for r in rows {
+        let n = r.row.node;
+        let shift = r.row.dir.dot(&(free.of(n) - free.rest()[n as usize]));
+        r.row = ContactRow::at_node(n, r.row.dir, r.row.gap_free_m + shift, r.row.kind);
+    }
+}
+
 /// Where a frictional contact sticks: the point of the instrument the tissue
 /// point stuck to (instrument frame, m), and which tissue point (barycentric
 /// weights on the row's triangle; `[1, 0, 0]` for a vertex's row).
@@ -603,6 +619,61 @@ pub fn owner_force(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A row on the rest positions, rewritten for a tangent patch, gives
+    /// the same gap at the same position: `g_free + dir . u` with `u` from
+    /// rest equals the new `g_free + dir . (x - free)`; a point row goes to
+    /// its heaviest node; a node without a free position keeps its gap.
+    #[test]
+    fn rows_rewritten_for_a_tangent_patch_keep_their_gaps() {
+        let rest = [
+            Point3::new(0.0, 0.0, 0.0),
+            Point3::new(0.01, 0.0, 0.0),
+            Point3::new(0.0, 0.01, 0.0),
+        ];
+        let free_pos = [
+            Point3::new(0.0, 0.0, -0.002),
+            Point3::new(0.011, 0.0, -0.001),
+        ];
+        let index = [0u32, 1, u32::MAX];
+        let free = FreePositions::Tangent {
+            rest: &rest,
+            index: &index,
+            positions: &free_pos,
+        };
+        let dir = Vector3::new(0.0, 0.6, 0.8);
+        let row = |row| Row {
+            key: 0,
+            owner: 0,
+            row,
+            point: Point3::origin(),
+            triangle: NO_TRIANGLE,
+        };
+        let mut rows = vec![
+            row(ContactRow::at_node(0, dir, 1e-3, RowKind::Unilateral)),
+            row(ContactRow::at_point(
+                [2, 1, 0],
+                [0.2, 0.5, 0.3],
+                dir,
+                -5e-4,
+                RowKind::Unilateral,
+            )),
+            row(ContactRow::at_node(2, dir, 2e-4, RowKind::Bilateral)),
+        ];
+        to_tangent(&mut rows, &free);
+        // Node 0 at its free position: u = free - rest, x - free = 0.
+        let g = 1e-3 + dir.dot(&(free_pos[0] - rest[0]));
+        assert!((rows[0].row.gap_free_m - g).abs() < 1e-18);
+        // The point row is now on node 1, shifted by its free motion.
+        assert!(!rows[1].row.is_point());
+        assert_eq!(rows[1].row.node, 1);
+        assert_eq!(rows[1].row.kind, RowKind::Unilateral);
+        let g = -5e-4 + dir.dot(&(free_pos[1] - rest[1]));
+        assert!((rows[1].row.gap_free_m - g).abs() < 1e-18);
+        // Node 2 has no free position: its gap is unchanged.
+        assert_eq!(rows[2].row.gap_free_m, 2e-4);
+        assert_eq!(rows[2].row.kind, RowKind::Bilateral);
+    }
 
     #[test]
     fn tangents_are_orthonormal_and_deterministic() {
