@@ -130,6 +130,104 @@ pub struct Report {
     /// The rigid part of the frame with the largest displacement (absent
     /// in recordings without it).
     pub motion: Option<MotionReport>,
+    /// The ties across the fissure (absent when the scene has none).
+    pub ties: Option<TieReport>,
+}
+
+/// What became of the ties over a recording.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct TieReport {
+    /// Intact trabeculae and vessels in the first frame.
+    pub first: (u32, u32),
+    /// In the last frame.
+    pub last: (u32, u32),
+    /// Every tie released, in order.
+    pub events: Vec<TieEventReport>,
+}
+
+/// One tie released.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct TieEventReport {
+    /// Simulation time, s.
+    pub t_s: f64,
+    /// The tie's index in the scene.
+    pub tie: u32,
+    /// `trabecula` or `vessel`.
+    pub kind: &'static str,
+    /// `cut` or `torn`.
+    pub cause: &'static str,
+    /// The instrument that cut or tore it.
+    pub instrument: String,
+    /// Its midpoint, m.
+    pub position_m: [f64; 3],
+    /// Its strain when it went.
+    pub strain: f64,
+}
+
+impl TieReport {
+    fn add(report: &mut Option<Self>, t: &pb::TieSummary) {
+        let counts = (t.trabeculae_intact, t.vessels_intact);
+        let r = report.get_or_insert_with(|| TieReport {
+            first: counts,
+            ..Default::default()
+        });
+        r.last = counts;
+        r.events.extend(t.events.iter().map(|e| TieEventReport {
+            t_s: e.sim_time_s,
+            tie: e.tie,
+            kind: match e.kind() {
+                pb::TieKind::Vessel => "vessel",
+                _ => "trabecula",
+            },
+            cause: match e.cause() {
+                pb::TieCause::Cut => "cut",
+                _ => "torn",
+            },
+            instrument: e.instrument.clone(),
+            position_m: e.position_m.map_or([0.0; 3], |p| [p.x, p.y, p.z]),
+            strain: e.strain,
+        }));
+    }
+
+    fn lines(&self) -> String {
+        let count = |kind: &str, cause: &str| {
+            self.events
+                .iter()
+                .filter(|e| e.kind == kind && e.cause == cause)
+                .count()
+        };
+        let mut s = format!(
+            "ties: trabeculae {} -> {} intact ({} cut, {} torn); vessels {} -> {} intact ({} cut, {} torn{})\n",
+            self.first.0,
+            self.last.0,
+            count("trabecula", "cut"),
+            count("trabecula", "torn"),
+            self.first.1,
+            self.last.1,
+            count("vessel", "cut"),
+            count("vessel", "torn"),
+            if count("vessel", "torn") > 0 {
+                ": an injury"
+            } else {
+                ""
+            }
+        );
+        for e in &self.events {
+            s.push_str(&format!(
+                "  t {:>8.3} s  {:<9} {:>5} {:<4} by {:<10} at ({:.1}, {:.1}, {:.1}) mm, strain {:.3}\n",
+                e.t_s,
+                e.kind,
+                e.tie,
+                e.cause,
+                e.instrument,
+                e.position_m[0] * 1e3,
+                e.position_m[1] * 1e3,
+                e.position_m[2] * 1e3,
+                e.strain
+            ));
+        }
+        s
+    }
 }
 
 fn norm(v: &Option<pb::Vec3>) -> f64 {
@@ -152,6 +250,7 @@ pub fn report(path: &Path, threshold_n: f64) -> anyhow::Result<Report> {
     let mut frames = 0;
     let mut failed_frames = 0;
     let mut motion: Option<MotionReport> = None;
+    let mut ties: Option<TieReport> = None;
     let mut forces: BTreeMap<String, Vec<pb::ForceSample>> = BTreeMap::new();
     let mut poses: BTreeMap<String, Vec<pb::PoseSample>> = BTreeMap::new();
     for e in rec.entries {
@@ -174,6 +273,9 @@ pub fn report(path: &Path, threshold_n: f64) -> anyhow::Result<Report> {
                 }
                 if !f.solver_error.is_empty() {
                     failed_frames += 1;
+                }
+                if let Some(t) = &f.ties {
+                    TieReport::add(&mut ties, t);
                 }
             }
             // Gaps are in `rec.gaps`; `None`: a member of a later version.
@@ -241,6 +343,7 @@ pub fn report(path: &Path, threshold_n: f64) -> anyhow::Result<Report> {
         lost,
         instruments,
         motion,
+        ties,
     })
 }
 
@@ -332,6 +435,10 @@ pub fn table(r: &Report) -> String {
         ));
         s.push_str(&m.lines());
     }
+    if let Some(t) = &r.ties {
+        s.push('\n');
+        s.push_str(&t.lines());
+    }
     s
 }
 
@@ -409,6 +516,79 @@ mod tests {
             }
         }
         std::fs::write(path, file).unwrap();
+    }
+
+    #[test]
+    fn released_ties_are_counted_and_listed_and_a_torn_vessel_is_an_injury() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("ties.fsrec");
+        let mut file = Vec::new();
+        let frame = |k: u64, intact: (u32, u32), events: Vec<pb::TieEvent>| {
+            Entry::Frame(pb::DeformationFrame {
+                frame: k,
+                ties: Some(pb::TieSummary {
+                    trabeculae_intact: intact.0,
+                    vessels_intact: intact.1,
+                    events,
+                    released: Vec::new(),
+                }),
+                ..Default::default()
+            })
+        };
+        let event = |t: f64, tie: u32, kind: pb::TieKind, cause: pb::TieCause| pb::TieEvent {
+            sim_time_s: t,
+            tie,
+            kind: kind as i32,
+            cause: cause as i32,
+            instrument: "blade".into(),
+            position_m: Some(pb::Vec3 {
+                x: -0.06,
+                y: 0.01,
+                z: 0.0,
+            }),
+            strain: 0.25,
+        };
+        put(
+            &mut file,
+            Entry::Header(pb::RecordingHeader {
+                version: 1,
+                scene: Some(pb::SceneDescription {
+                    name: "sylvian-arachnoid".into(),
+                    ..Default::default()
+                }),
+                started_unix_s: 0.0,
+            }),
+        );
+        put(&mut file, frame(0, (10, 2), vec![]));
+        put(
+            &mut file,
+            frame(
+                1,
+                (8, 2),
+                vec![
+                    event(0.02, 3, pb::TieKind::Trabecula, pb::TieCause::Cut),
+                    event(0.02, 4, pb::TieKind::Trabecula, pb::TieCause::Torn),
+                ],
+            ),
+        );
+        put(
+            &mut file,
+            frame(
+                2,
+                (8, 1),
+                vec![event(0.04, 10, pb::TieKind::Vessel, pb::TieCause::Torn)],
+            ),
+        );
+        std::fs::write(&path, file).unwrap();
+        let r = report(&path, 1.0).unwrap();
+        let t = r.ties.as_ref().expect("ties reported");
+        assert_eq!((t.first, t.last, t.events.len()), ((10, 2), (8, 1), 3));
+        let text = table(&r);
+        assert!(
+            text.contains("ties: trabeculae 10 -> 8 intact (1 cut, 1 torn); vessels 2 -> 1 intact (0 cut, 1 torn: an injury)"),
+            "{text}"
+        );
+        assert!(text.contains("vessel       10 torn by blade"), "{text}");
     }
 
     #[test]

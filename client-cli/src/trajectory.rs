@@ -88,6 +88,24 @@ pub const MULTI_CSV_HEADER: &str = "instrument,t_s,x_m,y_m,z_m,qw,qx,qy,qz";
 /// The bundled trajectories, by name: `(name, scene, instrument, csv)`.
 pub const BUNDLED: &[(&str, &str, &str, &str)] = &[
     (
+        "sylvian-arachnoid-spatula",
+        "sylvian-arachnoid",
+        "spatula",
+        include_str!("../trajectories/sylvian-arachnoid-spatula.csv"),
+    ),
+    (
+        "sylvian-arachnoid-blade",
+        "sylvian-arachnoid",
+        "blade",
+        include_str!("../trajectories/sylvian-arachnoid-blade.csv"),
+    ),
+    (
+        "sylvian-arachnoid-careless-spatula",
+        "sylvian-arachnoid",
+        "spatula",
+        include_str!("../trajectories/sylvian-arachnoid-careless-spatula.csv"),
+    ),
+    (
         "sylvian-open-left",
         "sylvian",
         "left",

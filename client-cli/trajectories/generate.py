@@ -149,3 +149,45 @@ def cube_press_hold_retract(t):
 
 
 write("cube-press-hold-retract-left", 2.0, cube_press_hold_retract)
+
+
+# Sylvian fissure with its arachnoid (scene sylvian-arachnoid): entry at
+# x = -65.7 mm, walls facing +-z 3 mm apart, the fissure running along +x.
+# Both instruments lie in the fissure's plane (tip along +x, face A +z) with
+# their handles at (-100.7, 18, 0) mm at home (tip 5 mm outside the entry).
+# The spatula is 1 mm thick: its face A meets the upper wall after 1 mm of
+# lift. A session in three acts:
+# 1. open against intact trabeculae: insert 20 mm, lift 2 mm (the upper
+#    wall 1 mm), hold, lower back to the mid-plane;
+# 2. cut: the blade enters 22 mm along the spatula's path (its tip edge
+#    sweeps the trabeculae of that band) and withdraws;
+# 3. open again to the same lift: the released wall takes less force.
+SYL_HOME = (-0.1007, 0.018, 0.0)
+SYL_ALONG_X = (0.0, 0.7071067811865476, 0.0, 0.7071067811865476)
+
+
+def syl_spatula(t):
+    x = segments(t, [(0.2, SYL_HOME[0]), (0.8, SYL_HOME[0] + 0.020)])
+    z = segments(
+        t,
+        [(0.9, 0.0), (1.7, 0.002), (2.0, 0.002), (2.6, 0.0), (4.1, 0.0), (4.9, 0.002)],
+    )
+    return (x, SYL_HOME[1], z), SYL_ALONG_X
+
+
+def syl_blade(t):
+    x = segments(t, [(2.7, SYL_HOME[0]), (3.3, SYL_HOME[0] + 0.022), (3.4, SYL_HOME[0] + 0.022), (4.0, SYL_HOME[0])])
+    return (x, SYL_HOME[1], 0.0), SYL_ALONG_X
+
+
+# The careless opening: no cut, the spatula lifted 11 mm (the upper wall 10 mm)
+# in 0.6 s and held: the trabeculae and a bridging vessel tear.
+def syl_careless(t):
+    x = segments(t, [(0.2, SYL_HOME[0]), (0.8, SYL_HOME[0] + 0.020)])
+    z = segments(t, [(0.9, 0.0), (1.5, 0.011)])
+    return (x, SYL_HOME[1], z), SYL_ALONG_X
+
+
+write("sylvian-arachnoid-spatula", 5.2, syl_spatula)
+write("sylvian-arachnoid-blade", 5.2, syl_blade)
+write("sylvian-arachnoid-careless-spatula", 2.0, syl_careless)

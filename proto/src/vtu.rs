@@ -141,6 +141,27 @@ pub fn write_vtu<W: Write>(
     write_grid(w, nodes, tets.as_flattened(), 4, 10, point_data, cell_data)
 }
 
+/// Writes line segments as a `.vtu` (cell type 3, `VTK_LINE`), with the
+/// same data conventions as [`write_vtu`] (`cell_data`: one value per
+/// segment).
+pub fn write_vtu_lines<W: Write>(
+    w: &mut W,
+    points: &[Point3<f64>],
+    segments: &[[u32; 2]],
+    point_data: &[(&str, &[Vector3<f64>])],
+    cell_data: &[(&str, &[f64])],
+) -> std::io::Result<()> {
+    write_grid(
+        w,
+        points,
+        segments.as_flattened(),
+        2,
+        3,
+        point_data,
+        cell_data,
+    )
+}
+
 /// Writes a triangle surface as a `.vtu` (cell type 5), with the same data
 /// conventions as [`write_vtu`].
 pub fn write_vtu_surface<W: Write>(

@@ -239,7 +239,7 @@ def bridge_seeds():
 # OpenIGTLink messages (client-cli/src/bridge/igtl/codec.rs), packed here
 # from the protocol's layout. File names: `ok-*` parse; `bad-<cause>-*` are
 # refused with that cause (`IgtlError::kind`), which
-# client-cli/tests/igtl_corpus.rs checks.
+# client-cli/tests/cli/igtl_corpus.rs checks.
 def crc64(data):
     crc = 0
     for b in data:

@@ -111,8 +111,62 @@ pub struct Scene<'a> {
     pub quantity: &'a str,
     /// The spatulas.
     pub plates: &'a [Plate],
+    /// The ties across the fissure that hold.
+    pub ties: &'a [TieSegment],
     /// The camera.
     pub camera: CameraPreset,
+}
+
+/// A tie to draw: its ends, m, and whether it is a vessel (else a
+/// trabecula).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TieSegment {
+    /// One end, m.
+    pub a: Point3<f64>,
+    /// The other end, m.
+    pub b: Point3<f64>,
+    /// A bridging vessel (drawn thicker, in red).
+    pub vessel: bool,
+}
+
+/// Trabeculae: pale, thin; vessels: red, thicker.
+const TRABECULA: Rgb = [236, 226, 190];
+const VESSEL: Rgb = [178, 34, 40];
+
+/// The ties as thin square rods (radius `r` m for a trabecula, 3 r for a
+/// vessel), one mesh.
+fn tie_rods(ties: &[TieSegment], r: f64) -> Vec<TriMesh> {
+    let mut out: Vec<TriMesh> = Vec::new();
+    for vessel in [false, true] {
+        let mut all: Option<TriMesh> = None;
+        for t in ties.iter().filter(|t| t.vessel == vessel) {
+            let d = t.b - t.a;
+            let len = d.norm();
+            if !(len > 0.0 && len.is_finite()) {
+                continue;
+            }
+            let rotation = nalgebra::UnitQuaternion::rotation_between(&Vector3::z(), &d)
+                .unwrap_or_else(|| {
+                    nalgebra::UnitQuaternion::from_axis_angle(
+                        &Vector3::x_axis(),
+                        std::f64::consts::PI,
+                    )
+                });
+            let pose = Isometry3::from_parts(nalgebra::center(&t.a, &t.b).coords.into(), rotation);
+            let w = if vessel { 3.0 * r } else { r };
+            let rod = TriMesh::cuboid(
+                &pose,
+                Vector3::new(w, w, 0.5 * len),
+                if vessel { VESSEL } else { TRABECULA },
+            );
+            match &mut all {
+                Some(m) => m.append(&rod),
+                None => all = Some(rod),
+            }
+        }
+        out.extend(all);
+    }
+    out
 }
 
 /// Draws [`Scene`]s at one size, keeping the rasteriser's buffers between
@@ -227,8 +281,10 @@ impl FrameRenderer {
                 opacity: 0.18,
             });
         }
+        let rods = tie_rods(scene.ties, 0.0015 * diag);
         let mut meshes = vec![surface];
         meshes.extend(plates.iter().map(TriMesh::as_mesh));
+        meshes.extend(rods.iter().map(TriMesh::as_mesh));
         meshes.extend(arrows.iter().map(|(_, a)| a.as_mesh().on_top()));
         let picture = self.renderer.render(&cam, &meshes)?;
 
@@ -466,6 +522,7 @@ mod tests {
             values_mm: &[0.0; 2],
             quantity: "displacement",
             plates: &[],
+            ties: &[],
             camera: CameraPreset {
                 azimuth_deg: 0.0,
                 elevation_deg: 30.0,

@@ -24,6 +24,28 @@ pub struct SessionView {
     pub camera: CameraPreset,
     /// What the surface colour shows.
     pub colour_by: ColourBy,
+    /// The ties across the fissure (the scene's `[[ties]]`).
+    pub ties: Vec<pb::TieDescription>,
+}
+
+/// The ties of a frame that hold, with their ends (m) at the frame's
+/// surface positions `positions` and their strain `(L - L0) / L0`.
+pub fn intact_ties(
+    ties: &[pb::TieDescription],
+    frame: &pb::DeformationFrame,
+    positions: &[Point3<f64>],
+) -> Vec<(Point3<f64>, Point3<f64>, pb::TieKind, f64)> {
+    let released: &[u32] = frame.ties.as_ref().map_or(&[], |t| &t.released);
+    ties.iter()
+        .enumerate()
+        .filter(|(i, _)| released.binary_search(&(*i as u32)).is_err())
+        .filter_map(|(_, t)| {
+            let a = *positions.get(t.vertex_a as usize)?;
+            let b = *positions.get(t.vertex_b as usize)?;
+            let strain = ((b - a).norm() - t.rest_length_m) / t.rest_length_m;
+            Some((a, b, t.kind(), strain))
+        })
+        .collect()
 }
 
 /// What the surface colour of a picture shows.
@@ -100,6 +122,7 @@ impl SessionView {
             rest,
             triangles,
             instruments: scene.instruments.clone(),
+            ties: scene.ties.clone(),
             camera: CameraPreset {
                 azimuth_deg: -60.0,
                 elevation_deg: 35.0,
@@ -140,7 +163,7 @@ impl SessionView {
         }
         let p = Point3::new;
         match self.scene.as_str() {
-            "sylvian" => CameraPreset {
+            "sylvian" | "sylvian-arachnoid" => CameraPreset {
                 azimuth_deg: 195.0,
                 elevation_deg: 10.0,
                 frame_box: (p(-0.103, -0.012, -0.014), p(-0.06, 0.032, 0.014)),
@@ -251,6 +274,15 @@ impl SessionView {
                 }
             })
             .collect();
+        let ties: Vec<crate::render::frame::TieSegment> =
+            intact_ties(&self.ties, frame, &positions)
+                .into_iter()
+                .map(|(a, b, kind, _)| crate::render::frame::TieSegment {
+                    a,
+                    b,
+                    vessel: kind == pb::TieKind::Vessel,
+                })
+                .collect();
         renderer.render(
             &Scene {
                 positions: &positions,
@@ -258,6 +290,7 @@ impl SessionView {
                 values_mm: &values_mm,
                 quantity: self.colour_by.label(),
                 plates: &plates,
+                ties: &ties,
                 camera: self.camera,
             },
             caption,

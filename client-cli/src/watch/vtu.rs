@@ -1,6 +1,9 @@
 //! The VTU time series of the boundary surface (`surface-NNNNNN.vtu`, point
 //! data `displacement` in m) and its ParaView index (`.pvd`, `timestep` = the
-//! frame's simulation time, s).
+//! frame's simulation time, s); for scenes with ties, beside it the series of
+//! the ties that hold (`<stem>-ties-NNNNNN.vtu`, line cells with cell data
+//! `strain` and `vessel` (1 for a vessel, 0 for a trabecula), so that
+//! ParaView can colour them; cut and torn ties are gone from it).
 
 use super::view::SessionView;
 use anyhow::Context;
@@ -15,6 +18,7 @@ pub struct VtuSeries {
     dir: PathBuf,
     stem: String,
     entries: Vec<(f64, String)>,
+    tie_entries: Vec<(f64, String)>,
     positions: Vec<Point3<f64>>,
     displacement: Vec<Vector3<f64>>,
 }
@@ -26,6 +30,7 @@ impl VtuSeries {
             dir: dir.to_owned(),
             stem: stem.to_owned(),
             entries: Vec::new(),
+            tie_entries: Vec::new(),
             positions: Vec::new(),
             displacement: Vec::new(),
         }
@@ -57,7 +62,42 @@ impl VtuSeries {
         .and_then(|_| w.flush())
         .with_context(|| format!("writing {}", path.display()))?;
         self.entries.push((frame.sim_time_s, name));
+        if !view.ties.is_empty() {
+            self.write_ties(view, frame)?;
+        }
         Ok(path)
+    }
+
+    /// Writes the frame's intact ties as line cells.
+    fn write_ties(
+        &mut self,
+        view: &SessionView,
+        frame: &pb::DeformationFrame,
+    ) -> anyhow::Result<()> {
+        let ties = super::view::intact_ties(&view.ties, frame, &self.positions);
+        let points: Vec<Point3<f64>> = ties.iter().flat_map(|t| [t.0, t.1]).collect();
+        let segments: Vec<[u32; 2]> = (0..ties.len() as u32).map(|i| [2 * i, 2 * i + 1]).collect();
+        let strain: Vec<f64> = ties.iter().map(|t| t.3).collect();
+        let vessel: Vec<f64> = ties
+            .iter()
+            .map(|t| f64::from(u8::from(t.2 == pb::TieKind::Vessel)))
+            .collect();
+        let name = format!("{}-ties-{:06}.vtu", self.stem, frame.frame);
+        let path = self.dir.join(&name);
+        let file =
+            std::fs::File::create(&path).with_context(|| format!("creating {}", path.display()))?;
+        let mut w = std::io::BufWriter::new(file);
+        fissure_proto::vtu::write_vtu_lines(
+            &mut w,
+            &points,
+            &segments,
+            &[],
+            &[("strain", &strain), ("vessel", &vessel)],
+        )
+        .and_then(|_| w.flush())
+        .with_context(|| format!("writing {}", path.display()))?;
+        self.tie_entries.push((frame.sim_time_s, name));
+        Ok(())
     }
 
     /// Number of frames written.
@@ -73,6 +113,11 @@ impl VtuSeries {
     /// Writes the `.pvd` index (ParaView's collection of the frames, with
     /// their simulation times in s) and returns its path.
     pub fn finish(&self) -> anyhow::Result<PathBuf> {
+        if !self.tie_entries.is_empty() {
+            let ties = self.dir.join(format!("{}-ties.pvd", self.stem));
+            std::fs::write(&ties, pvd(&self.tie_entries))
+                .with_context(|| format!("writing {}", ties.display()))?;
+        }
         let path = self.dir.join(format!("{}.pvd", self.stem));
         std::fs::write(&path, pvd(&self.entries))
             .with_context(|| format!("writing {}", path.display()))?;

@@ -1,4 +1,4 @@
-"""An OpenIGTLink peer built on pyigtl, for client-cli/tests/igtl_peers.rs.
+"""An OpenIGTLink peer built on pyigtl, for client-cli/tests/cli/igtl_peers.rs.
 
 Connects to the bridge, sends N TRANSFORMs packed by pyigtl (a press 2 mm
 into the cube scene's top, in millimetres), and after each one reads

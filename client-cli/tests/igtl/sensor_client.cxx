@@ -1,5 +1,5 @@
 // An OpenIGTLink peer built on the reference C++ library (libOpenIGTLink),
-// for client-cli/tests/igtl_peers.rs: sends N TRANSFORMs to the bridge and,
+// for client-cli/tests/cli/igtl_peers.rs: sends N TRANSFORMs to the bridge and,
 // after each, reads messages until the two SENSOR answers of that pose are
 // in. Every body is unpacked by the library with its CRC checked
 // (Unpack(1)); the SENSOR units are compared with units packed by the

@@ -182,6 +182,10 @@ pub enum PlateShape {
         /// Signed bend radius, m (`> 0`: face A convex).
         bend_radius_m: f64,
     },
+    /// A thin flat blade (micro-scissors, an arachnoid knife): it pushes
+    /// the tissue as a flat plate does, and its tip edge cuts the ties it
+    /// sweeps across ([`PlateShape::cutting_edge`], [`super::sweep`]).
+    Blade,
 }
 
 impl PlateShape {
@@ -191,6 +195,17 @@ impl PlateShape {
             Self::Flat => "flat",
             Self::Trapezoid { .. } => "trapezoid",
             Self::Curved { .. } => "curved",
+            Self::Blade => "blade",
+        }
+    }
+
+    /// The cutting edge of a plate of width `w` and length `l` (m), in the
+    /// instrument frame: a blade's tip edge at mid-thickness, `(0, -w/2, l)`
+    /// to `(0, w/2, l)`; `None` for shapes that do not cut.
+    pub fn cutting_edge(&self, w: f64, l: f64) -> Option<[Point3<f64>; 2]> {
+        match self {
+            Self::Blade => Some([Point3::new(0.0, -0.5 * w, l), Point3::new(0.0, 0.5 * w, l)]),
+            _ => None,
         }
     }
 
@@ -198,7 +213,7 @@ impl PlateShape {
     /// for a trapezoid) and length `l`, m.
     pub fn plate(&self, h: f64, w: f64, l: f64) -> Plate {
         match *self {
-            Self::Flat => Plate::flat(h, w, l),
+            Self::Flat | Self::Blade => Plate::flat(h, w, l),
             Self::Trapezoid { base_width_m } => Plate::trapezoid(h, base_width_m, w, l),
             Self::Curved { bend_radius_m } => Plate::curved(h, w, l, bend_radius_m),
         }

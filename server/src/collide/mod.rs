@@ -36,6 +36,7 @@ pub mod instrument;
 pub(crate) mod pair;
 pub mod placement;
 pub mod ray;
+pub mod sweep;
 
 pub use brute::BruteForce;
 pub use bvh::{Bvh, RefitStats};

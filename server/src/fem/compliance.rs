@@ -996,6 +996,8 @@ impl Compliance {
                 self.w[a * n + c] = v;
                 self.w[c * n + a] = v;
             }
+            // A row's own compliance (a tie's spring): `W + diag(c)`.
+            self.w[a * n + a] += ra.compliance_m_per_n;
         }
         self.q.clear();
         self.kinds.clear();

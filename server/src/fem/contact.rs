@@ -50,6 +50,14 @@ pub struct ContactRow {
     pub gap_free_m: f64,
     /// What the row constrains.
     pub kind: RowKind,
+    /// The row's own compliance `c`, m/N (0: a rigid row): the row's gap is
+    /// `g = gap_free + dir . sum_a w_a u_a + c lambda`. A unilateral row with
+    /// `c = 1 / k` is a tension-only spring of stiffness `k` (N/m) whose
+    /// stretch is `-(gap_free + dir . sum_a w_a u_a)`: the conditions
+    /// `lambda >= 0`, `g >= 0`, `lambda g = 0` give `lambda = k max(0,
+    /// stretch)` ([`super::ties`]). On the Delassus operator it is a diagonal
+    /// term, `W + diag(c)`.
+    pub compliance_m_per_n: f64,
 }
 
 impl ContactRow {
@@ -62,6 +70,30 @@ impl ContactRow {
             dir,
             gap_free_m,
             kind,
+            compliance_m_per_n: 0.0,
+        }
+    }
+
+    /// A row between two nodes, `a` pulled along `dir` and `b` along
+    /// `-dir` (weights `+1` and `-1`): with `dir` the unit vector from `a`
+    /// to `b`, the gap is `gap_free + dir . (u_a - u_b)`, the shortening of
+    /// the segment from `a` to `b` beyond `gap_free`.
+    pub fn between(
+        a: u32,
+        b: u32,
+        dir: Vector3<f64>,
+        gap_free_m: f64,
+        kind: RowKind,
+        compliance_m_per_n: f64,
+    ) -> Self {
+        Self {
+            node: a,
+            weight: 1.0,
+            others: [(b, -1.0), NO_NODE],
+            dir,
+            gap_free_m,
+            kind,
+            compliance_m_per_n,
         }
     }
 
@@ -84,6 +116,7 @@ impl ContactRow {
             dir,
             gap_free_m,
             kind,
+            compliance_m_per_n: 0.0,
         }
     }
 
@@ -187,6 +220,15 @@ pub fn validate_rows(
                 return Err(SolveError::NonFinite(format!("weight of contact row {i}")));
             }
         }
+        if !(r.compliance_m_per_n >= 0.0 && r.compliance_m_per_n.is_finite()) {
+            return Err(SolveError::BadConstraint {
+                node: r.node,
+                reason: format!(
+                    "contact row {i}: compliance {} m/N (must be finite and >= 0)",
+                    r.compliance_m_per_n
+                ),
+            });
+        }
         if !r.gap_free_m.is_finite() || !r.dir.iter().all(|v| v.is_finite()) {
             return Err(SolveError::NonFinite(format!(
                 "contact row {i} on node {}",
@@ -245,6 +287,18 @@ pub fn solve_by_active_set<S: DeformationSolver + ?Sized>(
 ) -> Result<(), SolveError> {
     validate_rows(rows, n_nodes, false)?;
     let exact_points = solver.takes_loads();
+    // A row between nodes or with its own compliance (a tie) has no
+    // heaviest-node form: it needs the point rows' exact path.
+    if !exact_points
+        && rows
+            .iter()
+            .any(|r| r.compliance_m_per_n > 0.0 || r.nodes().any(|(_, w)| w < 0.0))
+    {
+        return Err(SolveError::InvalidModel(format!(
+            "strategy {} cannot take ties (rows between two nodes with a compliance of their own): they need a strategy that takes nodal loads (compliance, direct)",
+            solver.name()
+        )));
+    }
     let approx: Vec<ContactRow>;
     let rows = if !exact_points && rows.iter().any(|r| r.is_point()) {
         approx = rows
@@ -317,7 +371,12 @@ pub fn solve_by_active_set<S: DeformationSolver + ?Sized>(
             }
             let m = points.len();
             let a = nalgebra::DMatrix::from_fn(m, m, |i, j| {
-                rows[points[i]].normal_motion(&responses[j])
+                let own = if i == j {
+                    rows[points[i]].compliance_m_per_n
+                } else {
+                    0.0
+                };
+                rows[points[i]].normal_motion(&responses[j]) + own
             });
             let b = nalgebra::DVector::from_fn(m, |i, _| {
                 -(rows[points[i]].gap_free_m + rows[points[i]].normal_motion(&u0))
@@ -357,10 +416,12 @@ pub fn solve_by_active_set<S: DeformationSolver + ?Sized>(
             answer.multipliers[p] = mu[k];
         }
         for (i, r) in rows.iter().enumerate() {
-            gaps[i] = r.gap_free_m + r.normal_motion(&sol.displacements);
             if !active[i] {
                 answer.multipliers[i] = 0.0;
             }
+            gaps[i] = r.gap_free_m
+                + r.normal_motion(&sol.displacements)
+                + r.compliance_m_per_n * answer.multipliers[i];
         }
         let scale = answer
             .multipliers

@@ -97,7 +97,7 @@ use nalgebra::{Matrix3, Vector3};
 /// element size) stays five orders below it. A genuinely diverging or
 /// stalled solve still fails: the floor is absolute, four orders and more
 /// below any load a spatula applies (about 1e-5 N at a 1 um push, tested
-/// in `server/tests/fem_convergence.rs`), and `max_outer` bounds the
+/// in `server/tests/engine/fem_convergence.rs`), and `max_outer` bounds the
 /// iterations.
 /// `NotConverged` reports `|r| / max(|f|, F_floor / tolerance)`, which is
 /// `<= tolerance` exactly when the test passes.
@@ -123,7 +123,7 @@ impl IterativeOptions {
     /// paper-48k phantom this takes 2 to 3 outer iterations of
     /// `corotational` per step; the displacement then differs from a
     /// 1e-10 solve by about the same relative amount (1e-4 of the largest
-    /// displacement, measured in `server/tests/fem_solvers.rs`, well
+    /// displacement, measured in `server/tests/engine/fem_solvers.rs`, well
     /// below the P1 discretisation error). The accuracy reference
     /// (`neo-hookean` in the study) should use 1e-8 or below.
     pub const INTERACTIVE_TOLERANCE: f64 = 1e-4;

@@ -73,6 +73,7 @@ pub mod reactions;
 pub mod roi;
 pub mod skull;
 pub mod tangent;
+pub mod ties;
 
 pub use constraint::{Constraint, ConstraintKind};
 pub use contact::{CompliancePatch, ContactAnswer, ContactRow};

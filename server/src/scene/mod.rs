@@ -12,6 +12,7 @@
 //! (`instrument[1].thickness_m`) and what is wrong with it.
 
 pub mod region;
+pub mod ties;
 
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
@@ -19,6 +20,10 @@ use std::path::{Path, PathBuf};
 /// The scenes embedded in the binary, by name.
 pub const EMBEDDED: &[(&str, &str)] = &[
     ("sylvian", include_str!("../../scenes/sylvian.toml")),
+    (
+        "sylvian-arachnoid",
+        include_str!("../../scenes/sylvian-arachnoid.toml"),
+    ),
     (
         "interhemispheric",
         include_str!("../../scenes/interhemispheric.toml"),
@@ -43,9 +48,18 @@ pub enum SceneError {
         path: PathBuf,
         source: std::io::Error,
     },
-    /// TOML syntax or an unknown/mistyped key (the message gives line and column).
-    #[error("scene {origin}: {message}")]
-    Parse { origin: String, message: String },
+    /// TOML syntax or an unknown/mistyped key: where (line and column,
+    /// 1-based) and what; the TOML error, with the offending line quoted,
+    /// is the source.
+    #[error("scene {origin}: {at}{message}")]
+    Parse {
+        origin: String,
+        /// `line L, column C: `, or empty where the error has no place.
+        at: String,
+        message: String,
+        #[source]
+        source: Box<toml::de::Error>,
+    },
     /// A value is out of range or inconsistent.
     #[error("scene {origin}: field `{field}`: {reason}")]
     Invalid {
@@ -106,6 +120,11 @@ pub struct Scene {
     /// within `distance_m` of it, with the cut surface fixed (a speed option).
     #[serde(default)]
     pub roi: Option<RoiSpec>,
+    /// The connective tissue across the fissure (`[[ties]]`,
+    /// [`ties`]): trabeculae and bridging vessels. Needs the `compliance`
+    /// or `direct` strategy.
+    #[serde(default)]
+    pub ties: Vec<ties::TieSpec>,
 }
 
 /// A region of interest around the working fissure.
@@ -545,6 +564,7 @@ enum ShapeName {
     Flat,
     Trapezoid,
     Curved,
+    Blade,
 }
 
 /// An `[[instruments]]` table as written: the outline's parameters sit
@@ -597,6 +617,7 @@ impl TryFrom<InstrumentFields> for InstrumentSpec {
                     .bend_radius_m
                     .ok_or_else(|| named("shape = \"curved\" needs bend_radius_m (m)"))?,
             },
+            ShapeName::Blade => PlateShape::Blade,
         };
         Ok(Self {
             name: f.name,
@@ -728,14 +749,36 @@ impl Scene {
                 }
             }
         }
+        for t in &mut scene.ties {
+            if let Some(Region::Vertices { vertices_file }) = &mut t.region {
+                if vertices_file.is_relative() {
+                    *vertices_file = dir.join(&*vertices_file);
+                }
+            }
+            if let Some(p) = &mut t.pairs_file {
+                if p.is_relative() {
+                    *p = dir.join(&*p);
+                }
+            }
+        }
         Ok((scene, Some(path.to_owned())))
     }
 
     /// Parses and validates scene text; `origin` names it in errors.
     pub fn parse(text: &str, origin: &str) -> Result<Scene, SceneError> {
-        let scene: Scene = toml::from_str(text).map_err(|e| SceneError::Parse {
-            origin: origin.to_owned(),
-            message: e.to_string(),
+        let scene: Scene = toml::from_str(text).map_err(|source| {
+            let at = source.span().map_or(String::new(), |span| {
+                let before = &text[..span.start.min(text.len())];
+                let line = before.matches('\n').count() + 1;
+                let column = before.len() - before.rfind('\n').map_or(0, |i| i + 1) + 1;
+                format!("line {line}, column {column}: ")
+            });
+            SceneError::Parse {
+                origin: origin.to_owned(),
+                at,
+                message: source.message().trim_end().to_owned(),
+                source: Box::new(source),
+            }
         })?;
         scene.validate(origin)?;
         Ok(scene)
@@ -998,7 +1041,7 @@ impl Scene {
                 PlateShape::Curved { bend_radius_m } => {
                     positive(&f("bend_radius_m"), bend_radius_m)?
                 }
-                PlateShape::Flat => {}
+                PlateShape::Flat | PlateShape::Blade => {}
             }
             finite3(f("home_position_m"), &ins.home_position_m)?;
             let q = ins.home_orientation;
@@ -1038,6 +1081,22 @@ impl Scene {
                 for (i, r) in s.open.iter().enumerate() {
                     check_region(format!("skull.surface.open[{i}]"), r)?;
                 }
+            }
+        }
+        for (i, t) in self.ties.iter().enumerate() {
+            let at = format!("ties[{i}]");
+            t.check(&at).map_err(|(field, reason)| bad(field, reason))?;
+            if let Some(r) = &t.region {
+                check_region(format!("{at}.region"), r)?;
+            }
+            if !self.solver.strategy.is_linear() {
+                return Err(bad(
+                    at,
+                    format!(
+                        "ties need solver.strategy = \"compliance\" or \"direct\" (the scene has {:?})",
+                        self.solver.strategy.name()
+                    ),
+                ));
             }
         }
         Ok(())

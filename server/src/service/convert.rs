@@ -97,6 +97,16 @@ pub fn scene_description(scene: &Scene, model: &Model) -> pb::SceneDescription {
         collision_backend: scene.collision.backend.name().into(),
         history_mode: scene.collision.history.name().into(),
         collision_traversal: scene.collision.traversal.name().into(),
+        ties: model
+            .ties
+            .iter()
+            .map(|t| pb::TieDescription {
+                vertex_a: model.from_volume[t.a as usize],
+                vertex_b: model.from_volume[t.b as usize],
+                kind: tie_kind(t.kind) as i32,
+                rest_length_m: t.rest_length_m,
+            })
+            .collect(),
         contact_law: scene.contact.law.name().into(),
         friction_coefficient: match scene.contact.law {
             ContactLaw::Coulomb => scene.contact.friction_coefficient.unwrap_or(0.0),
@@ -215,7 +225,57 @@ pub fn frame(f: &Frame, include_positions: bool) -> pb::DeformationFrame {
         solver_error: f.solver_error.clone().unwrap_or_default(),
         max_displacement_m: f.max_displacement_m,
         rigid: Some(rigid_part(&f.rigid)),
+        ties: tie_summary(&f.ties, &f.instruments),
     }
+}
+
+fn tie_kind(k: crate::fem::ties::TieKind) -> pb::TieKind {
+    match k {
+        crate::fem::ties::TieKind::Trabecula => pb::TieKind::Trabecula,
+        crate::fem::ties::TieKind::Vessel => pb::TieKind::Vessel,
+    }
+}
+
+/// The ties of a frame (none: the scene has no ties and nothing went).
+fn tie_summary(
+    t: &crate::sim::snapshot::TieFrame,
+    instruments: &[crate::sim::snapshot::InstrumentReaction],
+) -> Option<pb::TieSummary> {
+    use crate::sim::snapshot::TieCause;
+    if t.trabeculae_intact == 0
+        && t.vessels_intact == 0
+        && t.events.is_empty()
+        && t.released.is_empty()
+    {
+        return None;
+    }
+    Some(pb::TieSummary {
+        trabeculae_intact: t.trabeculae_intact,
+        vessels_intact: t.vessels_intact,
+        released: t.released.clone(),
+        events: t
+            .events
+            .iter()
+            .map(|e| {
+                let (cause, k) = match e.cause {
+                    TieCause::Cut { instrument } => (pb::TieCause::Cut, instrument),
+                    TieCause::Torn { instrument } => (pb::TieCause::Torn, instrument),
+                };
+                pb::TieEvent {
+                    sim_time_s: e.sim_time_s,
+                    tie: e.tie,
+                    kind: tie_kind(e.kind) as i32,
+                    cause: cause as i32,
+                    instrument: instruments
+                        .get(k as usize)
+                        .map(|r| r.name.clone())
+                        .unwrap_or_default(),
+                    position_m: Some(vec3(&e.position_m.coords)),
+                    strain: e.strain,
+                }
+            })
+            .collect(),
+    })
 }
 
 fn rigid_part(r: &crate::sim::motion::RigidPart) -> pb::RigidPart {

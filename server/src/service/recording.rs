@@ -27,7 +27,7 @@
 //! Memory is bounded by the queue: `QUEUE_CAPACITY` slots allocated once
 //! (`size_of::<pb::RecordingEntry>()` plus 24 bytes each) and the heap parts
 //! of the queued entries (an instrument name, a frame's per-instrument
-//! summary); measured in `tests/tests/reliability_recording.rs`.
+//! summary); measured in `tests/tests/isolated/reliability_recording.rs`.
 //!
 //! A gap is the `gap` member (field 5) of `RecordingEntry`'s `oneof entry`,
 //! a `fissure.v1.RecordingGap` (its sums in [`RecordingGapExt`]).

@@ -19,7 +19,7 @@
 use super::engine::{ContactQuery, History, Model, RowRule, penalty};
 use super::flags;
 use super::local_model::{ForceSolver, SampleAnswer};
-use super::rows::{self, FreePositions, Row, SKULL_OWNER};
+use super::rows::{self, FreePositions, Row, SKULL_OWNER, TIE_OWNER};
 use super::snapshot::Snapshot;
 use crate::scene::{HistoryMode, Scene};
 use faer::Par;
@@ -53,6 +53,11 @@ pub struct ForceLoop {
     contact_count: u32,
     touching: Vec<u32>,
     last_good: (Vector3<f64>, Vector3<f64>),
+    /// A blade's pose at the last query, the surface its edge swept since,
+    /// and the ties' workspace ([`crate::sim::engine::TiesAtStep::adjust`]).
+    last_pose: Option<Isometry3<f64>>,
+    swept: Vec<[nalgebra::Point3<f64>; 3]>,
+    removed: Vec<f64>,
 }
 
 impl std::fmt::Debug for ForceLoop {
@@ -90,6 +95,9 @@ impl ForceLoop {
             contact_count: 0,
             touching: Vec::new(),
             last_good: (Vector3::zeros(), Vector3::zeros()),
+            last_pose: None,
+            swept: Vec::new(),
+            removed: Vec::new(),
         }
     }
 
@@ -114,6 +122,7 @@ impl ForceLoop {
         self.rows.clear();
         self.solver = ForceSolver::new();
         self.last_good = (Vector3::zeros(), Vector3::zeros());
+        self.last_pose = None;
     }
 
     /// The collision query for `pose` against `snap`, and the instrument's
@@ -123,6 +132,7 @@ impl ForceLoop {
         if self.paper_mode {
             self.history.copy_from(&snap.paper_history[self.index]);
         }
+        self.cut(model, snap, pose);
         let out = self
             .query
             .query(model, snap, self.index, pose, &mut self.history);
@@ -144,6 +154,54 @@ impl ForceLoop {
         );
         self.contact_count = out.contact_vertices() as u32;
         self.contact_count
+    }
+
+    /// A blade's cuts: every intact tie (at the snapshot's shape) that the
+    /// edge crossed moving from the last query's pose to `pose`
+    /// ([`crate::collide::sweep`]); they take effect at once.
+    fn cut(&mut self, model: &Model, snap: &Snapshot, pose: &Isometry3<f64>) {
+        let (Some(edge), Some(ties)) = (
+            model.blades.get(self.index).copied().flatten(),
+            snap.force_model.ties.as_ref(),
+        ) else {
+            return;
+        };
+        let Some(last) = self.last_pose.replace(*pose) else {
+            return;
+        };
+        self.swept.clear();
+        crate::collide::sweep::swept_triangles(&edge, &last, pose, &mut self.swept);
+        // The sweep's box: ties wholly outside it are not tested.
+        let (mut lo, mut hi) = (
+            nalgebra::Point3::from([f64::INFINITY; 3]),
+            nalgebra::Point3::from([f64::NEG_INFINITY; 3]),
+        );
+        for t in &self.swept {
+            for p in t {
+                lo = lo.inf(p);
+                hi = hi.sup(p);
+            }
+        }
+        let u = &snap.displacements;
+        for (i, tie) in model.ties.iter().enumerate() {
+            if ties.states[i] != crate::fem::ties::TieState::Intact || ties.cuts.is_cut(i) {
+                continue;
+            }
+            let xa = model.mesh.nodes[tie.a as usize] + u[tie.a as usize];
+            let xb = model.mesh.nodes[tie.b as usize] + u[tie.b as usize];
+            if (0..3).any(|c| xa[c].max(xb[c]) < lo[c] || xa[c].min(xb[c]) > hi[c]) {
+                continue;
+            }
+            if self
+                .swept
+                .iter()
+                .any(|t| crate::collide::sweep::segment_crosses_triangle(&xa, &xb, t))
+            {
+                let mid = nalgebra::center(&xa, &xb);
+                let strain = tie.strain((xb - xa).norm() - tie.rest_length_m);
+                ties.cuts.cut(i, self.index as u16, mid, strain);
+            }
+        }
     }
 
     /// The coupled contact problem of this instrument's rows (from the
@@ -202,6 +260,13 @@ impl ForceLoop {
             }
         }
         rows::append_owner(&mut self.all, &fm.step_rows, SKULL_OWNER);
+        // The ties as the step left them (torn ones have no row), less
+        // those a blade cut since.
+        let tie_start = self.all.len();
+        rows::append_owner(&mut self.all, &fm.step_rows, TIE_OWNER);
+        if let Some(ties) = &fm.ties {
+            ties.adjust(model, &mut self.all, tie_start, &mut self.removed);
+        }
         if !fm.patch.linear {
             rows::to_tangent(
                 &mut self.all,
@@ -213,13 +278,20 @@ impl ForceLoop {
             );
         }
         let mut out_flags = 0;
+        if fm
+            .ties
+            .as_ref()
+            .is_some_and(|t| t.tore_vessel.get(self.index) == Some(&true))
+        {
+            out_flags |= flags::VESSEL_TORN;
+        }
         if let Err(e) = self.solver.solve(fm, &self.all, &mut self.answer) {
             tracing::debug!(instrument = self.index, error = %e, "force-loop contact solve failed");
             return SampleForce {
                 force_n: self.last_good.0,
                 torque_nm: self.last_good.1,
                 contact_count: self.contact_count,
-                flags: flags::CONTACT_UNSOLVED,
+                flags: flags::CONTACT_UNSOLVED | out_flags,
             };
         }
         for &p in &self.answer.pending {

@@ -70,6 +70,8 @@ pub struct ForceModel {
     pub has_patch: bool,
     /// The step's force and torque on each instrument (N, N m).
     pub step_force: Vec<(Vector3<f64>, Vector3<f64>)>,
+    /// The ties at the step and the blades' cuts since (scenes with ties).
+    pub ties: Option<Arc<crate::sim::engine::TiesAtStep>>,
 }
 
 impl ForceModel {
@@ -99,6 +101,7 @@ impl ForceModel {
             anchors,
             has_patch,
             step_force,
+            ties: None,
         }
     }
 
@@ -139,6 +142,8 @@ pub struct ForceSolver {
     slot_patch: Vec<[u32; 3]>,
     slot_w: Vec<[f64; 3]>,
     slot_dir: Vec<Vector3<f64>>,
+    /// Per slot: the row's own compliance, m/N (a tie's spring).
+    slot_c: Vec<f64>,
     slot_seen: Vec<u32>,
     free_slots: Vec<u32>,
     /// Slots in use are below `n`.
@@ -179,6 +184,7 @@ impl ForceSolver {
         self.slot_patch.clear();
         self.slot_w.clear();
         self.slot_dir.clear();
+        self.slot_c.clear();
         self.slot_seen.clear();
         self.free_slots.clear();
         self.kinds.clear();
@@ -217,6 +223,7 @@ impl ForceSolver {
         self.slot_patch.push([NONE; 3]);
         self.slot_w.push([0.0; 3]);
         self.slot_dir.push(Vector3::zeros());
+        self.slot_c.push(0.0);
         self.slot_seen.push(0);
         self.kinds.push(RowKind::Off);
         self.q.push(0.0);
@@ -299,9 +306,12 @@ impl ForceSolver {
                     let turned = (self.slot_dir[su] - r.row.dir).norm() > DIRECTION_TOLERANCE;
                     // A point that slid on its triangle gets its row again
                     // (module documentation).
-                    let moved = self.slot_patch[su] != p || self.slot_w[su] != w;
+                    let moved = self.slot_patch[su] != p
+                        || self.slot_w[su] != w
+                        || self.slot_c[su] != r.row.compliance_m_per_n;
                     if turned || moved {
                         self.slot_dir[su] = r.row.dir;
+                        self.slot_c[su] = r.row.compliance_m_per_n;
                         self.slot_patch[su] = p;
                         self.slot_w[su] = w;
                         if !self.is_dirty[su] {
@@ -319,6 +329,7 @@ impl ForceSolver {
                     self.slot_patch[su] = p;
                     self.slot_w[su] = w;
                     self.slot_dir[su] = r.row.dir;
+                    self.slot_c[su] = r.row.compliance_m_per_n;
                     self.lambda[su] = model.step_multiplier(r.key).unwrap_or(0.0);
                     if !self.is_dirty[su] {
                         self.is_dirty[su] = true;
@@ -378,6 +389,10 @@ impl ForceSolver {
                         v += wb
                             * self.slot_dir[s].dot(&self.e[self.node_local[pb as usize] as usize]);
                     }
+                }
+                if s == d {
+                    // A row's own compliance (a tie's spring).
+                    v += self.slot_c[d];
                 }
                 self.w[d * cap + s] = v;
                 self.w[s * cap + d] = v;

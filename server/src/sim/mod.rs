@@ -80,6 +80,8 @@ pub mod flags {
     /// The sample's contact problem was not solved: the last good force is
     /// repeated.
     pub const CONTACT_UNSOLVED: u32 = 64;
+    /// The instrument tore a bridging vessel (sticky until a reset).
+    pub const VESSEL_TORN: u32 = 128;
 }
 
 /// Options of a simulation beyond the scene file.
@@ -154,6 +156,9 @@ pub enum SimError {
     /// The elastic foundation's regions could not be resolved.
     #[error("building the model: {0}")]
     Foundation(#[from] crate::scene::region::RegionError),
+    /// The scene's ties could not be placed.
+    #[error("building the model: {0}")]
+    Ties(#[from] crate::scene::ties::TieError),
     /// The solver could not be set up.
     #[error("setting up the solver: {0}")]
     Solver(#[source] crate::fem::SolveError),

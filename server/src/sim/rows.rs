@@ -33,12 +33,16 @@ use std::collections::HashMap;
 /// The owner of the skull's rows.
 pub const SKULL_OWNER: u16 = u16::MAX - 1;
 
+/// The owner of the ties' rows ([`crate::fem::ties`]); a tie row's key
+/// names its pair's first tie.
+pub const TIE_OWNER: u16 = u16::MAX - 2;
+
 /// One row of the contact problem with its identity and contact point.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Row {
     /// Identity across samples ([`key`]).
     pub key: u64,
-    /// Instrument index, or [`SKULL_OWNER`].
+    /// Instrument index, [`SKULL_OWNER`] or [`TIE_OWNER`].
     pub owner: u16,
     /// The solver's row. A tangent row's `normal` is the index of its
     /// normal row within the same row list.

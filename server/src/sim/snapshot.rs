@@ -65,6 +65,49 @@ pub struct Frame {
     /// displacement near the instruments' tips and beyond
     /// ([`super::motion`]).
     pub rigid: super::motion::RigidPart,
+    /// The ties across the fissure: how many hold, and what happened to
+    /// them in this step.
+    pub ties: TieFrame,
+}
+
+/// The ties of one frame.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct TieFrame {
+    /// Intact trabeculae.
+    pub trabeculae_intact: u32,
+    /// Intact vessels.
+    pub vessels_intact: u32,
+    /// Ties cut or torn in this step, in the order they broke.
+    pub events: Vec<TieEvent>,
+    /// Every tie released so far, ascending.
+    pub released: Vec<u32>,
+}
+
+/// A tie released: cut by an instrument or torn by tension.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TieEvent {
+    /// Simulation time of the step that released it, s.
+    pub sim_time_s: f64,
+    /// The tie's index in the model ([`super::engine::Model::ties`]).
+    pub tie: u32,
+    /// What it was.
+    pub kind: crate::fem::ties::TieKind,
+    /// How it went.
+    pub cause: TieCause,
+    /// Its midpoint when it went, scene frame, m.
+    pub position_m: Point3<f64>,
+    /// Its strain when it went.
+    pub strain: f64,
+}
+
+/// How a tie was released.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TieCause {
+    /// Tension reached its rupture criterion; `instrument` is the
+    /// instrument nearest the tie, which tore it.
+    Torn { instrument: u16 },
+    /// An instrument's blade cut it.
+    Cut { instrument: u16 },
 }
 
 /// The state force loops read: the surface and the local force model of the
@@ -133,7 +176,14 @@ impl Frame {
             solver_error: None,
             max_displacement_m,
             rigid,
+            ties: TieFrame::default(),
         }
+    }
+
+    /// This frame with `ties`.
+    pub fn with_ties(mut self, ties: TieFrame) -> Self {
+        self.ties = ties;
+        self
     }
 
     /// Surface positions in single precision, as watchers get them, m.
@@ -183,6 +233,8 @@ impl Snapshot {
         summary.sim_time_s = sim_time_s;
         summary.timings = timings;
         summary.solver_error = Some(error.clone());
+        // Releases belong to the frame that made them.
+        summary.ties.events.clear();
         let mut force_model = (*self.force_model).clone();
         force_model.frame = frame;
         Self {

@@ -16,7 +16,7 @@
 //! are small; the layouts below follow the reference C library's headers
 //! (`igtl_header.h`, `igtl_sensor.h`, `igtl_unit.h`, `igtl_polydata.h`,
 //! `igtlStatusMessage.h`) and are checked against that library and against
-//! `pyigtl` in `client-cli/tests/igtl_peers.rs`.
+//! `pyigtl` in `client-cli/tests/cli/igtl_peers.rs`.
 //!
 //! Everything is big-endian. Parsing never panics and never allocates more
 //! than the bytes at hand justify: every refusal is an [`IgtlError`] naming

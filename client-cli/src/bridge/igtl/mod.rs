@@ -433,27 +433,32 @@ fn status_message(out: &mut Vec<u8>, device: [u8; 20], timestamp: u64, s: &Statu
     });
 }
 
-/// Names of the safety flags set in `flags`.
+/// Names of the safety flags set in `flags`: the proto's `SafetyFlag` names
+/// without their `SAFETY_FLAG_` prefix (the proto is the one list), and the
+/// bits it does not define in hexadecimal.
 pub fn flag_names(flags: u32) -> String {
-    const NAMES: [&str; 7] = [
-        "FORCE_ABOVE_THRESHOLD",
-        "FORCE_CLAMPED",
-        "MODEL_STALE",
-        "SOLVER_FAILED",
-        "POSE_JUMP",
-        "COLUMNS_PENDING",
-        "CONTACT_UNSOLVED",
-    ];
     if flags == 0 {
         return "none".to_owned();
     }
-    let mut v: Vec<String> = NAMES
-        .iter()
-        .enumerate()
-        .filter(|(i, _)| flags & (1 << i) != 0)
-        .map(|(_, n)| (*n).to_owned())
-        .collect();
-    let rest = flags & !((1 << NAMES.len()) - 1);
+    let mut v: Vec<String> = Vec::new();
+    let mut rest = 0u32;
+    for bit in 0..32 {
+        let b = 1u32 << bit;
+        if flags & b == 0 {
+            continue;
+        }
+        match i32::try_from(b)
+            .ok()
+            .and_then(|b| pb::SafetyFlag::try_from(b).ok())
+        {
+            Some(f) => v.push(
+                f.as_str_name()
+                    .trim_start_matches("SAFETY_FLAG_")
+                    .to_owned(),
+            ),
+            None => rest |= b,
+        }
+    }
     if rest != 0 {
         v.push(format!("{rest:#x}"));
     }
@@ -1109,11 +1114,57 @@ mod tests {
         assert!(t0 < 1e-3 && t1 >= 0.005 && s1 == 2, "{t0} {t1}");
     }
 
+    /// The proto's `SafetyFlag` is the one source of the flags: every bit
+    /// it defines is named here by its proto name, and no other bit is.
+    #[test]
+    fn safety_flag_names_are_the_proto_enum_names() {
+        for bit in 0..32 {
+            let v = 1u32 << bit;
+            match pb::SafetyFlag::try_from(v as i32) {
+                Ok(f) => assert_eq!(
+                    flag_names(v),
+                    f.as_str_name().trim_start_matches("SAFETY_FLAG_"),
+                    "bit {bit}"
+                ),
+                Err(_) => assert_eq!(flag_names(v), format!("{v:#x}"), "bit {bit}"),
+            }
+        }
+    }
+
+    /// The engine's flags are the proto's, bit for bit.
+    #[cfg(feature = "lab")]
+    #[test]
+    fn the_engines_safety_flags_are_the_proto_flags() {
+        use fissure_server::sim::flags;
+        let pairs = [
+            (
+                flags::FORCE_ABOVE_THRESHOLD,
+                pb::SafetyFlag::ForceAboveThreshold,
+            ),
+            (flags::FORCE_CLAMPED, pb::SafetyFlag::ForceClamped),
+            (flags::MODEL_STALE, pb::SafetyFlag::ModelStale),
+            (flags::SOLVER_FAILED, pb::SafetyFlag::SolverFailed),
+            (flags::POSE_JUMP, pb::SafetyFlag::PoseJump),
+            (flags::COLUMNS_PENDING, pb::SafetyFlag::ColumnsPending),
+            (flags::CONTACT_UNSOLVED, pb::SafetyFlag::ContactUnsolved),
+            (flags::VESSEL_TORN, pb::SafetyFlag::VesselTorn),
+        ];
+        for (engine, proto) in pairs {
+            assert_eq!(engine, proto as u32, "{}", proto.as_str_name());
+        }
+        // Every proto flag has its engine constant above.
+        let named = (0..32)
+            .filter(|b| pb::SafetyFlag::try_from(1i32 << b).is_ok())
+            .count();
+        assert_eq!(named, pairs.len());
+    }
+
     #[test]
     fn safety_flags_are_named() {
         assert_eq!(flag_names(0), "none");
         assert_eq!(flag_names(1 | 4), "FORCE_ABOVE_THRESHOLD|MODEL_STALE");
         assert_eq!(flag_names(64 | 256), "CONTACT_UNSOLVED|0x100");
+        assert_eq!(flag_names(128), "VESSEL_TORN");
     }
 
     #[test]

@@ -512,20 +512,32 @@ pub fn write_surface(
     vertices: &[Point3<f64>],
     triangles: &[[u32; 3]],
 ) -> Result<(), IoError> {
-    let path = path.as_ref();
-    let ext = extension(path);
-    if !matches!(ext.as_str(), "obj" | "ply" | "stl" | "vtu") {
-        return Err(IoError::UnknownFormat {
-            path: path.to_path_buf(),
-            expected: "expected .obj, .ply, .stl or .vtu",
-        });
+    /// The formats a surface is written in.
+    enum Written {
+        Obj,
+        Ply,
+        Stl,
+        Vtu,
     }
+    let path = path.as_ref();
+    let format = match extension(path).as_str() {
+        "obj" => Written::Obj,
+        "ply" => Written::Ply,
+        "stl" => Written::Stl,
+        "vtu" => Written::Vtu,
+        _ => {
+            return Err(IoError::UnknownFormat {
+                path: path.to_path_buf(),
+                expected: "expected .obj, .ply, .stl or .vtu",
+            });
+        }
+    };
     let mut w = create(path)?;
-    let r = match ext.as_str() {
-        "obj" => obj::write_obj(&mut w, vertices, triangles),
-        "ply" => ply::write_ply(&mut w, vertices, triangles),
-        "stl" => stl::write_stl(&mut w, vertices, triangles),
-        _ => vtu::write_vtu_surface(&mut w, vertices, triangles, &[], &[]),
+    let r = match format {
+        Written::Obj => obj::write_obj(&mut w, vertices, triangles),
+        Written::Ply => ply::write_ply(&mut w, vertices, triangles),
+        Written::Stl => stl::write_stl(&mut w, vertices, triangles),
+        Written::Vtu => vtu::write_vtu_surface(&mut w, vertices, triangles, &[], &[]),
     };
     flush(path, w, r)
 }

@@ -186,6 +186,13 @@ pub fn penalty(model: &Model, row: &Row, u: &[Vector3<f64>]) -> f64 {
         .nodes()
         .map(|(n, _)| model.penalty_n_per_m[n as usize])
         .fold(0.0, f64::max);
+    // A row with its own spring (a tie) answers through both in series.
+    let c = row.row.compliance_m_per_n;
+    let k = if c > 0.0 && k > 0.0 {
+        1.0 / (1.0 / k + c)
+    } else {
+        k
+    };
     let g = row.row.gap_free_m + row.row.normal_motion(u);
     match row.row.kind {
         RowKind::Unilateral => k * (-g).max(0.0),

@@ -41,11 +41,13 @@ pub mod deform;
 pub mod model;
 pub mod query;
 pub mod rules;
+pub mod ties;
 
 pub use deform::*;
 pub use model::*;
 pub use query::*;
 pub use rules::*;
+pub use ties::*;
 
 /// What one deformation step did, beyond the snapshot it publishes.
 #[derive(Debug, Clone, Default)]
@@ -82,6 +84,7 @@ pub struct StepEngine {
     anchors: Anchors,
     rule: RowRule,
     skull: Option<SkullRows>,
+    ties: TieStage,
     next_frame: u64,
     rows: Vec<Row>,
     warm: Vec<f64>,
@@ -156,6 +159,7 @@ impl StepEngine {
             anchors: Anchors::default(),
             rule: RowRule::of(scene),
             skull: SkullRows::of(scene),
+            ties: TieStage::new(&model),
             next_frame: 0,
             rows: Vec::new(),
             warm: Vec::new(),
@@ -183,16 +187,17 @@ impl StepEngine {
             *h = self.model.new_history(i);
         }
         self.anchors = Anchors::default();
+        self.ties = TieStage::new(&self.model);
         let frame = self.next_frame;
         self.next_frame += 1;
         let mut snap = self.model.rest_snapshot(&self.scene, frame, sim_time_s);
         snap.surface_bvh = self.bvhs.as_mut().map(|b| b.fit(&snap.surface));
         // A strategy with a compliance operator answers contacts before the
         // first step too (with penalties until its columns exist).
-        if self.deformer.patch(&[]).is_some() {
-            if let Some(fm) = Arc::get_mut(&mut snap.force_model) {
-                fm.has_patch = true;
-            }
+        let patch = self.deformer.patch(&[]).is_some();
+        if let Some(fm) = Arc::get_mut(&mut snap.force_model) {
+            fm.has_patch = patch;
+            fm.ties = self.ties.at_step();
         }
         snap
     }
@@ -267,6 +272,10 @@ impl StepEngine {
         if let Some(skull) = &self.skull {
             skull.rows(&model, &prev.displacements, &[], &mut self.rows);
         }
+        // The intact ties' rows, less those the blades cut since the last
+        // step.
+        self.ties.take_cuts(&model, sim_time_s);
+        self.ties.push_rows(&model, &mut self.rows);
         // Warm start from the last step's multipliers, by key.
         self.warm.clear();
         self.warm.extend(
@@ -276,43 +285,73 @@ impl StepEngine {
         );
         let mut rounds = 0;
         let mut searches = 0;
-        let result = loop {
-            rounds += 1;
-            if let Err(e) = self.deformer.solve(&self.rows, &self.warm) {
-                break Err(e);
-            }
-            // Skull nodes leaving the sphere join the problem.
-            if let Some(skull) = &self.skull {
-                let u = self.deformer.displacements();
-                skull.violations(
-                    &model,
-                    u,
-                    &self.rows,
-                    1e-9 * skull.band_m.max(1e-6),
-                    &mut self.extra,
-                );
-                if !self.extra.is_empty() && rounds < SKULL_ROUNDS {
-                    let extra = std::mem::take(&mut self.extra);
-                    let u = self.deformer.displacements().to_vec();
-                    skull.rows(&model, &u, &extra, &mut self.rows);
-                    self.extra = extra;
-                    self.warm = self.deformer.answer().multipliers.clone();
-                    self.warm.resize(self.rows.len(), 0.0);
-                    continue;
+        let mut tear_rounds = 0;
+        let tips = tips_of(&self.scene, poses);
+        let result = 'tear: loop {
+            let solved = loop {
+                rounds += 1;
+                if let Err(e) = self.deformer.solve(&self.rows, &self.warm) {
+                    break Err(e);
                 }
-            }
-            // Contact search on the solved shape: rows a query at the
-            // step's poses finds there that the solution violates (tissue
-            // the plate now pierces elsewhere) join the problem.
-            // (None for a linearized contact: its rows do not depend on
-            // the shape.)
-            if model.contact_rest.is_none() && searches < CONTACT_SEARCHES {
-                searches += 1;
-                if self.search_solved(&model, poses, &after, &mut n_instrument_rows) {
-                    continue;
+                // Skull nodes leaving the sphere join the problem.
+                if let Some(skull) = &self.skull {
+                    let u = self.deformer.displacements();
+                    skull.violations(
+                        &model,
+                        u,
+                        &self.rows,
+                        1e-9 * skull.band_m.max(1e-6),
+                        &mut self.extra,
+                    );
+                    if !self.extra.is_empty() && rounds < SKULL_ROUNDS {
+                        let extra = std::mem::take(&mut self.extra);
+                        let u = self.deformer.displacements().to_vec();
+                        skull.rows(&model, &u, &extra, &mut self.rows);
+                        self.extra = extra;
+                        self.warm = self.deformer.answer().multipliers.clone();
+                        self.warm.resize(self.rows.len(), 0.0);
+                        continue;
+                    }
                 }
+                // Contact search on the solved shape: rows a query at the
+                // step's poses finds there that the solution violates (tissue
+                // the plate now pierces elsewhere) join the problem.
+                // (None for a linearized contact: its rows do not depend on
+                // the shape.)
+                if model.contact_rest.is_none() && searches < CONTACT_SEARCHES {
+                    searches += 1;
+                    if self.search_solved(&model, poses, &after, &mut n_instrument_rows) {
+                        continue;
+                    }
+                }
+                break Ok(());
+            };
+            if solved.is_err() || self.ties.is_empty() {
+                break solved;
             }
-            break Ok(());
+            // Ties stretched to their rupture tear, and the step solves again
+            // without them (the load they carried passes to the others).
+            let torn = self
+                .ties
+                .tear(&model, self.deformer.displacements(), &tips, sim_time_s);
+            if !torn || tear_rounds >= TEAR_ROUNDS {
+                break 'tear solved;
+            }
+            tear_rounds += 1;
+            let old: std::collections::HashMap<u64, f64> = self
+                .rows
+                .iter()
+                .zip(&self.deformer.answer().multipliers)
+                .map(|(r, &l)| (r.key, l))
+                .collect();
+            self.rows.retain(|r| r.owner != rows::TIE_OWNER);
+            self.ties.push_rows(&model, &mut self.rows);
+            self.warm.clear();
+            self.warm.extend(
+                self.rows
+                    .iter()
+                    .map(|r| old.get(&r.key).copied().unwrap_or(0.0)),
+            );
         };
         let solve_us = t1.elapsed().as_secs_f64() * 1e6;
         let timings = |total: f64| StepTimings {
@@ -642,8 +681,9 @@ impl StepEngine {
             timings,
             max_d,
             rigid,
-        );
-        let force_model = ForceModel::new(
+        )
+        .with_ties(self.ties.frame(model));
+        let mut force_model = ForceModel::new(
             frame,
             patch.patch,
             patch.patch_index,
@@ -653,6 +693,7 @@ impl StepEngine {
             patch.has_patch,
             step_force,
         );
+        force_model.ties = self.ties.at_step();
         Snapshot::solved(
             surface,
             displacements,
@@ -664,16 +705,22 @@ impl StepEngine {
     }
 }
 
-/// The mean of the instruments' tips (`+z` of the plate frame at its
-/// length from the handle), m: the fissure's centre while they work in it.
-fn tips_centre(scene: &Scene, poses: &[Isometry3<f64>]) -> Point3<f64> {
-    let n = poses.len().max(1) as f64;
-    let sum: Vector3<f64> = scene
+/// The instruments' tips (`+z` of the plate frame at its length from the
+/// handle), m.
+fn tips_of(scene: &Scene, poses: &[Isometry3<f64>]) -> Vec<Point3<f64>> {
+    scene
         .instruments
         .iter()
         .zip(poses)
-        .map(|(spec, pose)| (pose * Point3::new(0.0, 0.0, spec.length_m)).coords)
-        .sum();
+        .map(|(spec, pose)| pose * Point3::new(0.0, 0.0, spec.length_m))
+        .collect()
+}
+
+/// The mean of the instruments' tips, m: the fissure's centre while they
+/// work in it.
+fn tips_centre(scene: &Scene, poses: &[Isometry3<f64>]) -> Point3<f64> {
+    let n = poses.len().max(1) as f64;
+    let sum: Vector3<f64> = tips_of(scene, poses).iter().map(|p| p.coords).sum();
     Point3::from(sum / n)
 }
 

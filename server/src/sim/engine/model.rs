@@ -33,6 +33,11 @@ pub struct Model {
     pub foundation: Option<fem::foundation::Foundation>,
     /// The skull surface's nodes, when the scene has one.
     pub skull_surface: Option<fem::skull::SkullSurface>,
+    /// The ties across the fissure ([`crate::fem::ties`]), in scene order.
+    pub ties: Vec<fem::ties::Tie>,
+    /// Per instrument: its cutting edge in the instrument frame (a blade's
+    /// tip edge, [`crate::collide::instrument::PlateShape::cutting_edge`]), m.
+    pub blades: Vec<Option<[Point3<f64>; 2]>>,
     /// Per surface vertex, its neighbours on the surface.
     pub surface_neighbours: crate::mesh::adjacency::Csr,
     /// The rest surface the contact search runs on, when the scene's
@@ -192,6 +197,12 @@ impl Model {
             .and_then(|s| s.surface.as_ref())
             .map(|s| crate::scene::region::skull_surface(s, &on))
             .transpose()?;
+        let ties = crate::scene::ties::place(&scene.ties, &on)?;
+        let blades = scene
+            .instruments
+            .iter()
+            .map(|i| i.shape.cutting_edge(i.width_m, i.length_m))
+            .collect();
         let mut from_volume = vec![u32::MAX; mesh.nodes.len()];
         for (s, &v) in surface.to_volume.iter().enumerate() {
             from_volume[v as usize] = s as u32;
@@ -229,6 +240,8 @@ impl Model {
             to_full,
             foundation,
             skull_surface,
+            ties,
+            blades,
             history_mode,
         })
     }
@@ -298,7 +311,25 @@ impl Model {
                 StepTimings::default(),
                 0.0,
                 crate::sim::motion::RigidPart::default(),
-            ),
+            )
+            .with_ties(self.tie_counts(&[])),
         )
+    }
+
+    /// The ties of a frame with tie `i` in state `states[i]` (intact where
+    /// `states` is shorter), no events.
+    pub fn tie_counts(&self, states: &[fem::ties::TieState]) -> crate::sim::snapshot::TieFrame {
+        let mut f = crate::sim::snapshot::TieFrame::default();
+        for (i, t) in self.ties.iter().enumerate() {
+            if states.get(i).copied().unwrap_or_default() == fem::ties::TieState::Intact {
+                match t.kind {
+                    fem::ties::TieKind::Trabecula => f.trabeculae_intact += 1,
+                    fem::ties::TieKind::Vessel => f.vessels_intact += 1,
+                }
+            } else {
+                f.released.push(i as u32);
+            }
+        }
+        f
     }
 }

@@ -1,6 +1,7 @@
 //! The force loops' scheduling: a claim's force loop runs under SCHED_FIFO at
-//! the configured priority where the process may ask for it. Its own test
-//! binary, so that no other test's force loop thread shares the process.
+//! the configured priority where the process may ask for it. In the
+//! `isolated` binary, alone in the process while it runs, so that no other
+//! test's force loop thread shares the process.
 
 use fissure_server::service::ServeOptions;
 use fissure_server::sim::SimOptions;
@@ -39,6 +40,7 @@ async fn force_loop_runs_realtime_where_permitted() -> anyhow::Result<()> {
     use fissure_server::sim::priority;
     const SCHED_OTHER: u32 = 0;
     const SCHED_FIFO: u32 = 1;
+    let _alone = crate::alone().await;
     let permitted = std::thread::spawn(|| priority::raise_current_thread(7).is_ok())
         .join()
         .expect("probe thread");

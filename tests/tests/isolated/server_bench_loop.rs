@@ -6,6 +6,7 @@ use fissure_cli::bench_loop::{LoopBenchArgs, run};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn bench_loop_reports_consistent_figures() -> anyhow::Result<()> {
+    let _alone = crate::alone().await;
     let args = LoopBenchArgs {
         scene: "cube".into(),
         duration_s: 1.0,

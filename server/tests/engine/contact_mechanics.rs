@@ -40,7 +40,7 @@ fn flat(x: f64, y: f64, z: f64) -> Isometry3<f64> {
 const TOUCH_Z: f64 = 0.04 + 0.00075;
 
 fn cube(replacements: &[(&str, &str)]) -> Scene {
-    let mut text = include_str!("../scenes/cube.toml").to_owned();
+    let mut text = include_str!("../../scenes/cube.toml").to_owned();
     for (from, to) in replacements {
         assert!(text.contains(from), "cube.toml has no {from:?}");
         text = text.replacen(from, to, 1);
@@ -133,7 +133,7 @@ fn run(scene: &Scene, times: &[f64], tracks: &[Vec<Isometry3<f64>>], reference: 
 
 /// The bundled `v-valley-insert-left` trajectory: times (s) and poses.
 fn v_valley_insertion() -> (Vec<f64>, Vec<Isometry3<f64>>) {
-    let text = include_str!("../../client-cli/trajectories/v-valley-insert-left.csv");
+    let text = include_str!("../../../client-cli/trajectories/v-valley-insert-left.csv");
     let mut ts = Vec::new();
     let mut track = Vec::new();
     for line in text.lines().skip(1) {
@@ -486,7 +486,7 @@ fn a_plate_dragged_with_friction_slides_with_mu_times_the_normal_force() {
 /// the cube's scene text extended by `extra`: the model and the last
 /// snapshot.
 fn pressed_cube(extra: &str) -> (Arc<Model>, fissure_server::sim::snapshot::Snapshot) {
-    let text = format!("{}\n{extra}", include_str!("../scenes/cube.toml"));
+    let text = format!("{}\n{extra}", include_str!("../../scenes/cube.toml"));
     let scene = Scene::parse(&text, "cube (skull variant)").expect("the variant parses");
     let model = Arc::new(Model::build(&scene).expect("the model builds"));
     let mut engine = StepEngine::new(&scene, model.clone(), ColumnPolicy::Compute, None, None)
@@ -568,4 +568,166 @@ fn the_skull_surface_holds_every_node_inside_it_pushing_only_inwards_along_its_n
     ));
     assert!(open_model.skull_surface.as_ref().unwrap().nodes.is_empty());
     assert!((bulge(&open.displacements) - bulge(&free.displacements)).abs() < 1e-12);
+}
+
+/// The `sylvian` scene on the coarse phantom with one spatula (`left`),
+/// its fissure's walls joined by trabeculae of rupture strain `rupture`.
+fn sylvian_with_ties(rupture: f64) -> Scene {
+    let text = include_str!("../../scenes/sylvian.toml").replace("paper-48k", "coarse");
+    let cut = text.rfind("[[instrument]]").expect("two instruments");
+    let text = format!(
+        "{}\n[[ties]]\nkind = \"trabecula\"\nregion = {{ landmark = \"sylvian-left\" }}\ndensity_per_mm2 = 0.2\nseed = 3\nstiffness_n_per_m = 0.5\nrupture_strain = {rupture}\nmax_gap_m = 0.010\n",
+        &text[..cut]
+    );
+    Scene::parse(&text, "sylvian with ties (test variant)").expect("the variant parses")
+}
+
+/// The left spatula inserted 20 mm into the coarse phantom's Sylvian
+/// fissure (6.5 mm wide), lifted by 5 mm along +z over 0.3 s.
+fn lift_in_fissure(scene: &Scene, ts: &[f64]) -> Vec<Isometry3<f64>> {
+    ts.iter()
+        .map(|&t| Translation3::new(0.020, 0.0, 0.005 * ramp(t, 0.0, 0.3)) * home_pose(scene, 0))
+        .collect()
+}
+
+/// Ties are rows of the same contact problem in both loops: with the
+/// fissure's walls tied, every force sample of an opening equals a full
+/// solve at its pose (the ties as they are: intact, strong enough not to
+/// tear here).
+#[test]
+fn with_ties_every_sample_of_an_opening_equals_a_full_solve() {
+    let scene = sylvian_with_ties(100.0);
+    let ts = times(0.3, 0.002);
+    let r = run(&scene, &ts, &[lift_in_fissure(&scene, &ts)], true);
+    let peak = r.full.iter().map(|f| f[0].norm()).fold(0.0, f64::max);
+    assert!(peak > 0.05, "the plate opens the fissure: peak {peak} N");
+    for (k, (s, f)) in r.force.iter().zip(&r.full).enumerate() {
+        let e = (s[0] - f[0]).norm() / peak;
+        assert!(
+            e <= 1e-6,
+            "t = {}: sample {:?} N, full solve {:?} N ({e} of the peak)",
+            r.t[k],
+            s[0],
+            f[0]
+        );
+    }
+}
+
+/// Tearing is part of the step: a stepped replay that tears ties gives
+/// the same samples bit for bit, and the same releases.
+#[test]
+fn stepped_replays_that_tear_ties_are_bit_identical() {
+    let scene = sylvian_with_ties(0.2);
+    let ts = times(0.3, 0.002);
+    let track = lift_in_fissure(&scene, &ts);
+    let a = run(&scene, &ts, std::slice::from_ref(&track), false);
+    let b = run(&scene, &ts, &[track], false);
+    assert_eq!(a.force, b.force);
+    assert_eq!(a.steps, b.steps);
+    // Some ties tore: the tie rows with a force at the end are fewer than
+    // at the start of the lift.
+    let tie_rows = |keys: &[u64]| {
+        keys.iter()
+            .filter(|&&k| (k >> 16) & 0xffff == (u16::MAX - 2) as u64)
+            .count()
+    };
+    let most = a.steps.iter().map(|s| tie_rows(&s.1)).max().unwrap_or(0);
+    let last = tie_rows(&a.steps.last().expect("steps").1);
+    assert!(
+        most > 0 && last < most,
+        "tie rows with force: most {most}, last {last}"
+    );
+}
+
+/// `sylvian_with_ties`, with a second instrument: a blade (0.5 mm thick,
+/// 8 mm wide) at the spatula's side of the fissure (y = 18 mm), outside it.
+fn sylvian_with_blade(rupture: f64) -> Scene {
+    let base = sylvian_with_ties(rupture);
+    let mut text = include_str!("../../scenes/sylvian.toml").replace("paper-48k", "coarse");
+    let cut = text.rfind("[[instrument]]").expect("two instruments");
+    text.truncate(cut);
+    text.push_str(
+        "[[instrument]]\nname = \"blade\"\nshape = \"blade\"\nthickness_m = 0.0005\nwidth_m = 0.008\nlength_m = 0.030\nnodes_per_face = 60\nhome_position_m = [-0.1007, 0.018, 0.0]\nhome_orientation = [0.0, 0.7071067811865476, 0.0, 0.7071067811865476]\n",
+    );
+    let mut scene = Scene::parse(&text, "sylvian with a blade (test variant)").expect("parses");
+    scene.ties = base.ties;
+    scene
+}
+
+/// The spatula lifts a tied wall and holds; mid-way between two steps the
+/// blade enters the fissure 25 mm in one sample (a travel no sampled
+/// position test could follow) and cuts the trabeculae its tip edge sweeps
+/// across. The cut takes effect in that very sample: the held spatula's
+/// force falls at once, before any step, and stays down after the steps
+/// take the cut in (the ties the edge crosses: `collide_sweep` checks the
+/// swept test against a brute-force solve).
+#[test]
+fn a_blade_cuts_the_ties_its_edge_sweeps_and_the_held_force_falls_in_the_next_sample() {
+    let scene = sylvian_with_blade(100.0);
+    let ts = times(0.4, 0.002);
+    let spatula = lift_in_fissure(&scene, &ts);
+    let cut_at = 0.330;
+    let blade: Vec<Isometry3<f64>> = ts
+        .iter()
+        .map(|&t| {
+            let into = if t >= cut_at - 1e-9 { 0.025 } else { 0.0 };
+            Translation3::new(into, 0.0, 0.0) * home_pose(&scene, 1)
+        })
+        .collect();
+    let r = run(&scene, &ts, &[spatula.clone(), blade], false);
+    let k = ts
+        .iter()
+        .position(|&t| t >= cut_at - 1e-9)
+        .expect("cut sample");
+    let before = r.force[k - 1][0].z;
+    let at = r.force[k][0].z;
+    let after = r.force.last().expect("samples")[0].z;
+    assert!(before < -0.05, "the spatula holds the wall: {before} N");
+    // No step between samples k - 1 and k (steps every 20 ms, at 0.32 and
+    // 0.34 s): the fall is the force loop's own.
+    assert!(
+        at > before + 0.01 * before.abs(),
+        "the cut shows in the cutting sample: {before} N then {at} N"
+    );
+    assert!(
+        after > before,
+        "after the steps: {after} N, before the cut {before} N"
+    );
+    // Against the same run without the blade moving: the same force before
+    // the cut, less after.
+    let still: Vec<Isometry3<f64>> = ts.iter().map(|_| home_pose(&scene, 1)).collect();
+    let uncut = run(&scene, &ts, &[spatula, still], false);
+    assert_eq!(uncut.force[k - 1][0], r.force[k - 1][0]);
+    assert!(uncut.force.last().expect("samples")[0].z < after);
+}
+
+/// A careless opening: the spatula lifts the wall against a few stiff
+/// bridging vessels until one tears. From the step that tore it on, every
+/// sample of the spatula carries the vessel-torn safety flag; none before.
+#[test]
+fn tearing_a_vessel_flags_the_samples_of_the_instrument_that_tore_it() {
+    let mut scene = sylvian_with_ties(100.0);
+    let text = "[[ties]]\nkind = \"vessel\"\nregion = { landmark = \"sylvian-left\" }\ndensity_per_mm2 = 0.01\nseed = 5\nstiffness_n_per_m = 50.0\nrupture_force_n = 0.02\nmax_gap_m = 0.010\n";
+    let extra: Scene = Scene::parse(
+        &format!(
+            "{}\n{text}",
+            include_str!("../../scenes/sylvian.toml").replace("paper-48k", "coarse")
+        ),
+        "vessels",
+    )
+    .expect("parses");
+    scene.ties.extend(extra.ties);
+    let ts = times(0.3, 0.002);
+    let r = run(&scene, &ts, &[lift_in_fissure(&scene, &ts)], false);
+    const VESSEL_TORN: u32 = 128;
+    let first = r
+        .flags
+        .iter()
+        .position(|f| f & VESSEL_TORN != 0)
+        .expect("a vessel tore");
+    assert!(first > 0, "torn before the spatula moved");
+    assert!(
+        r.flags[first..].iter().all(|f| f & VESSEL_TORN != 0),
+        "the flag stays"
+    );
 }

@@ -3,15 +3,13 @@
 //! that says why, and frame numbers increase for the life of the server, in
 //! the stream and in recordings.
 
-mod reliability_common;
-
+use crate::reliability_common::{FLAT_DOWN, HANDLE_Y, LEFT_X, TOUCH_Z};
 use fissure_proto::recording;
 use fissure_proto::v1 as pb;
 use fissure_server::service::ServeOptions;
 use fissure_server::service::recording::ToFile;
 use fissure_server::sim::SimOptions;
 use fissure_tests::{Haptic, TestServer, pose};
-use reliability_common::{FLAT_DOWN, HANDLE_Y, LEFT_X, TOUCH_Z};
 
 /// Handle position at sample `i` of a 200-sample press: from 1 mm above the
 /// cube's top to 1 mm into it.

@@ -3,14 +3,12 @@
 //! it writes are read back as surfaces, and a watcher slower than a fast
 //! stepped replay stays current and counts the frames it skipped.
 
-mod reliability_common;
-
+use crate::reliability_common::{FLAT_DOWN, HANDLE_Y, LEFT_X, TOUCH_Z};
 use fissure_cli::mesh_cmd::{InspectOptions, convert, inspect};
 use fissure_cli::watch::{WatchArgs, WatchEnd, run};
 use fissure_server::service::ServeOptions;
 use fissure_server::sim::SimOptions;
 use fissure_tests::{Haptic, TestServer, pose};
-use reliability_common::{FLAT_DOWN, HANDLE_Y, LEFT_X, TOUCH_Z};
 use std::path::Path;
 use std::time::Duration;
 

@@ -13,8 +13,7 @@ use fissure_server::fem::{
 use fissure_server::mesh::TetMesh;
 use nalgebra::{Point3, Vector3};
 
-mod common;
-use common::{block, push};
+use crate::common::{block, push};
 
 const BRAIN: Material = Material {
     youngs_modulus_pa: 3000.0,

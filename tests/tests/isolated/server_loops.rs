@@ -61,6 +61,7 @@ async fn paced(
 /// then flagged MODEL_STALE); the force loop never waits for a step.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn force_loop_never_waits_for_a_slow_deformation_step() -> anyhow::Result<()> {
+    let _alone = crate::alone().await;
     let (mut scene, _) = Scene::load("cube")?;
     scene.solver.strategy = Strategy::NeoHookean;
     // A tight tolerance keeps the steps slow (several Newton iterations).
@@ -184,6 +185,7 @@ async fn force_loop_never_waits_for_a_slow_deformation_step() -> anyhow::Result<
 /// frame.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn slow_watcher_skips_frames_fast_watcher_keeps_up() -> anyhow::Result<()> {
+    let _alone = crate::alone().await;
     let server = TestServer::start("cube", free_running(), ServeOptions::default()).await?;
     let mut client = server.client().await?;
     // Each watcher reads until told to stop (then drops its stream).
@@ -357,6 +359,7 @@ async fn stepped_session(
 /// summaries (every field but the stage timings).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn stepped_runs_are_bit_identical() -> anyhow::Result<()> {
+    let _alone = crate::alone().await;
     let trajectories = [
         ("left", Trajectory::load("cube-press-left")?),
         ("right", Trajectory::load("cube-press-right")?),

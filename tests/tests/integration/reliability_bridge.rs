@@ -11,8 +11,7 @@ use fissure_tests::TestServer;
 use std::time::Duration;
 use tokio::net::UdpSocket;
 
-mod reliability_common;
-use reliability_common::{FLAT_DOWN, HANDLE_Y, LEFT_X, TOUCH_Z};
+use crate::reliability_common::{FLAT_DOWN, HANDLE_Y, LEFT_X, TOUCH_Z};
 
 /// A pose of `left` 1 mm above the cube (no contact).
 fn above(seq: u64) -> [u8; 80] {

@@ -17,13 +17,11 @@
 //!   server keeps no queue of its own (HTTP/2 flow control pushes back on the
 //!   sender), so memory stays flat and the other client keeps its rate.
 
-mod reliability_common;
-
+use crate::reliability_common::*;
 use fissure_proto::v1 as pb;
 use fissure_server::service::ServeOptions;
 use fissure_server::sim::{SimOptions, flags};
 use fissure_tests::{Haptic, TestServer, pose};
-use reliability_common::*;
 use std::time::Duration;
 
 const INVALID_ARGUMENT: i32 = 3;
@@ -54,6 +52,7 @@ fn assert_rejected(s: &pb::ForceSample, sequence: u64, field: &str) {
 /// the last accepted pose; the next valid pose is served; stats count them.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn invalid_values_are_rejected_and_change_nothing() -> anyhow::Result<()> {
+    let _alone = crate::alone().await;
     let server = TestServer::start("cube", SimOptions::default(), ServeOptions::default()).await?;
     let mut client = server.client().await?;
     let mut haptic = Haptic::open(&mut client, "left", None).await?;
@@ -155,6 +154,7 @@ async fn invalid_values_are_rejected_and_change_nothing() -> anyhow::Result<()> 
 /// rejection leaves the last accepted pose as the reference.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn poses_going_back_are_rejected() -> anyhow::Result<()> {
+    let _alone = crate::alone().await;
     let server = TestServer::start("cube", SimOptions::default(), ServeOptions::default()).await?;
     let mut client = server.client().await?;
     let mut haptic = Haptic::open(&mut client, "left", None).await?;
@@ -194,6 +194,7 @@ async fn poses_going_back_are_rejected() -> anyhow::Result<()> {
 /// within `max_force_n` (8 N); frames finite; back home the tissue relaxes.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn one_metre_jump_is_flagged_and_the_simulation_stays_finite() -> anyhow::Result<()> {
+    let _alone = crate::alone().await;
     let server = TestServer::start("cube", SimOptions::default(), ServeOptions::default()).await?;
     let max_force = server.sim.scene().loops.max_force_n;
     let mut client = server.client().await?;
@@ -303,6 +304,7 @@ async fn one_metre_jump_is_flagged_and_the_simulation_stays_finite() -> anyhow::
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_10_khz_flood_is_rate_limited_and_does_not_starve_the_other_client() -> anyhow::Result<()>
 {
+    let _alone = crate::alone().await;
     const RESOURCE_EXHAUSTED: i32 = 8;
     let server = TestServer::start("cube", SimOptions::default(), ServeOptions::default()).await?;
     let mut flood_client = own_connection(&server.url).await?;

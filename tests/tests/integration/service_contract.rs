@@ -5,14 +5,14 @@
 //! malformed claims, the watcher limit, subnormal quaternions and the stats
 //! counters.
 
-mod raw_h2;
-mod reliability_common;
+use crate::raw_h2;
+use crate::reliability_common;
 
+use crate::reliability_common::{FLAT_DOWN, HANDLE_Y, LEFT_X, TOUCH_Z};
 use fissure_proto::v1 as pb;
 use fissure_server::service::ServeOptions;
 use fissure_server::sim::SimOptions;
 use fissure_tests::{Haptic, TestServer, pose};
-use reliability_common::{FLAT_DOWN, HANDLE_Y, LEFT_X, TOUCH_Z};
 use std::time::Duration;
 use tokio_stream::wrappers::ReceiverStream;
 
@@ -563,7 +563,7 @@ fn the_readme_gives_every_server_flag_with_its_default() {
         .output()
         .expect("fissure-server --help");
     let help = String::from_utf8_lossy(&help.stdout).into_owned();
-    let readme = include_str!("../../README.md");
+    let readme = include_str!("../../../README.md");
     let rows: Vec<&str> = readme.lines().filter(|l| l.starts_with("| `--")).collect();
     // Flag blocks of the help: a line `      --name <VALUE>` (clap indents
     // flags by 6, their text by 10), then its text.

@@ -2,14 +2,12 @@
 //! `server_*.rs`: message-size limits on the wire and the loopback default of
 //! the binary.
 
-mod reliability_common;
-
+use crate::reliability_common::*;
 use fissure_proto::v1 as pb;
 use fissure_server::service::{MAX_DECODING_MESSAGE_BYTES, ServeOptions};
 use fissure_server::sim::SimOptions;
 use fissure_tests::{Haptic, TestServer};
 use prost::Message;
-use reliability_common::*;
 use std::marker::PhantomData;
 use std::process::Command;
 use tonic::Status;

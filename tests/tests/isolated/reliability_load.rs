@@ -5,17 +5,15 @@
 //! every second must stay flat after the first second.
 //!
 //! `load_5_s` runs in CI; `load_60_s` is the full run (`cargo test -p
-//! fissure-tests --test reliability_load -- --ignored --nocapture`). The scene
+//! fissure-tests --test isolated reliability_load -- --ignored --nocapture`). The scene
 //! can be changed with `FISSURE_LOAD_SCENE` (an embedded name or a path).
 
-mod reliability_common;
-
+use crate::reliability_common::*;
 use fissure_proto::v1 as pb;
 use fissure_server::scene::Scene;
 use fissure_server::service::ServeOptions;
 use fissure_server::sim::SimOptions;
 use fissure_tests::TestServer;
-use reliability_common::*;
 use std::time::{Duration, Instant};
 
 const WATCHERS: usize = 32;
@@ -199,6 +197,7 @@ async fn load(seconds: u64, rss_growth_limit: u64) -> anyhow::Result<()> {
 /// The CI variant: 5 s.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn load_5_s() -> anyhow::Result<()> {
+    let _alone = crate::alone().await;
     load(5, 24 * 1024 * 1024).await
 }
 
@@ -206,5 +205,6 @@ async fn load_5_s() -> anyhow::Result<()> {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 #[ignore = "60 s; run with --ignored (load_5_s covers it in CI)"]
 async fn load_60_s() -> anyhow::Result<()> {
+    let _alone = crate::alone().await;
     load(60, 24 * 1024 * 1024).await
 }

@@ -3,14 +3,13 @@
 //! its connection does not), a deformation loop behind its interval (warned
 //! once), and the stages of loading a scene.
 
-mod raw_h2;
-mod reliability_common;
+use crate::raw_h2;
 
+use crate::reliability_common::{FLAT_DOWN, HANDLE_Y, LEFT_X, TOUCH_Z, cube_scene};
 use fissure_proto::v1 as pb;
 use fissure_server::service::{MAX_UNREAD_ANSWERS, ServeOptions};
 use fissure_server::sim::SimOptions;
 use fissure_tests::{Haptic, TestServer, pose, wait_until_claimed};
-use reliability_common::{FLAT_DOWN, HANDLE_Y, LEFT_X, TOUCH_Z, cube_scene};
 use std::io::Write;
 use std::sync::{Arc, Mutex, OnceLock};
 use std::time::{Duration, Instant};
@@ -60,6 +59,7 @@ fn lines_with(pattern: &str) -> Vec<String> {
 /// serving, a unary call during the stall and a new claim after.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_client_that_stops_reading_loses_its_stream_not_its_connection() -> anyhow::Result<()> {
+    let _alone = crate::alone().await;
     log();
     let server = TestServer::start("cube", SimOptions::default(), ServeOptions::default()).await?;
     let mut conn = raw_h2::connect(server.addr).await?;
@@ -178,6 +178,7 @@ async fn a_client_that_stops_reading_loses_its_stream_not_its_connection() -> an
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_loop_behind_its_interval_is_warned_once_and_loading_reports_its_stages()
 -> anyhow::Result<()> {
+    let _alone = crate::alone().await;
     log();
     let scene = cube_scene(&[
         ("name = \"cube\"", "name = \"cube-fast-interval\""),
@@ -239,6 +240,7 @@ async fn a_loop_behind_its_interval_is_warned_once_and_loading_reports_its_stage
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_stepped_replay_slower_than_real_time_is_warned_once_with_its_ratio() -> anyhow::Result<()>
 {
+    let _alone = crate::alone().await;
     log();
     let scene = cube_scene(&[
         ("name = \"cube\"", "name = \"cube-stepped-behind\""),

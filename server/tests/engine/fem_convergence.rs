@@ -14,8 +14,7 @@ use fissure_server::mesh::TetMesh;
 use fissure_server::mesh::phantom;
 use nalgebra::Vector3;
 
-mod common;
-use common::{block, push};
+use crate::common::{block, push};
 
 const BRAIN: Material = Material {
     youngs_modulus_pa: 3000.0,

@@ -612,7 +612,8 @@ fn ray_count_grows_and_shrinks() {
 
 /// Query times at the paper's size (about 15.9k triangles, 2 x 150 and 2 x 500
 /// source nodes), with a check against the reference. Heavy on a software
-/// adapter: `cargo test --release -p fissure-server --test collide_gpu -- --ignored --nocapture`.
+/// adapter: `cargo test --release -p fissure-server --test engine collide_gpu:: -- --ignored
+/// --nocapture`.
 #[test]
 #[ignore]
 fn timing_at_paper_size() {

@@ -1,8 +1,8 @@
 //! The session recorder on a disk that stalls: the queue to the writer stays
 //! bounded (in entries and in heap bytes), producers never wait for the disk,
 //! the file says where entries were dropped and how many, and `fissure report`
-//! still reads it. Memory is the process's resident set, so the tests of this
-//! file run one at a time.
+//! still reads it. Memory is the process's resident set, so these tests run
+//! alone in the process (the `isolated` binary runs one test at a time).
 
 use fissure_cli::report::{LostEntries, report};
 use fissure_proto::recording::{RecordingGap, RecordingGapExt, read_recording};
@@ -15,11 +15,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Condvar, Mutex, mpsc};
 use std::time::{Duration, Instant};
 
-mod reliability_common;
-use reliability_common::rss_bytes;
-
-/// The tests measure the process's memory: one at a time.
-static SERIAL: Mutex<()> = Mutex::new(());
+use crate::reliability_common::rss_bytes;
 
 /// Opens and closes the disk.
 #[derive(Clone, Default)]
@@ -129,6 +125,7 @@ fn frame(k: u64) -> Frame {
         solver_error: None,
         max_displacement_m: 1e-3,
         rigid: Default::default(),
+        ties: Default::default(),
     }
 }
 
@@ -187,7 +184,7 @@ fn two_runs(got: &[u64], resume: u64, last: u64, kind: &str) -> u64 {
 /// 1 kHz) are recorded, then it recovers for 1,000 more.
 #[test]
 fn a_stalled_disk_keeps_the_queue_bounded_and_the_file_records_the_loss() {
-    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let _alone = crate::alone_blocking();
     const BEFORE: u64 = 1_000;
     const STALLED: u64 = 100_000;
     const AFTER: u64 = 1_000;
@@ -361,7 +358,7 @@ fn a_stalled_disk_keeps_the_queue_bounded_and_the_file_records_the_loss() {
 /// once the disk returns.
 #[test]
 fn finishing_on_a_disk_that_does_not_return_gives_up_and_says_so() {
-    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let _alone = crate::alone_blocking();
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("stuck.fsrec");
     let gate = Gate::default();

@@ -93,7 +93,7 @@ fn the_readme_gives_every_bench_haptic_flag_with_its_default() {
         .output()
         .expect("fissure bench haptic --help");
     let help = String::from_utf8_lossy(&help.stdout).into_owned();
-    let readme = include_str!("../../README.md");
+    let readme = include_str!("../../../README.md");
     let table: Vec<&str> = readme
         .lines()
         .skip_while(|l| !l.starts_with("| `fissure bench haptic` flag"))

@@ -133,6 +133,7 @@ fn v_valley_with_spatula_still() {
         values_mm: &height_mm,
         quantity: "height",
         plates: &plates,
+        ties: &[],
         camera: camera(&moved, &plates[0], -60.0, 35.0),
     };
     let t = Instant::now();
@@ -170,6 +171,7 @@ fn v_valley_pushed_open_with_force_arrow() {
         values_mm: &d,
         quantity: "displacement",
         plates: &plates,
+        ties: &[],
         camera: camera(&moved, &plates[0], -125.0, 38.0),
     };
     let img = fr
@@ -219,6 +221,7 @@ fn v_valley_opening_animation_gif() {
             values_mm: &d,
             quantity: "displacement",
             plates: &plates,
+            ties: &[],
             camera: cam,
         };
         let mut cap = caption(

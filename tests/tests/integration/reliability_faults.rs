@@ -1,14 +1,12 @@
 //! Faults: a client killed mid-stream, deformation steps that fail, shutdown
 //! with open streams, SIGTERM of the server binary while it records a session. (Watchers that never read:
-//! `reliability_watchers.rs`, alone in its process for its memory figures.)
+//! `isolated/reliability_watchers.rs`, alone in its process for its memory figures.)
 
-mod reliability_common;
-
+use crate::reliability_common::*;
 use fissure_proto::v1 as pb;
 use fissure_server::service::ServeOptions;
 use fissure_server::sim::{SimOptions, flags};
 use fissure_tests::{Haptic, TestServer};
-use reliability_common::*;
 use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};

@@ -1,14 +1,12 @@
-//! Watchers that never read: no memory growth, the others unaffected. Alone
-//! in its test binary: it measures the process's resident memory, which
-//! tests running beside it would disturb.
+//! Watchers that never read: no memory growth, the others unaffected. In the
+//! `isolated` test binary, alone in the process while it runs: it measures
+//! the process's resident memory, which tests running beside it would disturb.
 
-mod reliability_common;
-
+use crate::reliability_common::*;
 use fissure_proto::v1 as pb;
 use fissure_server::service::ServeOptions;
 use fissure_server::sim::SimOptions;
 use fissure_tests::TestServer;
-use reliability_common::*;
 use std::time::{Duration, Instant};
 
 /// Sixteen watchers that never read, each on its own connection (64 KiB
@@ -21,6 +19,7 @@ use std::time::{Duration, Instant};
 /// least one in five on this loaded 2-core machine).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn watchers_that_never_read_do_not_grow_memory() -> anyhow::Result<()> {
+    let _alone = crate::alone().await;
     let scene = cube_scene(&[("cells = 8", "cells = 16")]);
     // Stepped: the run below replays the warm-up's poses one period of the
     // push later, so its steps are the warm-up's and reach no tissue the

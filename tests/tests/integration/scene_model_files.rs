@@ -13,7 +13,7 @@ use std::path::Path;
 
 /// The cube scene with its model replaced by `[model]` lines.
 fn scene_with_model(model: &str) -> anyhow::Result<Scene> {
-    let text = include_str!("../../server/scenes/cube.toml");
+    let text = include_str!("../../../server/scenes/cube.toml");
     let start = text.find("[model]").expect("[model]");
     let end = text.find("[material]").expect("[material]");
     let text = format!("{}[model]\n{model}\n\n{}", &text[..start], &text[end..]);

@@ -1,0 +1,196 @@
+//! A scene's ties (`[[ties]]`) on the phantom's Sylvian fissure, through
+//! the deformation step: placement (reproducible, on facing walls, at the
+//! declared density), the force of opening against them (more than against
+//! the bulk alone), tearing at the rupture criterion (not before), and the
+//! errors of bad declarations.
+
+use fissure_server::fem::compliance::ColumnPolicy;
+use fissure_server::fem::ties::{Rupture, TieKind};
+use fissure_server::scene::Scene;
+use fissure_server::sim::engine::{Model, StepEngine};
+use fissure_server::sim::snapshot::TieCause;
+use fissure_server::sim::stepped::home_pose;
+use nalgebra::{Isometry3, Translation3, Vector3};
+use std::sync::Arc;
+
+/// The `sylvian` scene on the coarse phantom, one instrument (`left`),
+/// with `ties` appended (TOML).
+fn scene(ties: &str) -> Scene {
+    let text = include_str!("../../scenes/sylvian.toml").replace("paper-48k", "coarse");
+    // Keep the first instrument only.
+    let cut = text.rfind("[[instrument]]").unwrap();
+    let text = format!("{}\n{ties}", &text[..cut]);
+    Scene::parse(&text, "test").unwrap()
+}
+
+fn trabeculae(density: f64, extra: &str) -> String {
+    format!(
+        "[[ties]]\nkind = \"trabecula\"\nregion = {{ landmark = \"sylvian-left\" }}\ndensity_per_mm2 = {density}\nseed = 11\nstiffness_n_per_m = 0.5\nmax_gap_m = 0.010\n{extra}\n"
+    )
+}
+
+fn model(scene: &Scene) -> Arc<Model> {
+    Arc::new(Model::build(scene).unwrap())
+}
+
+#[test]
+fn ties_are_placed_reproducibly_across_the_fissure_at_the_declared_density() {
+    let s = scene(&trabeculae(0.2, "rupture_strain = 1.0"));
+    let a = model(&s);
+    let b = model(&s);
+    assert!(!a.ties.is_empty());
+    assert_eq!(a.ties, b.ties, "the same scene places the same ties");
+    // The walls face +-z, 6.5 mm apart on the coarse phantom: each tie
+    // crosses the mid-plane, its rest length is about the gap.
+    for t in &a.ties {
+        let (xa, xb) = (a.mesh.nodes[t.a as usize], a.mesh.nodes[t.b as usize]);
+        assert!(xa.z * xb.z < 0.0, "{xa} and {xb} on one side");
+        assert!(
+            t.rest_length_m > 0.006 && t.rest_length_m < 0.010,
+            "{}",
+            t.rest_length_m
+        );
+        assert_eq!(t.kind, TieKind::Trabecula);
+        assert_eq!(t.rupture, Rupture::Strain(1.0));
+    }
+    // Twice the density, twice the ties (to the rounding of the count).
+    let double = model(&scene(&trabeculae(0.4, "rupture_strain = 1.0")));
+    let ratio = double.ties.len() as f64 / a.ties.len() as f64;
+    assert!((ratio - 2.0).abs() < 0.02, "{ratio}");
+    // Another seed, another placement.
+    let other = model(&scene(
+        &trabeculae(0.2, "rupture_strain = 1.0").replace("seed = 11", "seed = 12"),
+    ));
+    assert_eq!(other.ties.len(), a.ties.len());
+    assert_ne!(other.ties, a.ties);
+}
+
+/// The left spatula inserted 20 mm and lifted by `lift_m` along +z (its
+/// face A pushes the fissure's upper wall).
+fn lifted(scene: &Scene, lift_m: f64) -> Isometry3<f64> {
+    Translation3::from(Vector3::new(0.020, 0.0, lift_m)) * home_pose(scene, 0)
+}
+
+/// The force on the spatula (N, along z) over a lift in `steps` steps to
+/// `lift_m`, with the ties' events.
+fn open(
+    scene: &Scene,
+    lift_m: f64,
+    steps: usize,
+) -> (Vec<f64>, Vec<fissure_server::sim::snapshot::TieEvent>, u32) {
+    let model = model(scene);
+    let mut engine =
+        StepEngine::new(scene, model.clone(), ColumnPolicy::Compute, None, None).unwrap();
+    let mut snap = engine.rest(0.0);
+    let mut forces = Vec::new();
+    let mut events = Vec::new();
+    for k in 0..=steps {
+        let pose = lifted(scene, lift_m * k as f64 / steps as f64);
+        let (next, report) = engine.step(&snap, 0.02 * (k + 1) as f64, &[pose], vec![None]);
+        assert!(report.is_some(), "step {k}: {:?}", next.solver_error);
+        snap = next;
+        let f = &snap.frame_summary;
+        forces.push(f.instruments[0].force_n.z);
+        events.extend(f.ties.events.iter().copied());
+    }
+    let intact = snap.frame_summary.ties.trabeculae_intact;
+    (forces, events, intact)
+}
+
+#[test]
+fn opening_against_ties_takes_more_force_and_a_tie_tears_at_its_rupture_strain() {
+    // The plate (1 mm) touches a wall after 2.75 mm of lift.
+    let lift = 0.005;
+    let bare = scene("");
+    let strong = scene(&trabeculae(0.2, "rupture_strain = 10.0"));
+    let (f_bare, e_bare, _) = open(&bare, lift, 6);
+    let (f_ties, e_ties, intact) = open(&strong, lift, 6);
+    assert!(e_bare.is_empty() && e_ties.is_empty());
+    assert_eq!(intact as usize, model(&strong).ties.len());
+    // The tissue pushes the plate down (-z) as it lifts the wall; the ties
+    // hold the wall back, so the push is larger at every lift in contact.
+    let last = f_bare.len() - 1;
+    assert!(f_bare[last] < 0.0, "{f_bare:?}");
+    assert!(
+        f_ties[last] < f_bare[last] * 1.05,
+        "with ties {f_ties:?}, without {f_bare:?}"
+    );
+    for (w, wo) in f_ties.iter().zip(&f_bare) {
+        assert!(w <= &(wo + 1e-12), "with ties {w} N, without {wo} N");
+    }
+    // Weak ties: each tears once its strain reaches 0.2, not before.
+    let weak = scene(&trabeculae(0.2, "rupture_strain = 0.2"));
+    let (f_weak, torn, intact) = open(&weak, lift, 6);
+    assert!(!torn.is_empty(), "no tie tore: {f_weak:?}");
+    assert_eq!(intact as usize + torn.len(), model(&weak).ties.len());
+    for e in &torn {
+        assert!(matches!(e.cause, TieCause::Torn { instrument: 0 }));
+        assert!(e.strain >= 0.2, "tore at strain {}", e.strain);
+    }
+    // Once torn, the force falls below the strong ties'.
+    assert!(f_weak[last] > f_ties[last], "{f_weak:?} vs {f_ties:?}");
+}
+
+fn refused(ties: &str) -> String {
+    let text = include_str!("../../scenes/sylvian.toml").replace("paper-48k", "coarse");
+    let text = format!("{text}\n{ties}");
+    match Scene::parse(&text, "test") {
+        Err(e) => e.to_string(),
+        Ok(s) => match Model::build(&s) {
+            Err(e) => e.to_string(),
+            Ok(_) => panic!("accepted: {ties}"),
+        },
+    }
+}
+
+#[test]
+fn bad_tie_declarations_are_refused_naming_what_is_wrong() {
+    let e = refused(&trabeculae(0.2, "rupture_strain = 1.0").replace("= 0.5", "= -0.5"));
+    assert!(e.contains("ties[0].stiffness_n_per_m"), "{e}");
+    let e = refused(&trabeculae(
+        0.2,
+        "rupture_strain = 1.0 \nrupture_force_n = 0.1",
+    ));
+    assert!(
+        e.contains("ties[0]") && e.contains("exactly one rupture"),
+        "{e}"
+    );
+    let e = refused(&trabeculae(0.2, "").replace("density_per_mm2 = 0.2\n", ""));
+    assert!(e.contains("ties[0]"), "{e}");
+    let e = refused(
+        &trabeculae(0.2, "rupture_strain = 1.0").replace("sylvian-left", "no-such-fissure"),
+    );
+    assert!(
+        e.contains("ties[0].region") && e.contains("no-such-fissure"),
+        "{e}"
+    );
+    // A region with no facing walls: the brain stem's sphere.
+    let e = refused(&trabeculae(0.2, "rupture_strain = 1.0").replace("sylvian-left", "brain-stem"));
+    assert!(
+        e.contains("ties[0]") && e.contains("no facing walls"),
+        "{e}"
+    );
+    let e = refused(&trabeculae(1.0e6, "rupture_strain = 1.0"));
+    assert!(
+        e.contains("ties[0]") && e.contains("density_per_mm2"),
+        "{e}"
+    );
+}
+
+#[test]
+fn ties_need_a_strategy_that_takes_them() {
+    let text = include_str!("../../scenes/sylvian.toml")
+        .replace("paper-48k", "coarse")
+        .replace("strategy = \"compliance\"", "strategy = \"corotational\"");
+    // (The foundation needs a linear strategy too: drop it.)
+    let start = text.find("[foundation]").unwrap();
+    let end = text[start..].find("\n# The paper's skull").unwrap() + start;
+    let text = format!(
+        "{}{}\n{}",
+        &text[..start],
+        &text[end..],
+        trabeculae(0.2, "rupture_strain = 1.0")
+    );
+    let e = Scene::parse(&text, "test").unwrap_err().to_string();
+    assert!(e.contains("ties[0]") && e.contains("compliance"), "{e}");
+}
