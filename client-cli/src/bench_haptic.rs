@@ -1239,6 +1239,16 @@ mod tests {
                 vec![pair("left", "cube-press-hold-retract-left")]
             ]
         );
+        assert_eq!(
+            of("sylvian-arachnoid"),
+            vec![
+                vec![
+                    pair("spatula", "sylvian-arachnoid-spatula"),
+                    pair("blade", "sylvian-arachnoid-blade")
+                ],
+                vec![pair("spatula", "sylvian-arachnoid-careless-spatula")]
+            ]
+        );
         assert_eq!(of("v-valley").len(), 2);
         assert_eq!(of("u-valley").len(), 1);
         assert_eq!(of("interhemispheric").len(), 1);

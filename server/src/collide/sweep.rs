@@ -210,13 +210,14 @@ mod tests {
 
     #[test]
     fn a_turning_edge_cuts_what_its_arc_passes() {
-        // The edge turns a quarter turn about the handle's x axis: its tip
-        // sweeps a quarter disc of radius 30 mm in the y-z plane.
+        // The edge (y in [-5, 5] mm at z = 30 mm) turns a quarter turn about
+        // the handle's x axis: it sweeps a quarter annulus of radii 30 to
+        // 30.4 mm in the y-z plane.
         let p0 = Isometry3::identity();
         let p1 = Isometry3::rotation(Vector3::new(std::f64::consts::FRAC_PI_2, 0.0, 0.0));
         assert!(sub_steps(&p0, &p1) >= 78);
-        // On the arc at 45 degrees, a tie along x through it.
-        let c = 0.03 * std::f64::consts::FRAC_1_SQRT_2;
+        // In the annulus at 45 degrees (radius 30.2 mm), a tie along x.
+        let c = 0.0302 * std::f64::consts::FRAC_1_SQRT_2;
         let at = Point3::new(0.0, -c, c);
         let (p, q) = (at - Vector3::x() * 0.001, at + Vector3::x() * 0.001);
         assert!(edge_sweeps_across(&edge(), &p0, &p1, &p, &q));
