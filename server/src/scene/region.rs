@@ -156,6 +156,15 @@ pub fn resolve(
     }))
 }
 
+/// The lines of a list file that hold data, with their 1-based numbers:
+/// `#` starts a comment, blank lines are skipped, the rest is trimmed.
+pub fn data_lines(text: &str) -> impl Iterator<Item = (usize, &str)> {
+    text.lines().enumerate().filter_map(|(i, line)| {
+        let line = line.split('#').next().unwrap_or("").trim();
+        (!line.is_empty()).then_some((i + 1, line))
+    })
+}
+
 /// Reads a vertex list: one volume node index (0-based, of the model as
 /// the file describes it) a line; blank lines and `#` comments skipped.
 fn read_vertices(
@@ -174,15 +183,11 @@ fn read_vertices(
         t.iter().map(|&i| i as usize + 1).max().unwrap_or(0)
     });
     let mut listed_full = Vec::new();
-    for (i, line) in text.lines().enumerate() {
-        let line = line.split('#').next().unwrap_or("").trim();
-        if line.is_empty() {
-            continue;
-        }
+    for (line_no, line) in data_lines(&text) {
         let bad = |reason: String| RegionError::BadVertex {
             field: field.to_owned(),
             path: shown.clone(),
-            line: i + 1,
+            line: line_no,
             reason,
         };
         let n: usize = line

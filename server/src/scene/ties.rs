@@ -419,15 +419,11 @@ fn place_from_file(
             .map(|&v| ((mesh.nodes[v as usize] - p).norm(), v))
             .min_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)))
     };
-    for (i, line) in text.lines().enumerate() {
-        let line = line.split('#').next().unwrap_or("").trim();
-        if line.is_empty() {
-            continue;
-        }
+    for (line_no, line) in super::region::data_lines(&text) {
         let bad = |reason: String| TieError::BadPair {
             field: field.to_owned(),
             path: shown.clone(),
-            line: i + 1,
+            line: line_no,
             reason,
         };
         let v: Vec<f64> = line

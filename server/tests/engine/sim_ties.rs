@@ -194,3 +194,33 @@ fn ties_need_a_strategy_that_takes_them() {
     let e = Scene::parse(&text, "test").unwrap_err().to_string();
     assert!(e.contains("ties[0]") && e.contains("compliance"), "{e}");
 }
+
+#[test]
+fn ties_from_a_pairs_file_attach_at_the_nearest_surface_vertices_and_bad_lines_are_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("pairs.txt");
+    // One pair across the Sylvian fissure (entry x = -65.7 mm, y = 10 mm,
+    // walls at z = +-3.25 mm on the coarse phantom), 10 mm in.
+    std::fs::write(
+        &path,
+        "# a tie\n-0.0557 0.010 0.00325  -0.0557 0.010 -0.00325\n\n",
+    )
+    .unwrap();
+    let decl = format!(
+        "[[ties]]\nkind = \"vessel\"\npairs_file = {:?}\nstiffness_n_per_m = 200.0\nrupture_strain = 0.5\nmax_gap_m = 0.010\n",
+        path.display().to_string()
+    );
+    let m = model(&scene(&decl));
+    assert_eq!(m.ties.len(), 1);
+    let t = m.ties[0];
+    assert_eq!(t.kind, TieKind::Vessel);
+    let (a, b) = (m.mesh.nodes[t.a as usize], m.mesh.nodes[t.b as usize]);
+    assert!(a.z > 0.0 && b.z < 0.0, "{a} {b}");
+    assert!((t.rest_length_m - (b - a).norm()).abs() < 1e-15);
+    std::fs::write(&path, "# a tie\n-0.0557 0.010 0.00325 oops\n").unwrap();
+    let e = refused(&decl);
+    assert!(
+        e.contains("ties[0].pairs_file") && e.contains("line 2"),
+        "{e}"
+    );
+}
