@@ -15,12 +15,11 @@
 //! its nodes (weights `+1` at `a`, `-1` at `b`, direction `n`), unilateral,
 //! with its own compliance `c = 1 / k` ([`ContactRow::compliance_m_per_n`]):
 //! the row's gap is `g = -s + c T`, and `T >= 0`, `g >= 0`, `T g = 0` is
-//! exactly `T = k max(0, s)`. [`TieRows::row`] linearises the stretch at
-//! given positions `x = X + u_0`: `s(u) = |x_b - x_a| - L0 + n . ((u_b -
-//! u_a) - (u_b0 - u_a0))`. The linear strategies (the only ones that take
-//! ties) write it at rest (`u_0 = 0`, `n` the rest direction), the small-
-//! displacement theory of their tissue: then a tie's row is the same in
-//! every step and every force sample, and a sample equals a full solve.
+//! exactly `T = k max(0, s)`. [`TieRows::row`] writes the stretch at rest,
+//! `s(u) = |X_b - X_a| - L0 + n . (u_b - u_a)` with `n` the rest direction:
+//! the small-displacement theory of the linear strategies (the only ones
+//! that take ties), so that a tie's row is the same in every step and every
+//! force sample, and a sample equals a full solve.
 //!
 //! The alternative, the ties' stiffness `sum k n n^T` added to `K` and the
 //! cached compliance updated by the Woodbury identity as ties are cut,
@@ -190,57 +189,22 @@ impl TieRows {
         Self { pairs, row_of }
     }
 
-    /// The contact row of pair `p` linearised at the node positions
-    /// `rest + u` (rest positions `rest`, displacements `u`; module
+    /// The contact row of pair `p`, written at rest (module
     /// documentation).
-    pub fn row_at(&self, p: usize, rest: &[Point3<f64>], u: &[Vector3<f64>]) -> ContactRow {
-        let pair = &self.pairs[p];
-        let (a, b) = (pair.a as usize, pair.b as usize);
-        self.row_between(p, rest[a] + u[a], rest[b] + u[b], u[b] - u[a])
-    }
-
-    /// The contact row of pair `p` at rest (module documentation).
     pub fn row(&self, p: usize, rest: &[Point3<f64>]) -> ContactRow {
         let pair = &self.pairs[p];
-        self.row_between(
-            p,
-            rest[pair.a as usize],
-            rest[pair.b as usize],
-            Vector3::zeros(),
-        )
-    }
-
-    /// The row of pair `p` with its nodes at `xa`, `xb` (m), there
-    /// displaced by `du = u_b - u_a` (m).
-    fn row_between(
-        &self,
-        p: usize,
-        xa: Point3<f64>,
-        xb: Point3<f64>,
-        du: Vector3<f64>,
-    ) -> ContactRow {
-        let pair = &self.pairs[p];
-        let d = xb - xa;
+        let d = rest[pair.b as usize] - rest[pair.a as usize];
         let len = d.norm();
-        // Coincident nodes (only a displaced state can bring them together:
-        // placed ties have L0 > 0) pull along z.
+        // Coincident nodes cannot be placed (L0 > 0); pull along z then.
         let n = if len > 0.0 { d / len } else { Vector3::z() };
-        let gap_free = pair.rest_length_m - len + n.dot(&du);
         ContactRow::between(
             pair.a,
             pair.b,
             n,
-            gap_free,
+            pair.rest_length_m - len,
             RowKind::Unilateral,
             1.0 / pair.stiffness_n_per_m,
         )
-    }
-
-    /// The stretch of pair `p` under its row's multiplier `lambda` (N): the
-    /// row's tension over its stiffness, m (0 when slack).
-    #[inline]
-    pub fn stretch_m(&self, p: usize, lambda: f64) -> f64 {
-        lambda.max(0.0) / self.pairs[p].stiffness_n_per_m
     }
 }
 
@@ -302,17 +266,11 @@ mod tests {
         assert!(r.gap_free_m.abs() < 1e-18);
         assert_eq!(r.dir, Vector3::z());
         assert_eq!(r.compliance_m_per_n, 0.25);
-        // Pulled apart by 1 mm: the free gap is minus the stretch, and the
-        // row's linear gap at those displacements is the same.
+        // Pulled apart by 1 mm along the tie: the gap is minus the stretch.
         let u = [
             Vector3::new(0.0, 0.0, -0.0005),
             Vector3::new(0.0, 0.0, 0.0005),
         ];
-        let r = rows.row_at(0, &rest, &u);
-        let g = r.gap_free_m + r.normal_motion(&u);
-        assert!((g + 0.001).abs() < 1e-15, "gap {g}");
-        // Written at rest, the row gives the same gap for motion along it.
-        let r = rows.row(0, &rest);
         let g = r.gap_free_m + r.normal_motion(&u);
         assert!((g + 0.001).abs() < 1e-15, "gap {g}");
     }

@@ -338,20 +338,10 @@ impl StepEngine {
                 break 'tear solved;
             }
             tear_rounds += 1;
-            let old: std::collections::HashMap<u64, f64> = self
-                .rows
-                .iter()
-                .zip(&self.deformer.answer().multipliers)
-                .map(|(r, &l)| (r.key, l))
-                .collect();
+            let old = self.multipliers_by_key();
             self.rows.retain(|r| r.owner != rows::TIE_OWNER);
             self.ties.push_rows(&model, &mut self.rows);
-            self.warm.clear();
-            self.warm.extend(
-                self.rows
-                    .iter()
-                    .map(|r| old.get(&r.key).copied().unwrap_or(0.0)),
-            );
+            self.warm_from(&old);
         };
         let solve_us = t1.elapsed().as_secs_f64() * 1e6;
         let timings = |total: f64| StepTimings {
@@ -532,25 +522,34 @@ impl StepEngine {
         if same {
             return false;
         }
-        let multipliers = &self.deformer.answer().multipliers;
-        let old_lambda: std::collections::HashMap<u64, f64> = self
-            .rows
-            .iter()
-            .zip(multipliers)
-            .map(|(r, &l)| (r.key, l))
-            .collect();
+        let old_lambda = self.multipliers_by_key();
         let skull: Vec<Row> = self.rows[*n_instrument_rows..].to_vec();
         self.rows.clear();
         rows::append(&mut self.rows, &post);
         *n_instrument_rows = self.rows.len();
         rows::append(&mut self.rows, &skull);
+        self.warm_from(&old_lambda);
+        true
+    }
+
+    /// The last solve's multiplier of each row, by key.
+    fn multipliers_by_key(&self) -> std::collections::HashMap<u64, f64> {
+        self.rows
+            .iter()
+            .zip(&self.deformer.answer().multipliers)
+            .map(|(r, &l)| (r.key, l))
+            .collect()
+    }
+
+    /// The warm start of the rows now in the problem: each row's multiplier
+    /// in `old` (by key), 0 for a new row.
+    fn warm_from(&mut self, old: &std::collections::HashMap<u64, f64>) {
         self.warm.clear();
         self.warm.extend(
             self.rows
                 .iter()
-                .map(|r| old_lambda.get(&r.key).copied().unwrap_or(0.0)),
+                .map(|r| old.get(&r.key).copied().unwrap_or(0.0)),
         );
-        true
     }
 
     /// Friction: a contact that slipped sticks where it ended; one that

@@ -182,11 +182,6 @@ impl TieStage {
         }
     }
 
-    /// The cuts the force loops share with this stage.
-    pub fn cuts(&self) -> &Arc<TieCuts> {
-        &self.cuts
-    }
-
     /// What the force loops need of the ties now (`None`: no ties).
     pub fn at_step(&self) -> Option<Arc<TiesAtStep>> {
         (!self.states.is_empty()).then(|| {
@@ -229,11 +224,6 @@ impl TieStage {
     /// Whether the model has ties.
     pub fn is_empty(&self) -> bool {
         self.states.is_empty()
-    }
-
-    /// Each tie's state.
-    pub fn states(&self) -> &[TieState] {
-        &self.states
     }
 
     /// The rows of the intact ties' pairs (at rest), appended to `dst`.
