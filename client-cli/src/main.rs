@@ -161,7 +161,8 @@ OpenIGTLink (--igtl-listen [ADDR] or --igtl-connect HOST:PORT, instead of UDP):
        scene position = unit_m * (R p + t) with --igtl-registration (4x4, row major)
   out  SENSOR <instrument>_force (N, 3 values) and <instrument>_torque (N m), per pose,
        in the sender's frame, with the pose's timestamp; STATUS on rejections and
-       safety-flag changes; POLYDATA --igtl-surface-device (mm, triangles first)
+       safety-flag changes; POLYDATA --igtl-surface-device (mm, triangles first);
+       STATUS --igtl-ties-device per tie cut or torn (TIE_CUT, TIE_TORN, VESSEL_TORN)
 Examples:
   fissure bridge --igtl-listen        (3D Slicer connects to localhost:18944)
   fissure bridge --igtl-connect plus-host:18944 --igtl-map StylusToReference=left";

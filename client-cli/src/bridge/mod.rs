@@ -204,6 +204,13 @@ pub struct BridgeArgs {
     /// Send the triangles with every POLYDATA, not only with a peer's first.
     #[arg(long, help_heading = "OpenIGTLink")]
     pub igtl_topology_every: bool,
+    /// Device name of the STATUS messages announcing each tie (arachnoid
+    /// trabecula, bridging vessel) cut or torn, in scenes with ties.
+    #[arg(long, default_value = "fissure_ties", help_heading = "OpenIGTLink")]
+    pub igtl_ties_device: String,
+    /// Send no tie STATUS messages.
+    #[arg(long, help_heading = "OpenIGTLink")]
+    pub igtl_no_ties: bool,
 }
 
 impl BridgeArgs {
@@ -221,6 +228,11 @@ impl BridgeArgs {
                 ),
                 ("--igtl-no-surface", self.igtl_no_surface),
                 ("--igtl-topology-every", self.igtl_topology_every),
+                (
+                    "--igtl-ties-device",
+                    self.igtl_ties_device != "fissure_ties",
+                ),
+                ("--igtl-no-ties", self.igtl_no_ties),
             ];
             if let Some((flag, _)) = given.iter().find(|(_, g)| *g) {
                 bail!(
@@ -244,6 +256,7 @@ impl BridgeArgs {
             registration,
             surface_device: (!self.igtl_no_surface).then(|| self.igtl_surface_device.clone()),
             topology_every: self.igtl_topology_every,
+            ties_device: (!self.igtl_no_ties).then(|| self.igtl_ties_device.clone()),
         }))
     }
 }

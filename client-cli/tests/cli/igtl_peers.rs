@@ -491,3 +491,89 @@ async fn connect_mode_serves_an_igtl_server_and_reconnects() -> anyhow::Result<(
     assert_eq!((stats.forwarded, stats.answered, stats.bad), (10, 10, 0));
     server.stop().await
 }
+
+/// Ties torn in a session reach every OpenIGTLink peer as STATUS messages
+/// (device `fissure_ties`): the `sylvian` scene on the coarse phantom with
+/// weak trabeculae (rupture strain 0.2), its left spatula inserted and
+/// lifted 5 mm by TRANSFORM messages in stepped mode; each tie the frames
+/// report torn comes as one `TIE_TORN` STATUS, subcode its index, and none
+/// twice.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn torn_ties_reach_the_peer_as_status_messages() -> anyhow::Result<()> {
+    use fissure_server::sim::stepped::home_pose;
+    use nalgebra::{Translation3, Vector3};
+    let text = include_str!("../../../server/scenes/sylvian.toml").replace("paper-48k", "coarse");
+    let cut = text.rfind("[[instrument]]").expect("two instruments");
+    let text = format!(
+        "{}\n[[ties]]\nkind = \"trabecula\"\nregion = {{ landmark = \"sylvian-left\" }}\ndensity_per_mm2 = 0.2\nseed = 11\nstiffness_n_per_m = 0.5\nmax_gap_m = 0.010\nrupture_strain = 0.2\n",
+        &text[..cut]
+    );
+    let scene = Scene::parse(&text, "test")?;
+    let home = home_pose(&scene, 0);
+    let options = SimOptions {
+        stepped: Some(true),
+        stepped_clients: 1,
+        ..SimOptions::default()
+    };
+    let sim = tokio::task::spawn_blocking(move || Simulation::start(scene, options)).await??;
+    let server = serve("127.0.0.1:0".parse()?, ServeOptions::default()).await?;
+    server.set_simulation(sim.clone()).await;
+    let server = Server {
+        url: format!("http://{}", server.addr),
+        server,
+        sim,
+    };
+    let options = IgtlOptions {
+        listen: Some("127.0.0.1:0".parse()?),
+        surface_device: None,
+        ..IgtlOptions::default()
+    };
+    let bridge = IgtlBridge::start(&server.url, &["left".to_owned()], None, &options).await?;
+    let mut s = TcpStream::connect(bridge.local_addr.expect("listening")).await?;
+    // 400 samples (20 steps): insert 20 mm, then lift 5 mm.
+    let mut torn = Vec::new();
+    for i in 1..=400u64 {
+        let k = i as f64 / 400.0;
+        let pose = Translation3::from(Vector3::new(
+            0.020 * (2.0 * k).min(1.0),
+            0.0,
+            0.005 * (2.0 * k - 1.0).max(0.0),
+        )) * home;
+        let r = pose.rotation.to_rotation_matrix();
+        let t = Transform {
+            rotation: std::array::from_fn(|a| std::array::from_fn(|b| r[(a, b)] as f32)),
+            translation: (pose.translation.vector * 1000.0).map(|x| x as f32).into(),
+        };
+        let mut msg = Vec::new();
+        write_message(
+            &mut msg,
+            type_field("TRANSFORM"),
+            name_field("left").expect("a device name"),
+            s_to_timestamp(i as f64 * 1e-3),
+            |o| transform_content(&t, o),
+        );
+        s.write_all(&msg).await?;
+        // Read up to this pose's torque SENSOR (STATUS messages may come
+        // before it).
+        loop {
+            let (h, body) = read_one(&mut s).await?;
+            match body {
+                Body::Status(st) if h.device() == "fissure_ties" => {
+                    assert_eq!(st.error_name, "TIE_TORN", "{st:?}");
+                    assert!(st.message.starts_with("trabecula "), "{st:?}");
+                    torn.push(st.subcode);
+                }
+                Body::Sensor(_) if h.device() == "left_torque" => break,
+                _ => {}
+            }
+        }
+    }
+    assert!(!torn.is_empty(), "no tie tore");
+    let mut once = torn.clone();
+    once.sort_unstable();
+    once.dedup();
+    assert_eq!(once.len(), torn.len(), "a tie announced twice: {torn:?}");
+    drop(s);
+    bridge.stop().await?;
+    server.stop().await
+}

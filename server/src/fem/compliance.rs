@@ -22,7 +22,7 @@
 
 use super::assembly::node_vec;
 use super::constraint::{Constraint, StepRows};
-use super::contact::{self, CompliancePatch, ContactAnswer, ContactRow};
+use super::contact::{self, CompliancePatch, ContactAnswer, ContactRow, SharedBlocks};
 use super::factor::{SharedFactor, SparseLlt};
 use super::lcp::{ContactSolver, RowKind, Tolerances};
 use super::model::Model;
@@ -134,6 +134,38 @@ pub enum Recover {
     Nodes(Vec<u32>),
 }
 
+/// A contact row's identity for the kept rows of `W`: its nodes and
+/// weights, its direction (bit for bit) and its kind. Its own compliance is
+/// kept apart: only the diagonal depends on it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct RowSig {
+    nodes: [u32; 3],
+    bits: [u64; 6],
+    kind: u8,
+}
+
+impl RowSig {
+    fn of(r: &ContactRow) -> Self {
+        Self {
+            nodes: [r.node, r.others[0].0, r.others[1].0],
+            bits: [
+                r.weight.to_bits(),
+                r.others[0].1.to_bits(),
+                r.others[1].1.to_bits(),
+                r.dir.x.to_bits(),
+                r.dir.y.to_bits(),
+                r.dir.z.to_bits(),
+            ],
+            kind: match r.kind {
+                RowKind::Off => 0,
+                RowKind::Unilateral => 1,
+                RowKind::Bilateral => 2,
+                RowKind::Tangent { .. } => 3,
+            },
+        }
+    }
+}
+
 /// The `compliance` strategy.
 pub struct Compliance {
     model: Model,
@@ -172,13 +204,24 @@ pub struct Compliance {
     asked: Vec<bool>,
     /// Per node: listed in `missing` (deduplication).
     listed: Vec<bool>,
+    /// Nodes declared shared by every patch, their blocks once built, and
+    /// each node's index among them (`NONE`: not shared).
+    share: Vec<u32>,
+    shared: Option<Arc<SharedBlocks>>,
+    shared_of: Vec<u32>,
     // Contact solve buffers.
     c_nodes: Vec<u32>,
     c_slot: Vec<u32>,
     c_force: Vec<Vector3<f64>>,
     inc: Vec<usize>,
     inc_of: Vec<u32>,
+    /// `W` of the last contact solve's rows (row stride `w_stride`), with
+    /// each row's identity and own compliance: the leading rows still the
+    /// same keep their entries.
     w: Vec<f64>,
+    w_stride: usize,
+    w_sig: Vec<RowSig>,
+    w_c: Vec<f64>,
     q: Vec<f64>,
     kinds: Vec<RowKind>,
     lam: Vec<f64>,
@@ -333,12 +376,18 @@ impl Compliance {
             worker_start: None,
             asked: vec![false; n_nodes],
             listed: vec![false; n_nodes],
+            share: Vec::new(),
+            shared: None,
+            shared_of: vec![NONE; n_nodes],
             c_nodes: Vec::new(),
             c_slot: vec![NONE; n_nodes],
             c_force: Vec::new(),
             inc: Vec::new(),
             inc_of: Vec::new(),
             w: Vec::new(),
+            w_stride: 0,
+            w_sig: Vec::new(),
+            w_c: Vec::new(),
             q: Vec::new(),
             kinds: Vec::new(),
             lam: Vec::new(),
@@ -967,22 +1016,61 @@ impl Compliance {
         self.use_columns(&nodes, self.policy);
         self.c_nodes = nodes;
         // Rows whose nodes all have their columns take part; the others wait.
+        // Rows with their own compliance (ties) come first: they are the same
+        // rows from one solve to the next, so the rows of `W` and the place
+        // in the solver's factor that the last solve gave its leading rows
+        // are kept while those rows are unchanged (`kept`), and only the
+        // rows after them are computed again.
         answer.pending.clear();
         self.inc.clear();
         self.inc_of.clear();
         self.inc_of.resize(rows.len(), NONE);
-        for (i, r) in rows.iter().enumerate() {
-            if r.nodes().any(|(n, _)| self.cache_slot[n as usize] == NONE) {
-                answer.pending.push(i as u32);
-                continue;
+        for pass in [true, false] {
+            for (i, r) in rows.iter().enumerate() {
+                if (r.compliance_m_per_n > 0.0) != pass {
+                    continue;
+                }
+                if r.nodes().any(|(n, _)| self.cache_slot[n as usize] == NONE) {
+                    answer.pending.push(i as u32);
+                    continue;
+                }
+                self.inc_of[i] = self.inc.len() as u32;
+                self.inc.push(i);
             }
-            self.inc_of[i] = self.inc.len() as u32;
-            self.inc.push(i);
         }
+        answer.pending.sort_unstable();
         let n = self.inc.len();
-        self.w.clear();
-        self.w.resize(n * n, 0.0);
-        for a in 0..n {
+        let old_n = self.w_sig.len();
+        let mut kept = 0;
+        while kept < n.min(old_n) && self.w_sig[kept] == RowSig::of(&rows[self.inc[kept]]) {
+            kept += 1;
+        }
+        if n > self.w_stride {
+            let stride = n.max(2 * self.w_stride);
+            let mut w = vec![0.0; stride * stride];
+            for a in 0..kept {
+                w[a * stride..a * stride + kept]
+                    .copy_from_slice(&self.w[a * self.w_stride..a * self.w_stride + kept]);
+            }
+            self.w = w;
+            self.w_stride = stride;
+        }
+        let stride = self.w_stride;
+        // A kept row whose own compliance changed (a pair of ties lost one)
+        // keeps its off-diagonal entries.
+        for a in 0..kept {
+            let c = rows[self.inc[a]].compliance_m_per_n;
+            if c != self.w_c[a] {
+                self.w[a * stride + a] += c - self.w_c[a];
+                self.lcp.changed(a);
+            }
+        }
+        for a in kept..n.max(old_n) {
+            self.lcp.changed(a);
+        }
+        self.w_sig.truncate(kept);
+        self.w_c.truncate(kept);
+        for a in kept..n {
             let ra = &rows[self.inc[a]];
             for c in 0..=a {
                 let rc = &rows[self.inc[c]];
@@ -993,12 +1081,16 @@ impl Compliance {
                         v += wa * wc * ra.dir.dot(&(b * rc.dir));
                     }
                 }
-                self.w[a * n + c] = v;
-                self.w[c * n + a] = v;
+                self.w[a * stride + c] = v;
+                self.w[c * stride + a] = v;
             }
             // A row's own compliance (a tie's spring): `W + diag(c)`.
-            self.w[a * n + a] += ra.compliance_m_per_n;
+            self.w[a * stride + a] += ra.compliance_m_per_n;
+            self.w_sig.push(RowSig::of(ra));
         }
+        self.w_c.clear();
+        self.w_c
+            .extend(self.inc.iter().map(|&i| rows[i].compliance_m_per_n));
         self.q.clear();
         self.kinds.clear();
         self.lam.clear();
@@ -1016,11 +1108,25 @@ impl Compliance {
             self.lam
                 .push(if warm { answer.multipliers[i] } else { 0.0 });
         }
-        self.lcp.forget();
         let tol = Tolerances::for_gaps(&self.q, &self.kinds);
-        let report = self
-            .lcp
-            .solve(&self.w, n, n, &self.q, &self.kinds, &mut self.lam, &tol)?;
+        let report = match self.lcp.solve(
+            &self.w,
+            stride,
+            n,
+            &self.q,
+            &self.kinds,
+            &mut self.lam,
+            &tol,
+        ) {
+            Ok(r) => r,
+            Err(e) => {
+                // Nothing of a failed solve is kept.
+                self.lcp.forget();
+                self.w_sig.clear();
+                self.w_c.clear();
+                return Err(e.into());
+            }
+        };
         // Node forces and the response.
         self.c_force.clear();
         self.c_force.resize(self.c_nodes.len(), Vector3::zeros());
@@ -1070,6 +1176,42 @@ impl Compliance {
         Ok(())
     }
 
+    /// Builds the shared blocks of the declared nodes
+    /// ([`DeformationSolver::share_patch_nodes`]) once all of them have
+    /// columns (asked by the column policy until then).
+    fn build_shared(&mut self) {
+        if self.shared.is_some() || self.share.is_empty() {
+            return;
+        }
+        let nodes = std::mem::take(&mut self.share);
+        // Under the patch's stamp: the patch's own columns stay.
+        self.use_columns(&nodes, self.policy);
+        if nodes.iter().all(|&n| self.cache_slot[n as usize] != NONE) {
+            let s = nodes.len();
+            let s3 = 3 * s;
+            let mut blocks = vec![0.0; s3 * s3];
+            for i in 0..s {
+                for j in 0..=i {
+                    let b = self.block(nodes[i], nodes[j]);
+                    for a in 0..3 {
+                        for c in 0..3 {
+                            blocks[(3 * i + a) * s3 + 3 * j + c] = b[(a, c)];
+                            blocks[(3 * j + c) * s3 + 3 * i + a] = b[(a, c)];
+                        }
+                    }
+                }
+            }
+            for (k, &n) in nodes.iter().enumerate() {
+                self.shared_of[n as usize] = k as u32;
+            }
+            self.shared = Some(Arc::new(SharedBlocks {
+                nodes: nodes.clone(),
+                blocks,
+            }));
+        }
+        self.share = nodes;
+    }
+
     /// The compliance blocks over `nodes` ([`CompliancePatch`]); nodes
     /// without columns are computed or left out by the column policy.
     fn patch(&mut self, nodes: &[u32], patch: &mut CompliancePatch) {
@@ -1088,24 +1230,38 @@ impl Compliance {
             self.listed[n as usize] = false;
         }
         self.use_columns(&distinct, self.policy);
+        self.build_shared();
         patch.nodes.clear();
-        patch.nodes.extend(
-            distinct
-                .iter()
-                .copied()
-                .filter(|&n| self.cache_slot[n as usize] != NONE),
-        );
+        patch.shared = self.shared.clone();
+        if let Some(sh) = &self.shared {
+            patch.nodes.extend_from_slice(&sh.nodes);
+        }
+        let s = patch.nodes.len();
+        for &n in &distinct {
+            if self.cache_slot[n as usize] != NONE && !(s > 0 && self.shared_of[n as usize] != NONE)
+            {
+                patch.nodes.push(n);
+            }
+        }
         let m = patch.nodes.len();
         let m3 = 3 * m;
         patch.blocks.clear();
-        patch.blocks.resize(m3 * m3, 0.0);
-        for i in 0..m {
-            for j in 0..=i {
-                let b = self.block(patch.nodes[i], patch.nodes[j]);
+        patch.blocks.resize(3 * (m - s) * m3, 0.0);
+        // Rows of the other nodes (cached) against every node: `C[i][j] =
+        // C[j][i]^T`, read from node `i`'s column.
+        for i in s..m {
+            let r = 3 * (i - s);
+            for j in 0..m {
+                if j >= s && j > i {
+                    continue;
+                }
+                let b = self.block(patch.nodes[j], patch.nodes[i]);
                 for a in 0..3 {
                     for c in 0..3 {
-                        patch.blocks[(3 * i + a) * m3 + 3 * j + c] = b[(a, c)];
-                        patch.blocks[(3 * j + c) * m3 + 3 * i + a] = b[(a, c)];
+                        patch.blocks[(r + a) * m3 + 3 * j + c] = b[(c, a)];
+                        if j >= s {
+                            patch.blocks[(3 * (j - s) + c) * m3 + 3 * i + a] = b[(c, a)];
+                        }
                     }
                 }
             }
@@ -1162,6 +1318,30 @@ impl DeformationSolver for Compliance {
         answer: &mut ContactAnswer,
     ) -> Result<(), SolveError> {
         self.contact_solve(rows, answer)
+    }
+
+    fn share_patch_nodes(&mut self, nodes: &[u32]) {
+        for &n in &self.share {
+            self.shared_of[n as usize] = NONE;
+        }
+        self.shared = None;
+        self.share.clear();
+        for &n in nodes {
+            let nu = n as usize;
+            if nu < self.model.n_nodes()
+                && self.rec_of[nu] != NONE
+                && !self.model.support[3 * nu..3 * nu + 3].iter().any(|&f| f)
+                && self.shared_of[nu] == NONE
+            {
+                // Marked while listing (deduplication); set to the block
+                // index once built.
+                self.shared_of[nu] = 0;
+                self.share.push(n);
+            }
+        }
+        for &n in &self.share {
+            self.shared_of[n as usize] = NONE;
+        }
     }
 
     fn compliance_patch(&mut self, nodes: &[u32], patch: &mut CompliancePatch) -> bool {

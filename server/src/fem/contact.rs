@@ -26,6 +26,7 @@
 pub use super::lcp::{Report, RowKind, Tolerances};
 use super::{Constraint, ConstraintKind, DeformationSolver, SolveError};
 use nalgebra::{Matrix3, Point3, Vector3};
+use std::sync::Arc;
 
 /// No node (an unused entry of [`ContactRow::others`]).
 pub const NO_NODE: (u32, f64) = (u32::MAX, 0.0);
@@ -165,14 +166,23 @@ pub struct ContactAnswer {
 /// forces of the last step removed (the rest position for linear
 /// strategies). Rows on these nodes then have gaps
 /// `g = dir . (free - point) + dir . (C f)`.
+///
+/// A linear strategy's patch may lead with shared nodes ([`SharedBlocks`]:
+/// the ties' nodes, in every step's patch): their blocks among themselves
+/// are computed once and shared by every patch, and a patch holds only the
+/// rows of its other nodes, against all its nodes; the blocks of a shared
+/// node's row against the others are those rows' transposes (`C` is
+/// symmetric).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct CompliancePatch {
     /// Nodes with blocks (of the nodes asked for, those whose compliance is
-    /// available), in block order.
+    /// available), in block order: the shared nodes first.
     pub nodes: Vec<u32>,
-    /// `3 m x 3 m`, row-major: entry `(3 i + a, 3 j + b)` is
-    /// `C[i][j][(a, b)]`.
+    /// The rows of the nodes after the `s` shared ones, `3 (m - s) x 3 m`,
+    /// row-major: entry `(3 (i - s) + a, 3 j + b)` is `C[i][j][(a, b)]`.
     pub blocks: Vec<f64>,
+    /// The blocks among the leading shared nodes (`None`: none).
+    pub shared: Option<Arc<SharedBlocks>>,
     /// Per node, m.
     pub free_positions: Vec<Point3<f64>>,
     /// Whether the strategy is linear (then `free_positions` are the rest
@@ -180,24 +190,79 @@ pub struct CompliancePatch {
     pub linear: bool,
 }
 
+/// Blocks of a linear strategy's compliance among a fixed set of nodes
+/// that lead every patch ([`CompliancePatch`]).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct SharedBlocks {
+    /// The nodes, in block order.
+    pub nodes: Vec<u32>,
+    /// `3 s x 3 s`, row-major: entry `(3 i + a, 3 j + b)` is
+    /// `C[i][j][(a, b)]`.
+    pub blocks: Vec<f64>,
+}
+
 impl CompliancePatch {
+    /// The number of leading shared nodes.
+    #[inline]
+    pub fn shared_nodes(&self) -> usize {
+        self.shared.as_ref().map_or(0, |s| s.nodes.len())
+    }
+
     /// Block `(i, j)` (indices into `nodes`).
     #[inline]
     pub fn block(&self, i: usize, j: usize) -> Matrix3<f64> {
+        Matrix3::from_fn(|a, b| self.entry(i, a, j, b))
+    }
+
+    /// `C[i][j][(a, b)]`.
+    #[inline]
+    fn entry(&self, i: usize, a: usize, j: usize, b: usize) -> f64 {
+        let s = self.shared_nodes();
         let m3 = 3 * self.nodes.len();
-        Matrix3::from_fn(|a, b| self.blocks[(3 * i + a) * m3 + 3 * j + b])
+        if i >= s {
+            self.blocks[(3 * (i - s) + a) * m3 + 3 * j + b]
+        } else if j >= s {
+            self.blocks[(3 * (j - s) + b) * m3 + 3 * i + a]
+        } else {
+            let sh = self
+                .shared
+                .as_ref()
+                .expect("shared nodes have shared blocks");
+            sh.blocks[(3 * i + a) * 3 * s + 3 * j + b]
+        }
     }
 
     /// `C[i][j] v` (m/N times N: m), read straight from the blocks (the
     /// force loop's inner product; no `3 x 3` copy).
     #[inline]
     pub fn block_mul(&self, i: usize, j: usize, v: &Vector3<f64>) -> Vector3<f64> {
+        let s = self.shared_nodes();
         let m3 = 3 * self.nodes.len();
-        let row = |a: usize| {
-            let r = &self.blocks[(3 * i + a) * m3 + 3 * j..(3 * i + a) * m3 + 3 * j + 3];
-            r[0] * v.x + r[1] * v.y + r[2] * v.z
+        let by_rows = |blocks: &[f64], first: usize, stride: usize| {
+            let row = |a: usize| {
+                let r = &blocks[(first + a) * stride + 3 * j..(first + a) * stride + 3 * j + 3];
+                r[0] * v.x + r[1] * v.y + r[2] * v.z
+            };
+            Vector3::new(row(0), row(1), row(2))
         };
-        Vector3::new(row(0), row(1), row(2))
+        if i >= s {
+            by_rows(&self.blocks, 3 * (i - s), m3)
+        } else if j >= s {
+            // The transpose of block (j, i).
+            let col = |b: usize| &self.blocks[(3 * (j - s) + b) * m3 + 3 * i..][..3];
+            let (c0, c1, c2) = (col(0), col(1), col(2));
+            Vector3::new(
+                c0[0] * v.x + c1[0] * v.y + c2[0] * v.z,
+                c0[1] * v.x + c1[1] * v.y + c2[1] * v.z,
+                c0[2] * v.x + c1[2] * v.y + c2[2] * v.z,
+            )
+        } else {
+            let sh = self
+                .shared
+                .as_ref()
+                .expect("shared nodes have shared blocks");
+            by_rows(&sh.blocks, 3 * i, 3 * s)
+        }
     }
 }
 

@@ -76,7 +76,7 @@ pub mod tangent;
 pub mod ties;
 
 pub use constraint::{Constraint, ConstraintKind};
-pub use contact::{CompliancePatch, ContactAnswer, ContactRow};
+pub use contact::{CompliancePatch, ContactAnswer, ContactRow, SharedBlocks};
 pub use lcp::RowKind;
 pub use model::AxisSupport;
 pub use par::Par;
@@ -261,6 +261,11 @@ pub trait DeformationSolver: Send {
     fn compliance_patch(&mut self, _nodes: &[u32], _patch: &mut CompliancePatch) -> bool {
         false
     }
+    /// Declares nodes that every later patch holds (the ties' nodes): a
+    /// strategy whose compliance never changes computes their blocks among
+    /// themselves once and shares them ([`contact::SharedBlocks`]). The
+    /// default ignores it.
+    fn share_patch_nodes(&mut self, _nodes: &[u32]) {}
     /// Asks for the compliance of `nodes` ahead of their contact (computed
     /// in the background where the strategy defers it). The default does
     /// nothing.

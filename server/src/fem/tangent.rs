@@ -137,6 +137,7 @@ impl TangentPatch {
         let m = patch.nodes.len();
         let m3 = 3 * m;
         let n_dofs = model.pattern.n_dofs;
+        patch.shared = None;
         patch.blocks.clear();
         patch.blocks.resize(m3 * m3, 0.0);
         for first in (0..m).step_by(BATCH_NODES) {

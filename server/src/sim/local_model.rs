@@ -17,9 +17,16 @@
 //! the rows are rewritten for it ([`super::rows::to_tangent`]): a sample
 //! then solves the first-order expansion of the step's problem.
 //!
-//! [`ForceSolver`] keeps, from one sample to the next of one frame, the
-//! rows it has seen in slots of a dense `W` and the solver's Cholesky factor
-//! of the working set: a row that is still there with the same direction
+//! [`ForceSolver`] keeps, from one sample to the next, the rows it has seen
+//! in slots of a dense `W` and the solver's Cholesky factor of the working
+//! set. Within one frame always; across frames while the patches are
+//! linear, since a linear strategy's patch holds blocks of one constant
+//! compliance (a row's entries of `W` depend on its nodes, weights,
+//! direction and own compliance alone, whatever patch they are read from):
+//! the ties' hundreds of rows, identical in every step, then keep their
+//! entries and their place in the factor from the first frame on, and a
+//! new frame costs only the rows that changed. A row that is still there
+//! with the same direction
 //! (within [`DIRECTION_TOLERANCE`]) and the same weights keeps its row of
 //! `W`; a new row, one whose direction turned farther, or a point row whose
 //! weights changed at all (a polygon point that slid on its triangle), gets
@@ -137,8 +144,12 @@ pub struct ForceSolver {
     frame: Option<u64>,
     slot_of: HashMap<u64, u32>,
     slot_key: Vec<u64>,
-    /// Per slot: the patch indices of the row's nodes (`NONE`: unused) and
-    /// their weights.
+    /// Whether the slots' entries of `W` were read from linear patches
+    /// (then they hold across frames).
+    linear: bool,
+    /// Per slot: the row's volume nodes (`NONE`: unused), the patch indices
+    /// of those nodes in the present frame, and their weights.
+    slot_nodes: Vec<[u32; 3]>,
     slot_patch: Vec<[u32; 3]>,
     slot_w: Vec<[f64; 3]>,
     slot_dir: Vec<Vector3<f64>>,
@@ -181,6 +192,7 @@ impl ForceSolver {
         self.frame = Some(frame);
         self.slot_of.clear();
         self.slot_key.clear();
+        self.slot_nodes.clear();
         self.slot_patch.clear();
         self.slot_w.clear();
         self.slot_dir.clear();
@@ -220,6 +232,7 @@ impl ForceSolver {
         self.grow(s + 1);
         self.n += 1;
         self.slot_key.push(0);
+        self.slot_nodes.push([NONE; 3]);
         self.slot_patch.push([NONE; 3]);
         self.slot_w.push([0.0; 3]);
         self.slot_dir.push(Vector3::zeros());
@@ -268,7 +281,14 @@ impl ForceSolver {
         answer: &mut SampleAnswer,
     ) -> Result<(), LcpError> {
         if self.frame != Some(model.frame) {
-            self.reset(model.frame);
+            // Entries read from a linear patch hold in the next linear one
+            // (module documentation); a tangent patch's do not.
+            if self.frame.is_some() && self.linear && model.patch.linear {
+                self.frame = Some(model.frame);
+            } else {
+                self.reset(model.frame);
+                self.linear = model.patch.linear;
+            }
         }
         self.stamp = self.stamp.wrapping_add(1);
         if self.stamp == 0 {
@@ -284,12 +304,14 @@ impl ForceSolver {
         for (i, r) in rows.iter().enumerate() {
             // The row's nodes in the patch (all of them, or the row waits).
             let mut p = [NONE; 3];
+            let mut v = [NONE; 3];
             let mut w = [0.0; 3];
             let mut complete = true;
             for (a, (n, wn)) in r.row.nodes().enumerate() {
                 match model.patch_slot(n) {
                     Some(ix) => {
                         p[a] = ix as u32;
+                        v[a] = n;
                         w[a] = wn;
                     }
                     None => complete = false,
@@ -306,13 +328,21 @@ impl ForceSolver {
                     let turned = (self.slot_dir[su] - r.row.dir).norm() > DIRECTION_TOLERANCE;
                     // A point that slid on its triangle gets its row again
                     // (module documentation).
-                    let moved = self.slot_patch[su] != p
-                        || self.slot_w[su] != w
-                        || self.slot_c[su] != r.row.compliance_m_per_n;
+                    let moved = self.slot_nodes[su] != v || self.slot_w[su] != w;
+                    // The same nodes' places in this frame's patch.
+                    self.slot_patch[su] = p;
+                    let c = r.row.compliance_m_per_n;
+                    if !(turned || moved) && self.slot_c[su] != c && !self.is_dirty[su] {
+                        // Only the row's own compliance changed (a blade cut
+                        // a tie of its pair): only its diagonal entry.
+                        self.w[su * self.cap + su] += c - self.slot_c[su];
+                        self.slot_c[su] = c;
+                        self.lcp.changed(su);
+                    }
                     if turned || moved {
                         self.slot_dir[su] = r.row.dir;
                         self.slot_c[su] = r.row.compliance_m_per_n;
-                        self.slot_patch[su] = p;
+                        self.slot_nodes[su] = v;
                         self.slot_w[su] = w;
                         if !self.is_dirty[su] {
                             self.is_dirty[su] = true;
@@ -326,6 +356,7 @@ impl ForceSolver {
                     let su = s as usize;
                     self.slot_of.insert(r.key, s);
                     self.slot_key[su] = r.key;
+                    self.slot_nodes[su] = v;
                     self.slot_patch[su] = p;
                     self.slot_w[su] = w;
                     self.slot_dir[su] = r.row.dir;

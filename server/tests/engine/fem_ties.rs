@@ -113,6 +113,9 @@ fn dense_reference(
     u
 }
 
+/// Press positions on the lower block's top face, as fractions of `L`.
+type Presses = &'static [(f64, f64)];
+
 fn max_norm(u: &[Vector3<f64>]) -> f64 {
     u.iter().map(|v| v.norm()).fold(0.0, f64::max)
 }
@@ -288,4 +291,248 @@ fn a_negative_tie_compliance_is_refused() {
         .unwrap_err()
         .to_string();
     assert!(err.contains("compliance"), "{err}");
+}
+
+/// `compliance` keeps the rows of `W` and the solver's factor of the rows
+/// that lead its problem (the ties) from one contact solve to the next; the
+/// law: whatever the solves before, a solve's answer is the one a fresh
+/// solver gives on the same rows (to the solver's tolerance, 1e-9 of the
+/// diagonal: 1e-8 here), also after a kept row's own compliance changed
+/// (a pair of ties that lost one) and with presses before and among them.
+#[test]
+fn a_contact_solve_after_others_equals_a_fresh_solvers_answer_on_the_same_rows() {
+    let (mesh, fixed, lower, upper) = two_blocks(3);
+    let mut ties = Vec::new();
+    for (i, &(x, y)) in [(0.2, 0.3), (0.5, 0.5), (0.8, 0.4), (0.3, 0.8)]
+        .iter()
+        .enumerate()
+    {
+        let a = near(&mesh, &lower, x * L, y * L);
+        let b = near(&mesh, &upper, x * L, (1.0 - y) * L);
+        let len = (mesh.nodes[b as usize] - mesh.nodes[a as usize]).norm();
+        ties.push((a, b, len - 0.0004, 4.0 + 2.0 * i as f64));
+    }
+    // A press on a node of the lower block's top face: it moves down 0.3 mm
+    // (`g = gap_free + dir . u >= 0` with `dir = -z`).
+    let press = |x: f64, y: f64| {
+        ContactRow::at_node(
+            near(&mesh, &lower, x * L, y * L),
+            -Vector3::z(),
+            -0.0003,
+            RowKind::Unilateral,
+        )
+    };
+    // (press positions, stiffness factor of each tie: 0 cuts it)
+    let sequence: [(Presses, [f64; 4]); 5] = [
+        (&[(0.5, 0.5)], [1.0, 1.0, 1.0, 1.0]),
+        (&[(0.2, 0.2), (0.7, 0.6)], [1.0, 1.0, 1.0, 1.0]),
+        (&[(0.2, 0.2)], [1.0, 0.5, 1.0, 1.0]),
+        (&[], [1.0, 0.5, 0.0, 1.0]),
+        (&[(0.4, 0.9), (0.9, 0.1), (0.5, 0.5)], [0.25, 0.5, 0.0, 1.0]),
+    ];
+    let mut kept = solver(Strategy::Compliance, &mesh, &fixed);
+    for (step, (presses, factors)) in sequence.iter().enumerate() {
+        let mut rows: Vec<ContactRow> = presses.iter().map(|&(x, y)| press(x, y)).collect();
+        for (&(a, b, l0, k), &f) in ties.iter().zip(factors) {
+            if f > 0.0 {
+                rows.push(tie_row(&mesh, a, b, l0, f * k));
+            }
+        }
+        let mut ans = ContactAnswer::default();
+        kept.solve_contact(&rows, &mut ans).unwrap();
+        let u = kept.last_solution().unwrap().displacements.clone();
+        let mut fresh = solver(Strategy::Compliance, &mesh, &fixed);
+        let mut want = ContactAnswer::default();
+        fresh.solve_contact(&rows, &mut want).unwrap();
+        let v = &fresh.last_solution().unwrap().displacements;
+        let scale = want
+            .multipliers
+            .iter()
+            .fold(0.0, |m: f64, l| m.max(l.abs()));
+        assert!(scale > 0.0, "step {step}: the rows carry load");
+        for (i, (l, m)) in ans.multipliers.iter().zip(&want.multipliers).enumerate() {
+            assert!(
+                (l - m).abs() <= 1e-8 * scale,
+                "step {step} row {i}: {l} N against a fresh solver's {m} N"
+            );
+        }
+        let err = u
+            .iter()
+            .zip(v)
+            .map(|(p, q)| (p - q).norm())
+            .fold(0.0, f64::max);
+        assert!(
+            err <= 1e-8 * max_norm(v),
+            "step {step}: displacement error {err} m of {} m",
+            max_norm(v)
+        );
+    }
+}
+
+/// The force loop's solver ([`ForceSolver`]) keeps its rows of `W` and its
+/// factor across frames while the patches are linear. The law: every
+/// sample equals a full solve of its rows, whatever the frames before,
+/// with each frame's patch listing the nodes in another order, presses
+/// coming and going, and a tie pair's own compliance changed (one of its
+/// ties cut) with nothing else about the row.
+#[test]
+fn the_force_loops_solver_keeping_rows_across_frames_equals_a_full_solve_at_every_sample() {
+    use fissure_server::fem::CompliancePatch;
+    use fissure_server::sim::local_model::{ForceModel, ForceSolver, SampleAnswer};
+    use fissure_server::sim::rows::{self, Anchors, NO_TRIANGLE, Row, TIE_OWNER};
+    use nalgebra::Point3;
+    use std::sync::Arc;
+
+    let (mesh, fixed, lower, upper) = two_blocks(3);
+    let mut ties = Vec::new();
+    for (i, &(x, y)) in [(0.2, 0.3), (0.5, 0.5), (0.8, 0.4)].iter().enumerate() {
+        let a = near(&mesh, &lower, x * L, y * L);
+        let b = near(&mesh, &upper, x * L, (1.0 - y) * L);
+        let len = (mesh.nodes[b as usize] - mesh.nodes[a as usize]).norm();
+        ties.push((a, b, len - 0.0004, 4.0 + 2.0 * i as f64));
+    }
+    let row = |key: u64, owner: u16, r: ContactRow| Row {
+        key,
+        owner,
+        row: r,
+        point: Point3::origin(),
+        triangle: NO_TRIANGLE,
+    };
+    let press = |x: f64, y: f64| {
+        let v = near(&mesh, &lower, x * L, y * L);
+        let r = ContactRow::at_node(v, -Vector3::z(), -0.0003, RowKind::Unilateral);
+        row(rows::key(v, 0, 0, 0), 0, r)
+    };
+    // Frames: (presses, stiffness factor of each tie), three samples each
+    // (the presses deepen).
+    let frames: [(Presses, [f64; 3]); 4] = [
+        (&[(0.5, 0.5)], [1.0, 1.0, 1.0]),
+        (&[(0.5, 0.5), (0.2, 0.8)], [1.0, 1.0, 1.0]),
+        (&[(0.2, 0.8)], [1.0, 0.5, 1.0]),
+        (&[(0.9, 0.1), (0.5, 0.5)], [0.25, 0.5, 1.0]),
+    ];
+    let mut full = solver(Strategy::Compliance, &mesh, &fixed);
+    let mut all_nodes: Vec<u32> = ties.iter().flat_map(|&(a, b, _, _)| [a, b]).collect();
+    all_nodes.extend(frames.iter().flat_map(|(p, _)| {
+        p.iter()
+            .map(|&(x, y)| near(&mesh, &lower, x * L, y * L))
+            .collect::<Vec<_>>()
+    }));
+    let mut force = ForceSolver::new();
+    let mut answer = SampleAnswer::default();
+    for (frame, (presses, factors)) in frames.iter().enumerate() {
+        // Each frame's patch lists the nodes in another order.
+        all_nodes.rotate_left(2);
+        let mut patch = CompliancePatch::default();
+        assert!(full.compliance_patch(&all_nodes, &mut patch));
+        let mut index = vec![u32::MAX; mesh.nodes.len()];
+        for (i, &v) in patch.nodes.iter().enumerate() {
+            index[v as usize] = i as u32;
+        }
+        let model = ForceModel::new(
+            frame as u64,
+            Arc::new(patch),
+            Arc::new(index),
+            Vec::new(),
+            Vec::new(),
+            Anchors::default(),
+            true,
+            Vec::new(),
+        );
+        for sample in 0..3 {
+            let deeper = 1.0 + 0.5 * sample as f64;
+            let mut rs: Vec<Row> = presses
+                .iter()
+                .map(|&(x, y)| {
+                    let mut r = press(x, y);
+                    r.row.gap_free_m *= deeper;
+                    r
+                })
+                .collect();
+            for (t, (&(a, b, l0, k), &f)) in ties.iter().zip(factors).enumerate() {
+                let r = tie_row(&mesh, a, b, l0, f * k);
+                rs.push(row(rows::key(t as u32, TIE_OWNER, 8, 0), TIE_OWNER, r));
+            }
+            force.solve(&model, &rs, &mut answer).unwrap();
+            assert!(answer.pending.is_empty());
+            let fem_rows: Vec<ContactRow> = rs.iter().map(|r| r.row).collect();
+            let mut want = ContactAnswer::default();
+            full.solve_contact(&fem_rows, &mut want).unwrap();
+            let scale = want
+                .multipliers
+                .iter()
+                .fold(0.0, |m: f64, l| m.max(l.abs()));
+            assert!(scale > 0.0);
+            for (i, (l, m)) in answer.lambda.iter().zip(&want.multipliers).enumerate() {
+                assert!(
+                    (l - m).abs() <= 1e-8 * scale,
+                    "frame {frame} sample {sample} row {i}: {l} N against a full solve's {m} N"
+                );
+            }
+        }
+    }
+}
+
+/// A patch that leads with shared nodes (the ties', their blocks among
+/// themselves computed once) holds the same compliance as a plain patch:
+/// every block, read directly or as a product, equals the plain patch's
+/// block of the same two nodes (to round-off: a block and its transpose
+/// come from two columns of a symmetric inverse).
+#[test]
+fn a_patch_sharing_the_ties_blocks_equals_a_plain_patch_block_for_block() {
+    use fissure_server::fem::CompliancePatch;
+    let (mesh, fixed, lower, upper) = two_blocks(3);
+    let shared: Vec<u32> = vec![
+        near(&mesh, &lower, 0.2 * L, 0.2 * L),
+        near(&mesh, &upper, 0.2 * L, 0.8 * L),
+        near(&mesh, &lower, 0.7 * L, 0.5 * L),
+        near(&mesh, &upper, 0.6 * L, 0.4 * L),
+    ];
+    let asked: Vec<u32> = vec![
+        near(&mesh, &lower, 0.5 * L, 0.5 * L),
+        shared[2],
+        near(&mesh, &lower, 0.9 * L, 0.1 * L),
+        near(&mesh, &upper, 0.1 * L, 0.9 * L),
+    ];
+    let mut with = solver(Strategy::Compliance, &mesh, &fixed);
+    with.share_patch_nodes(&shared);
+    let mut plain = solver(Strategy::Compliance, &mesh, &fixed);
+    let mut p = CompliancePatch::default();
+    let mut q = CompliancePatch::default();
+    for round in 0..2 {
+        assert!(with.compliance_patch(&asked, &mut p));
+        let mut all = p.nodes.clone();
+        all.sort_unstable();
+        assert!(plain.compliance_patch(&all, &mut q));
+        assert_eq!(p.shared_nodes(), shared.len(), "round {round}");
+        assert_eq!(&p.nodes[..shared.len()], &shared[..]);
+        for &n in &asked {
+            assert!(p.nodes.contains(&n), "round {round}: node {n} asked");
+        }
+        let mut distinct: Vec<u32> = shared.iter().chain(&asked).copied().collect();
+        distinct.sort_unstable();
+        distinct.dedup();
+        assert_eq!(
+            p.nodes.len(),
+            distinct.len(),
+            "round {round}: each node once"
+        );
+        let at = |v: u32| q.nodes.iter().position(|&x| x == v).unwrap();
+        let scale = (0..q.nodes.len())
+            .map(|i| q.block(i, i).norm())
+            .fold(0.0, f64::max);
+        let v = Vector3::new(0.3, -1.1, 0.7);
+        for i in 0..p.nodes.len() {
+            for j in 0..p.nodes.len() {
+                let want = q.block(at(p.nodes[i]), at(p.nodes[j]));
+                let got = p.block(i, j);
+                assert!(
+                    (got - want).norm() <= 1e-12 * scale,
+                    "round {round} block ({i}, {j}): {got} against {want}"
+                );
+                let prod = p.block_mul(i, j, &v);
+                assert!((prod - want * v).norm() <= 1e-12 * scale * v.norm());
+            }
+        }
+    }
 }

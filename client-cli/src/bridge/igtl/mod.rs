@@ -33,6 +33,15 @@
 //!   subcode the `fissure.v1.SafetyFlag` bits, error name `SAFETY`, the flag
 //!   names).
 //!
+//! To every peer, in scenes with ties (arachnoid trabeculae, bridging
+//! vessels): a STATUS `--igtl-ties-device` (default `fissure_ties`) for each
+//! tie cut or torn, as the deformation frames report it ([`TieNotices`]):
+//! subcode the tie's index, error name `TIE_CUT`, `TIE_TORN` or (code 2, an
+//! injury) `VESSEL_TORN`, and a text with the tie's kind, the instrument,
+//! the simulation time, the place (sender frame and units) and the strain;
+//! `TIE_RELEASED` for a tie whose event was in a frame the bridge did not
+//! receive (the frames' cumulative list of released ties names it).
+//!
 //! To every peer: POLYDATA `--igtl-surface-device` (default
 //! `fissure_surface`), the deformed brain surface at the deformation rate,
 //! vertex positions in the sender's frame and units; the triangles (a
@@ -212,6 +221,9 @@ pub struct IgtlOptions {
     pub surface_device: Option<String>,
     /// Send the triangles with every POLYDATA (not only a peer's first).
     pub topology_every: bool,
+    /// Device name of the ties' STATUS messages (scenes with ties); `None`:
+    /// none.
+    pub ties_device: Option<String>,
 }
 
 impl Default for IgtlOptions {
@@ -223,6 +235,7 @@ impl Default for IgtlOptions {
             registration: Registration::default(),
             surface_device: Some("fissure_surface".to_owned()),
             topology_every: false,
+            ties_device: Some("fissure_ties".to_owned()),
         }
     }
 }
@@ -358,6 +371,8 @@ struct Shared {
     topology: Arc<Cells>,
     surface_device: Option<[u8; 20]>,
     topology_every: bool,
+    /// The ties' STATUS messages, encoded, to every peer.
+    tie_statuses: tokio::sync::broadcast::Sender<Arc<Vec<u8>>>,
     next_peer: AtomicU64,
 }
 
@@ -606,6 +621,21 @@ impl IgtlBridge {
         let (surface_tx, surface_rx) = tokio::sync::watch::channel(None);
         let mut tasks = Vec::new();
         let mut topology = Cells::default();
+        let ties_device = match &options.ties_device {
+            Some(d) => Some(name_field::<20>(d).with_context(|| {
+                format!("--igtl-ties-device {d:?}: at most 20 printable ASCII characters")
+            })?),
+            None => None,
+        };
+        let (tie_tx, _) = tokio::sync::broadcast::channel(TIE_QUEUE);
+        let has_ties = ties_device.is_some()
+            && !client
+                .get_scene(pb::GetSceneRequest {})
+                .await
+                .context("GetScene")?
+                .into_inner()
+                .ties
+                .is_empty();
         if surface_device.is_some() {
             let s = client
                 .get_surface(pb::GetSurfaceRequest {})
@@ -618,9 +648,11 @@ impl IgtlBridge {
                 .map(|t| [t[0], t[1], t[2]])
                 .collect();
             topology = Cells::triangles(&tris);
+        }
+        if surface_device.is_some() || has_ties {
             let stream = client
                 .watch(pb::WatchRequest {
-                    include_positions: true,
+                    include_positions: surface_device.is_some(),
                 })
                 .await
                 .context("Watch")?
@@ -628,8 +660,12 @@ impl IgtlBridge {
             tasks.push(tokio::spawn(surface_loop(
                 stream,
                 surface_tx,
-                options.registration,
-                counters.clone(),
+                FrameOutputs {
+                    registration: options.registration,
+                    ties_device: ties_device.filter(|_| has_ties),
+                    tie_statuses: tie_tx.clone(),
+                    counters: counters.clone(),
+                },
                 stopped.clone(),
             )));
         }
@@ -644,6 +680,7 @@ impl IgtlBridge {
             topology: Arc::new(topology),
             surface_device,
             topology_every: options.topology_every,
+            tie_statuses: tie_tx,
             next_peer: AtomicU64::new(0),
         });
         let mut local_addr = None;
@@ -696,15 +733,29 @@ impl IgtlBridge {
     }
 }
 
+/// The ties' STATUS messages queued for each peer before the oldest are
+/// dropped (a peer that does not read its socket).
+pub const TIE_QUEUE: usize = 1024;
+
+/// What [`surface_loop`] makes of the frames besides the surface.
+struct FrameOutputs {
+    registration: Registration,
+    ties_device: Option<[u8; 20]>,
+    tie_statuses: tokio::sync::broadcast::Sender<Arc<Vec<u8>>>,
+    counters: Arc<IgtlCounters>,
+}
+
 /// Reads deformation frames and publishes them, converted to the sender's
-/// frame, for the writers.
+/// frame, for the writers; with a ties device, each tie cut or torn as a
+/// STATUS to every peer.
 async fn surface_loop(
     mut stream: tonic::Streaming<pb::DeformationFrame>,
     tx: tokio::sync::watch::Sender<Option<Arc<SurfaceFrame>>>,
-    registration: Registration,
-    counters: Arc<IgtlCounters>,
+    out: FrameOutputs,
     mut stopped: tokio::sync::watch::Receiver<bool>,
 ) {
+    let registration = out.registration;
+    let mut notices = TieNotices::default();
     loop {
         let frame = tokio::select! {
             f = stream.message() => f,
@@ -718,7 +769,18 @@ async fn surface_loop(
                 return;
             }
         };
-        counters.surface_frames.fetch_add(1, Ordering::Relaxed);
+        out.counters.surface_frames.fetch_add(1, Ordering::Relaxed);
+        if let (Some(device), Some(ties)) = (out.ties_device, &f.ties) {
+            let now = std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0.0, |d| d.as_secs_f64());
+            for status in notices.of(ties, &registration) {
+                let mut buf = Vec::new();
+                status_message(&mut buf, device, codec::s_to_timestamp(now), &status);
+                // No peer yet: nobody to tell.
+                let _ = out.tie_statuses.send(Arc::new(buf));
+            }
+        }
         if f.positions_m.is_empty() {
             continue;
         }
@@ -731,6 +793,63 @@ async fn surface_loop(
             frame: f.frame,
             points,
         })));
+    }
+}
+
+/// The ties' STATUS messages of a stream of frames: one per event, and one
+/// per tie the cumulative `released` list names that no event announced
+/// (its frame was skipped: the watch is latest-wins).
+#[derive(Debug, Default)]
+pub struct TieNotices {
+    announced: HashSet<u32>,
+}
+
+impl TieNotices {
+    /// The messages of one frame's tie summary, positions in the sender's
+    /// frame and units.
+    pub fn of(&mut self, ties: &pb::TieSummary, registration: &Registration) -> Vec<StatusMsg> {
+        let mut out = Vec::new();
+        for e in &ties.events {
+            if !self.announced.insert(e.tie) {
+                continue;
+            }
+            let kind = match pb::TieKind::try_from(e.kind) {
+                Ok(pb::TieKind::Vessel) => "vessel",
+                Ok(pb::TieKind::Trabecula) => "trabecula",
+                _ => "tie",
+            };
+            let cut = e.cause == pb::TieCause::Cut as i32;
+            let (code, name) = match (cut, kind) {
+                (true, _) => (status_code::OK, "TIE_CUT"),
+                (false, "vessel") => (status_code::UNKNOWN_ERROR, "VESSEL_TORN"),
+                (false, _) => (status_code::OK, "TIE_TORN"),
+            };
+            let how = if cut { "cut by" } else { "torn, nearest" };
+            let p = e.position_m.as_ref().map_or([0.0; 3], |v| [v.x, v.y, v.z]);
+            let at = registration.point_to_sender(p);
+            out.push(StatusMsg {
+                code,
+                subcode: i64::from(e.tie),
+                error_name: name.to_owned(),
+                message: format!(
+                    "{kind} {} {how} {} at t = {:.3} s, at ({:.2}, {:.2}, {:.2}) (sender units), strain {:.3}",
+                    e.tie, e.instrument, e.sim_time_s, at[0], at[1], at[2], e.strain
+                ),
+            });
+        }
+        for &t in &ties.released {
+            if self.announced.insert(t) {
+                out.push(StatusMsg {
+                    code: status_code::OK,
+                    subcode: i64::from(t),
+                    error_name: "TIE_RELEASED".to_owned(),
+                    message: format!(
+                        "tie {t} released (cut or torn in a frame this bridge did not receive)"
+                    ),
+                });
+            }
+        }
+        out
     }
 }
 
@@ -984,6 +1103,8 @@ async fn write_loop(
 ) {
     let mut surface = shared.surface.clone();
     let mut surface_open = shared.surface_device.is_some();
+    let mut ties = shared.tie_statuses.subscribe();
+    let mut ties_open = true;
     let mut sent_topology = false;
     let mut buf = Vec::new();
     // A frame published before the peer came is sent at once.
@@ -994,6 +1115,23 @@ async fn write_loop(
             m = answers.recv() => match m {
                 Some(b) => w.write_all(&b).await,
                 None => return,
+            },
+            t = ties.recv(), if ties_open => match t {
+                Ok(b) => {
+                    let r = w.write_all(&b).await;
+                    if r.is_ok() {
+                        shared.counters.statuses.fetch_add(1, Ordering::Relaxed);
+                    }
+                    r
+                }
+                Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => {
+                    tracing::warn!("OpenIGTLink peer {from}: {n} tie messages dropped (the peer reads too slowly)");
+                    continue;
+                }
+                Err(tokio::sync::broadcast::error::RecvError::Closed) => {
+                    ties_open = false;
+                    continue;
+                }
             },
             c = surface.changed(), if surface_open => {
                 if c.is_err() {
@@ -1157,6 +1295,64 @@ mod tests {
             .filter(|b| pb::SafetyFlag::try_from(1i32 << b).is_ok())
             .count();
         assert_eq!(named, pairs.len());
+    }
+
+    /// Each tie event becomes one STATUS (a torn vessel an error), a tie
+    /// announced once whatever the frames repeat, and a released tie whose
+    /// event was in a skipped frame still announced, once.
+    #[test]
+    fn tie_events_become_one_status_each_and_skipped_ones_are_caught_up() {
+        let event = |tie: u32, kind: pb::TieKind, cause: pb::TieCause| pb::TieEvent {
+            sim_time_s: 1.25,
+            tie,
+            kind: kind as i32,
+            cause: cause as i32,
+            instrument: "blade".into(),
+            position_m: Some(pb::Vec3 {
+                x: 0.01,
+                y: -0.02,
+                z: 0.003,
+            }),
+            strain: 0.125,
+        };
+        let mut n = TieNotices::default();
+        let r = Registration::default();
+        let first = pb::TieSummary {
+            trabeculae_intact: 10,
+            vessels_intact: 0,
+            events: vec![
+                event(4, pb::TieKind::Trabecula, pb::TieCause::Cut),
+                event(9, pb::TieKind::Vessel, pb::TieCause::Torn),
+                event(5, pb::TieKind::Trabecula, pb::TieCause::Torn),
+            ],
+            released: vec![4, 5, 9],
+        };
+        let s = n.of(&first, &r);
+        let names: Vec<&str> = s.iter().map(|m| m.error_name.as_str()).collect();
+        assert_eq!(names, ["TIE_CUT", "VESSEL_TORN", "TIE_TORN"]);
+        assert_eq!(s[1].code, status_code::UNKNOWN_ERROR);
+        assert_eq!(s[0].code, status_code::OK);
+        assert_eq!(s[0].subcode, 4);
+        assert_eq!(
+            s[0].message,
+            "trabecula 4 cut by blade at t = 1.250 s, at (10.00, -20.00, 3.00) (sender units), strain 0.125"
+        );
+        assert!(s[1].message.starts_with("vessel 9 torn, nearest blade"));
+        // The same summary again (a frame repeated) says nothing new; a
+        // later frame that names tie 7 as released without its event (its
+        // frame skipped) announces it once.
+        assert!(n.of(&first, &r).is_empty());
+        let later = pb::TieSummary {
+            released: vec![4, 5, 7, 9],
+            ..Default::default()
+        };
+        let s = n.of(&later, &r);
+        assert_eq!(s.len(), 1);
+        assert_eq!(
+            (s[0].error_name.as_str(), s[0].subcode),
+            ("TIE_RELEASED", 7)
+        );
+        assert!(n.of(&later, &r).is_empty());
     }
 
     #[test]

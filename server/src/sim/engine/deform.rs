@@ -165,6 +165,12 @@ impl Deformer {
         }
     }
 
+    /// Declares nodes every later patch holds (the ties' nodes:
+    /// [`fem::DeformationSolver::share_patch_nodes`]).
+    pub fn share_patch_nodes(&mut self, nodes: &[u32]) {
+        self.solver.share_patch_nodes(nodes);
+    }
+
     /// Asks for the compliance of `nodes` ahead of contact.
     pub fn prefetch(&mut self, nodes: &[u32]) {
         self.solver.prefetch(nodes);

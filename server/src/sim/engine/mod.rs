@@ -124,7 +124,13 @@ impl StepEngine {
         hook: Option<Arc<dyn Fn() + Send + Sync>>,
         backend: Option<Box<dyn RayBackend>>,
     ) -> Result<Self, SimError> {
-        let deformer = Deformer::new(scene, &model, columns, hook)?;
+        let mut deformer = Deformer::new(scene, &model, columns, hook)?;
+        // The ties' rows are in every step's problem and their nodes in
+        // every patch: their blocks among themselves are computed once.
+        let tie_nodes: Vec<u32> = model.ties.iter().flat_map(|t| [t.a, t.b]).collect();
+        if !tie_nodes.is_empty() {
+            deformer.share_patch_nodes(&tie_nodes);
+        }
         let query = match backend {
             Some(b) => ContactQuery::with_backend(scene, b),
             None => ContactQuery::new(scene, Par::rayon(0)),
