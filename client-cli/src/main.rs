@@ -154,6 +154,12 @@ JSON form (one object per datagram):
   answered by one line {\"instrument\":..,\"seq\":..,\"status\":\"ok\",\"f\":[..],\"torque\":[..],...}
 Instrument indices follow the order of --instrument, or the scene's order.
 Sequence numbers must increase and times must not go back, per instrument.
+With --tie-events (scenes with ties), each device that has sent a pose also gets one
+datagram per tie cut or torn (64 bytes):
+  0 magic b\"FST1\" | 4 u8 version=1 | 5 u8 instrument (255: not bridged) | 6 u8 kind
+  (1 trabecula, 2 vessel) | 7 u8 cause (1 cut, 2 torn, 0 released unseen) | 8 u32 tie
+  16 f64 t_s | 24 3xf64 midpoint (m) | 48 f64 strain | or, to JSON devices, one line
+  {\"event\":\"tie\",\"tie\":4,\"cause\":\"cut\",\"kind\":\"trabecula\",...}
 
 OpenIGTLink (--igtl-listen [ADDR] or --igtl-connect HOST:PORT, instead of UDP):
   in   TRANSFORM or POSITION, device name = instrument (or --igtl-map DEVICE=INSTRUMENT),

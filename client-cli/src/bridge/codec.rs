@@ -15,6 +15,10 @@ pub const VERSION: u8 = 1;
 pub const POSE_LEN: usize = 80;
 /// Length of a binary force datagram, bytes.
 pub const FORCE_LEN: usize = 112;
+/// Magic of a binary tie datagram.
+pub const TIE_MAGIC: [u8; 4] = *b"FST1";
+/// Length of a binary tie datagram, bytes.
+pub const TIE_LEN: usize = 64;
 /// Largest datagram read, bytes (longer ones are refused).
 pub const MAX_DATAGRAM: usize = 1024;
 
@@ -346,6 +350,113 @@ pub fn encode_force_json(
     writeln!(out, "}}")
 }
 
+/// A tie cut or torn, as a binary datagram ([`TIE_LEN`] bytes; layout in
+/// the module above).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TieDatagram {
+    /// Index of the instrument among the bridged ones (255: not bridged,
+    /// or not known).
+    pub instrument: u8,
+    /// 1 trabecula, 2 vessel, 0 not known.
+    pub kind: u8,
+    /// 1 cut, 2 torn, 0 released in a frame the bridge did not receive.
+    pub cause: u8,
+    /// The tie's index in the scene.
+    pub tie: u32,
+    /// Simulation time, s (NaN: not known).
+    pub t_s: f64,
+    /// Midpoint, scene frame, m (NaN: not known).
+    pub position_m: [f64; 3],
+    /// Strain (NaN: not known).
+    pub strain: f64,
+}
+
+impl TieDatagram {
+    /// The datagram of `n`, its instrument at `instrument` of the bridged
+    /// ones.
+    pub fn of(n: &super::ties::TieNotice, instrument: Option<usize>) -> Self {
+        use super::ties::TieHow;
+        Self {
+            instrument: instrument.and_then(|i| u8::try_from(i).ok()).unwrap_or(255),
+            kind: match n.kind {
+                Some(pb::TieKind::Trabecula) => 1,
+                Some(pb::TieKind::Vessel) => 2,
+                _ => 0,
+            },
+            cause: match n.how {
+                TieHow::Cut => 1,
+                TieHow::Torn => 2,
+                TieHow::Released => 0,
+            },
+            tie: n.tie,
+            t_s: n.sim_time_s,
+            position_m: n.position_m,
+            strain: n.strain,
+        }
+    }
+}
+
+/// Encodes a binary tie datagram into `out`.
+pub fn encode_tie(t: &TieDatagram, out: &mut [u8; TIE_LEN]) {
+    out.fill(0);
+    out[0..4].copy_from_slice(&TIE_MAGIC);
+    out[4] = VERSION;
+    out[5] = t.instrument;
+    out[6] = t.kind;
+    out[7] = t.cause;
+    out[8..12].copy_from_slice(&t.tie.to_le_bytes());
+    out[16..24].copy_from_slice(&t.t_s.to_le_bytes());
+    for (k, v) in t.position_m.iter().enumerate() {
+        out[24 + 8 * k..32 + 8 * k].copy_from_slice(&v.to_le_bytes());
+    }
+    out[48..56].copy_from_slice(&t.strain.to_le_bytes());
+}
+
+/// Decodes a binary tie datagram (`None` when it is not one).
+pub fn decode_tie(b: &[u8]) -> Option<TieDatagram> {
+    if b.len() != TIE_LEN || b[0..4] != TIE_MAGIC || b[4] != VERSION {
+        return None;
+    }
+    Some(TieDatagram {
+        instrument: b[5],
+        kind: b[6],
+        cause: b[7],
+        tie: u32::from_le_bytes([b[8], b[9], b[10], b[11]]),
+        t_s: f64_at(b, 16),
+        position_m: [f64_at(b, 24), f64_at(b, 32), f64_at(b, 40)],
+        strain: f64_at(b, 48),
+    })
+}
+
+/// Writes the JSON line of a tie notice into `out` (cleared first):
+/// `{"event":"tie","tie":4,"cause":"cut","kind":"trabecula","instrument":"blade","t_s":1.25,"p":[x,y,z],"strain":0.125}`;
+/// a tie released unseen has only `"event"`, `"tie"` and `"cause":"released"`.
+pub fn encode_tie_json(n: &super::ties::TieNotice, out: &mut Vec<u8>) -> std::io::Result<()> {
+    use super::ties::TieHow;
+    out.clear();
+    let cause = match n.how {
+        TieHow::Cut => "cut",
+        TieHow::Torn => "torn",
+        TieHow::Released => "released",
+    };
+    write!(
+        out,
+        "{{\"event\":\"tie\",\"tie\":{},\"cause\":\"{cause}\"",
+        n.tie
+    )?;
+    if n.how != TieHow::Released {
+        write!(out, ",\"kind\":\"{}\",\"instrument\":", n.kind_name())?;
+        write_json_str(out, &n.instrument)?;
+        let p = n.position_m;
+        write!(
+            out,
+            ",\"t_s\":{},\"p\":[{:e},{:e},{:e}],\"strain\":{:e}",
+            n.sim_time_s, p[0], p[1], p[2], n.strain
+        )?;
+    }
+    writeln!(out, "}}")
+}
+
 fn write_json_str(out: &mut Vec<u8>, s: &str) -> std::io::Result<()> {
     out.push(b'"');
     for c in s.chars() {
@@ -612,6 +723,60 @@ mod tests {
                 String::from_utf8_lossy(bytes)
             );
         }
+    }
+
+    /// A tie datagram reads back as written, its unknowns NaN; the JSON
+    /// line names the tie, its kind and cause, and a tie released unseen
+    /// says only that.
+    #[test]
+    fn tie_events_encode_and_read_back() {
+        use crate::bridge::ties::{TieHow, TieNotice};
+        let n = TieNotice {
+            tie: 41,
+            kind: Some(pb::TieKind::Vessel),
+            how: TieHow::Torn,
+            instrument: "spatula".into(),
+            sim_time_s: 1.28,
+            position_m: [-0.055, 0.023, 0.001],
+            strain: 0.51,
+        };
+        let d = TieDatagram::of(&n, Some(1));
+        let mut b = [0u8; TIE_LEN];
+        encode_tie(&d, &mut b);
+        assert_eq!(&b[0..4], b"FST1");
+        assert_eq!(decode_tie(&b), Some(d));
+        assert_eq!((d.instrument, d.kind, d.cause, d.tie), (1, 2, 2, 41));
+        assert_eq!(decode_tie(&b[..TIE_LEN - 1]), None);
+        assert_eq!(
+            decode_force(&b),
+            None,
+            "a tie datagram is not a force answer"
+        );
+        let mut json = Vec::new();
+        encode_tie_json(&n, &mut json).unwrap();
+        assert_eq!(
+            String::from_utf8(json.clone()).unwrap(),
+            "{\"event\":\"tie\",\"tie\":41,\"cause\":\"torn\",\"kind\":\"vessel\",\"instrument\":\"spatula\",\"t_s\":1.28,\"p\":[-5.5e-2,2.3e-2,1e-3],\"strain\":5.1e-1}\n"
+        );
+        let unseen = TieNotice {
+            kind: None,
+            how: TieHow::Released,
+            instrument: String::new(),
+            sim_time_s: f64::NAN,
+            position_m: [f64::NAN; 3],
+            strain: f64::NAN,
+            ..n
+        };
+        let d = TieDatagram::of(&unseen, None);
+        encode_tie(&d, &mut b);
+        let back = decode_tie(&b).unwrap();
+        assert_eq!((back.instrument, back.kind, back.cause), (255, 0, 0));
+        assert!(back.t_s.is_nan() && back.strain.is_nan());
+        encode_tie_json(&unseen, &mut json).unwrap();
+        assert_eq!(
+            String::from_utf8(json).unwrap(),
+            "{\"event\":\"tie\",\"tie\":41,\"cause\":\"released\"}\n"
+        );
     }
 
     #[test]

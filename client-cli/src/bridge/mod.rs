@@ -44,6 +44,27 @@
 //! | 96     | f64       | server compute time, us                                |
 //! | 104    | u64       | reserved, 0                                            |
 //!
+//! **Binary tie event** (bridge -> device, with `--tie-events`, in scenes
+//! with ties), [`TIE_LEN`] = 64 bytes, sent to every device that has sent a
+//! pose (binary ones), once per tie cut or torn:
+//!
+//! | offset | type      | field                                                  |
+//! |-------:|-----------|--------------------------------------------------------|
+//! | 0      | [u8; 4]   | magic `b"FST1"`                                        |
+//! | 4      | u8        | version = 1                                            |
+//! | 5      | u8        | instrument index that cut it, or (torn) whose tip was nearest; 255: not bridged |
+//! | 6      | u8        | kind: 1 arachnoid trabecula, 2 bridging vessel, 0 not known |
+//! | 7      | u8        | cause: 1 cut, 2 torn, 0 released in a frame the bridge did not receive (then time, place and strain are NaN) |
+//! | 8      | u32       | the tie's index in the scene                           |
+//! | 12     | u32       | reserved, 0                                            |
+//! | 16     | f64       | simulation time of the step, s                         |
+//! | 24     | 3 x f64   | the tie's midpoint when it went, m (scene frame)       |
+//! | 48     | f64       | its strain (L - L0) / L0 when it went                  |
+//! | 56     | u64       | reserved, 0                                            |
+//!
+//! A torn vessel (kind 2, cause 2) is an injury; the force samples of the
+//! instrument that tore it also carry `SAFETY_FLAG_VESSEL_TORN`.
+//!
 //! **JSON** (one object per datagram, a trailing newline allowed): a
 //! datagram whose first non-blank byte is `{` is read as
 //! `{"instrument": "left", "seq": 7, "t_s": 0.007, "p": [x, y, z],
@@ -51,7 +72,10 @@
 //! The answer is one line:
 //! `{"instrument":"left","seq":7,"t_s":0.007,"status":"ok","f":[..],"torque":[..],"contacts":3,"flags":0,"model_frame":12,"model_age_s":0.004,"server_us":41.0}`
 //! with `"status"` `"ok"`, `"rejected"` (then `"message"` says why) or
-//! `"not-forwarded"`.
+//! `"not-forwarded"`. A tie event to a JSON device is one line:
+//! `{"event":"tie","tie":4,"cause":"cut","kind":"trabecula","instrument":"blade","t_s":1.25,"p":[..],"strain":0.125}`
+//! (`"cause"` `"cut"`, `"torn"` or `"released"`, the last with no more
+//! fields).
 //!
 //! Datagrams that do not parse, and any over [`MAX_DATAGRAM`] bytes, are
 //! dropped and counted ([`parse_datagram`] names what is wrong; it never
@@ -75,6 +99,7 @@
 pub mod codec;
 pub mod igtl;
 pub mod lanes;
+pub mod ties;
 
 pub use codec::*;
 pub use lanes::{Answers, Lanes, QUEUE};
@@ -102,6 +127,8 @@ pub struct Counters {
     pub answered: AtomicU64,
     /// Poses the server rejected.
     pub rejected: AtomicU64,
+    /// Tie datagrams sent (one per tie and device).
+    pub tie_events: AtomicU64,
 }
 
 /// A snapshot of [`Counters`].
@@ -119,6 +146,8 @@ pub struct BridgeStats {
     pub answered: u64,
     /// Poses the server rejected.
     pub rejected: u64,
+    /// Tie datagrams sent (one per tie and device).
+    pub tie_events: u64,
 }
 
 impl Counters {
@@ -131,6 +160,7 @@ impl Counters {
             not_forwarded: l(&self.not_forwarded),
             answered: l(&self.answered),
             rejected: l(&self.rejected),
+            tie_events: l(&self.tie_events),
         }
     }
 }
@@ -171,6 +201,11 @@ pub struct BridgeArgs {
     /// Stop after this long, s (default: until Ctrl-C).
     #[arg(long)]
     pub duration_s: Option<f64>,
+    /// UDP: send every device that has sent a pose a datagram per tie
+    /// (arachnoid trabecula, bridging vessel) cut or torn, in the device's
+    /// format (binary b"FST1" or a JSON line; module documentation).
+    #[arg(long)]
+    pub tie_events: bool,
     /// Speak OpenIGTLink instead of UDP: listen for peers (3D Slicer's
     /// OpenIGTLinkIF as a client, ...) on this TCP address (default
     /// 127.0.0.1:18944, loopback only).
@@ -261,6 +296,14 @@ impl BridgeArgs {
     }
 }
 
+/// Options of the UDP bridge beyond its addresses.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct UdpOptions {
+    /// Send every device that has sent a pose a datagram per tie cut or
+    /// torn (scenes with ties), in the device's format.
+    pub tie_events: bool,
+}
+
 impl Bridge {
     /// Connects to `server`, claims `instruments` (every instrument of the
     /// scene when empty) and listens on `listen`.
@@ -269,6 +312,17 @@ impl Bridge {
         listen: SocketAddr,
         instruments: &[String],
         token: Option<&str>,
+    ) -> anyhow::Result<Self> {
+        Self::start_with(server, listen, instruments, token, UdpOptions::default()).await
+    }
+
+    /// [`Self::start`] with `options`.
+    pub async fn start_with(
+        server: &str,
+        listen: SocketAddr,
+        instruments: &[String],
+        token: Option<&str>,
+        options: UdpOptions,
     ) -> anyhow::Result<Self> {
         let mut client = connect(server).await?;
         let names = instrument_names(&mut client, instruments).await?;
@@ -287,7 +341,38 @@ impl Bridge {
         })
         .await?;
         let (stop, stopped) = tokio::sync::watch::channel(false);
-        let task = tokio::spawn(serve(lanes, socket, counters.clone(), stopped));
+        // Devices to tell of ties cut or torn (address and format), when
+        // asked and the scene has ties.
+        let recipients: Option<Recipients> = if options.tie_events
+            && !client
+                .get_scene(pb::GetSceneRequest {})
+                .await
+                .context("GetScene")?
+                .into_inner()
+                .ties
+                .is_empty()
+        {
+            let frames = client
+                .watch(pb::WatchRequest {
+                    include_positions: false,
+                })
+                .await
+                .context("Watch")?
+                .into_inner();
+            let r = Recipients::default();
+            tokio::spawn(tie_loop(
+                frames,
+                socket.clone(),
+                r.clone(),
+                names.clone(),
+                counters.clone(),
+                stopped.clone(),
+            ));
+            Some(r)
+        } else {
+            None
+        };
+        let task = tokio::spawn(serve(lanes, socket, counters.clone(), recipients, stopped));
         Ok(Self {
             local_addr,
             counters,
@@ -347,6 +432,7 @@ async fn serve(
     lanes: Lanes<Pending>,
     socket: Arc<UdpSocket>,
     counters: Arc<Counters>,
+    recipients: Option<Recipients>,
     mut stopped: tokio::sync::watch::Receiver<bool>,
 ) -> anyhow::Result<()> {
     let mut buf = [0u8; MAX_DATAGRAM + 1];
@@ -375,6 +461,9 @@ async fn serve(
                 continue;
             }
         };
+        if let Some(r) = &recipients {
+            r.note(from, d.format);
+        }
         let index = match d.instrument {
             InstrumentRef::Index(i) => Some(i as usize).filter(|&i| i < lanes.len()),
             InstrumentRef::Name(n) => lanes.index_of(n),
@@ -410,6 +499,80 @@ async fn serve(
     // what is still in flight.
     lanes.close().await;
     Ok(())
+}
+
+/// The devices that have sent a pose, with their format: the recipients
+/// of the tie datagrams.
+#[derive(Debug, Clone, Default)]
+struct Recipients(Arc<std::sync::Mutex<std::collections::HashMap<SocketAddr, Format>>>);
+
+impl Recipients {
+    /// Notes a device (no allocation once it is known).
+    fn note(&self, from: SocketAddr, format: Format) {
+        let mut m = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        match m.get_mut(&from) {
+            Some(f) => *f = format,
+            None => {
+                m.insert(from, format);
+            }
+        }
+    }
+
+    fn list(&self) -> Vec<(SocketAddr, Format)> {
+        let m = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        m.iter().map(|(a, f)| (*a, *f)).collect()
+    }
+}
+
+/// Reads the deformation frames and sends every device that has sent a
+/// pose a datagram per tie cut or torn ([`ties::TieNotices`]), in the
+/// device's format; `names` are the bridged instruments (their index goes
+/// into the binary datagram).
+async fn tie_loop(
+    mut frames: tonic::Streaming<pb::DeformationFrame>,
+    socket: Arc<UdpSocket>,
+    recipients: Recipients,
+    names: Vec<String>,
+    counters: Arc<Counters>,
+    mut stopped: tokio::sync::watch::Receiver<bool>,
+) {
+    let mut notices = ties::TieNotices::default();
+    let mut bin = [0u8; TIE_LEN];
+    let mut json = Vec::new();
+    loop {
+        let frame = tokio::select! {
+            f = frames.message() => f,
+            _ = stopped.changed() => return,
+        };
+        let f = match frame {
+            Ok(Some(f)) => f,
+            Ok(None) => return,
+            Err(e) => {
+                tracing::warn!("UDP bridge: the watch stream for tie events ended: {e}");
+                return;
+            }
+        };
+        let Some(summary) = &f.ties else { continue };
+        for n in notices.of(summary) {
+            let index = names.iter().position(|x| *x == n.instrument);
+            encode_tie(&TieDatagram::of(&n, index), &mut bin);
+            if encode_tie_json(&n, &mut json).is_err() {
+                continue;
+            }
+            for (to, format) in recipients.list() {
+                let bytes: &[u8] = match format {
+                    Format::Binary => &bin,
+                    Format::Json => &json,
+                };
+                match socket.send_to(bytes, to).await {
+                    Ok(_) => {
+                        counters.tie_events.fetch_add(1, Ordering::Relaxed);
+                    }
+                    Err(e) => tracing::warn!("tie event to {to}: {e}"),
+                }
+            }
+        }
+    }
 }
 
 /// The UDP protocol's answers: a force datagram in the pose's format, back
@@ -544,11 +707,14 @@ pub async fn run(args: &BridgeArgs) -> anyhow::Result<()> {
 }
 
 async fn run_udp(args: &BridgeArgs) -> anyhow::Result<BridgeStats> {
-    let mut bridge = Bridge::start(
+    let mut bridge = Bridge::start_with(
         &args.server,
         args.listen,
         &args.instrument,
         args.token.as_deref(),
+        UdpOptions {
+            tie_events: args.tie_events,
+        },
     )
     .await?;
     eprintln!(
@@ -568,13 +734,14 @@ async fn run_udp(args: &BridgeArgs) -> anyhow::Result<BridgeStats> {
     }
     let stats = bridge.stop().await?;
     eprintln!(
-        "datagrams received {}, bad {}, poses forwarded {}, not forwarded {}, rejected by the server {}, answers sent {}",
+        "datagrams received {}, bad {}, poses forwarded {}, not forwarded {}, rejected by the server {}, answers sent {}, tie events sent {}",
         stats.received,
         stats.bad,
         stats.forwarded,
         stats.not_forwarded,
         stats.rejected,
-        stats.answered
+        stats.answered,
+        stats.tie_events
     );
     Ok(stats)
 }

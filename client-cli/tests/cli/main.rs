@@ -10,6 +10,8 @@
 mod bench_bridge;
 #[cfg(feature = "lab")]
 mod bench_haptic;
+#[cfg(feature = "lab")]
+mod bridge_ties;
 mod igtl_corpus;
 #[cfg(feature = "lab")]
 mod igtl_peers;

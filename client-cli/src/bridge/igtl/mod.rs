@@ -35,7 +35,7 @@
 //!
 //! To every peer, in scenes with ties (arachnoid trabeculae, bridging
 //! vessels): a STATUS `--igtl-ties-device` (default `fissure_ties`) for each
-//! tie cut or torn, as the deformation frames report it ([`TieNotices`]):
+//! tie cut or torn, as the deformation frames report it ([`tie_status`]):
 //! subcode the tie's index, error name `TIE_CUT`, `TIE_TORN` or (code 2, an
 //! injury) `VESSEL_TORN`, and a text with the tie's kind, the instrument,
 //! the simulation time, the place (sender frame and units) and the strain;
@@ -71,6 +71,7 @@
 
 pub mod codec;
 
+use super::ties::{TieHow, TieNotice, TieNotices};
 use super::{Answers, Lanes, instrument_names};
 use crate::replay::connect;
 use anyhow::{Context, bail};
@@ -774,7 +775,8 @@ async fn surface_loop(
             let now = std::time::SystemTime::now()
                 .duration_since(std::time::UNIX_EPOCH)
                 .map_or(0.0, |d| d.as_secs_f64());
-            for status in notices.of(ties, &registration) {
+            for notice in notices.of(ties) {
+                let status = tie_status(&notice, &registration);
                 let mut buf = Vec::new();
                 status_message(&mut buf, device, codec::s_to_timestamp(now), &status);
                 // No peer yet: nobody to tell.
@@ -796,60 +798,42 @@ async fn surface_loop(
     }
 }
 
-/// The ties' STATUS messages of a stream of frames: one per event, and one
-/// per tie the cumulative `released` list names that no event announced
-/// (its frame was skipped: the watch is latest-wins).
-#[derive(Debug, Default)]
-pub struct TieNotices {
-    announced: HashSet<u32>,
-}
-
-impl TieNotices {
-    /// The messages of one frame's tie summary, positions in the sender's
-    /// frame and units.
-    pub fn of(&mut self, ties: &pb::TieSummary, registration: &Registration) -> Vec<StatusMsg> {
-        let mut out = Vec::new();
-        for e in &ties.events {
-            if !self.announced.insert(e.tie) {
-                continue;
-            }
-            let kind = match pb::TieKind::try_from(e.kind) {
-                Ok(pb::TieKind::Vessel) => "vessel",
-                Ok(pb::TieKind::Trabecula) => "trabecula",
-                _ => "tie",
+/// The STATUS of a tie cut or torn, its place in the sender's frame and
+/// units: `TIE_CUT`, `TIE_TORN`, `VESSEL_TORN` (an error: an injury) or
+/// `TIE_RELEASED` (its event was in a frame the bridge did not receive).
+pub fn tie_status(n: &TieNotice, registration: &Registration) -> StatusMsg {
+    let kind = n.kind_name();
+    let (code, name, text) = match n.how {
+        TieHow::Released => (
+            status_code::OK,
+            "TIE_RELEASED",
+            format!(
+                "tie {} released (cut or torn in a frame this bridge did not receive)",
+                n.tie
+            ),
+        ),
+        how => {
+            let at = registration.point_to_sender(n.position_m);
+            let (code, name, verb) = match how {
+                TieHow::Cut => (status_code::OK, "TIE_CUT", "cut by"),
+                _ if n.is_injury() => (status_code::UNKNOWN_ERROR, "VESSEL_TORN", "torn, nearest"),
+                _ => (status_code::OK, "TIE_TORN", "torn, nearest"),
             };
-            let cut = e.cause == pb::TieCause::Cut as i32;
-            let (code, name) = match (cut, kind) {
-                (true, _) => (status_code::OK, "TIE_CUT"),
-                (false, "vessel") => (status_code::UNKNOWN_ERROR, "VESSEL_TORN"),
-                (false, _) => (status_code::OK, "TIE_TORN"),
-            };
-            let how = if cut { "cut by" } else { "torn, nearest" };
-            let p = e.position_m.as_ref().map_or([0.0; 3], |v| [v.x, v.y, v.z]);
-            let at = registration.point_to_sender(p);
-            out.push(StatusMsg {
+            (
                 code,
-                subcode: i64::from(e.tie),
-                error_name: name.to_owned(),
-                message: format!(
-                    "{kind} {} {how} {} at t = {:.3} s, at ({:.2}, {:.2}, {:.2}) (sender units), strain {:.3}",
-                    e.tie, e.instrument, e.sim_time_s, at[0], at[1], at[2], e.strain
+                name,
+                format!(
+                    "{kind} {} {verb} {} at t = {:.3} s, at ({:.2}, {:.2}, {:.2}) (sender units), strain {:.3}",
+                    n.tie, n.instrument, n.sim_time_s, at[0], at[1], at[2], n.strain
                 ),
-            });
+            )
         }
-        for &t in &ties.released {
-            if self.announced.insert(t) {
-                out.push(StatusMsg {
-                    code: status_code::OK,
-                    subcode: i64::from(t),
-                    error_name: "TIE_RELEASED".to_owned(),
-                    message: format!(
-                        "tie {t} released (cut or torn in a frame this bridge did not receive)"
-                    ),
-                });
-            }
-        }
-        out
+    };
+    StatusMsg {
+        code,
+        subcode: i64::from(n.tie),
+        error_name: name.to_owned(),
+        message: text,
     }
 }
 
@@ -1297,62 +1281,39 @@ mod tests {
         assert_eq!(named, pairs.len());
     }
 
-    /// Each tie event becomes one STATUS (a torn vessel an error), a tie
-    /// announced once whatever the frames repeat, and a released tie whose
-    /// event was in a skipped frame still announced, once.
+    /// Each tie notice becomes one STATUS: a torn vessel an error, its
+    /// place in the sender's units, a tie released unseen named so.
     #[test]
-    fn tie_events_become_one_status_each_and_skipped_ones_are_caught_up() {
-        let event = |tie: u32, kind: pb::TieKind, cause: pb::TieCause| pb::TieEvent {
-            sim_time_s: 1.25,
-            tie,
-            kind: kind as i32,
-            cause: cause as i32,
+    fn tie_notices_become_status_messages() {
+        let notice = |how: TieHow, kind: pb::TieKind| TieNotice {
+            tie: 4,
+            kind: Some(kind),
+            how,
             instrument: "blade".into(),
-            position_m: Some(pb::Vec3 {
-                x: 0.01,
-                y: -0.02,
-                z: 0.003,
-            }),
+            sim_time_s: 1.25,
+            position_m: [0.01, -0.02, 0.003],
             strain: 0.125,
         };
-        let mut n = TieNotices::default();
         let r = Registration::default();
-        let first = pb::TieSummary {
-            trabeculae_intact: 10,
-            vessels_intact: 0,
-            events: vec![
-                event(4, pb::TieKind::Trabecula, pb::TieCause::Cut),
-                event(9, pb::TieKind::Vessel, pb::TieCause::Torn),
-                event(5, pb::TieKind::Trabecula, pb::TieCause::Torn),
-            ],
-            released: vec![4, 5, 9],
-        };
-        let s = n.of(&first, &r);
-        let names: Vec<&str> = s.iter().map(|m| m.error_name.as_str()).collect();
-        assert_eq!(names, ["TIE_CUT", "VESSEL_TORN", "TIE_TORN"]);
-        assert_eq!(s[1].code, status_code::UNKNOWN_ERROR);
-        assert_eq!(s[0].code, status_code::OK);
-        assert_eq!(s[0].subcode, 4);
+        let cut = tie_status(&notice(TieHow::Cut, pb::TieKind::Trabecula), &r);
+        assert_eq!((cut.code, cut.subcode), (status_code::OK, 4));
+        assert_eq!(cut.error_name, "TIE_CUT");
         assert_eq!(
-            s[0].message,
+            cut.message,
             "trabecula 4 cut by blade at t = 1.250 s, at (10.00, -20.00, 3.00) (sender units), strain 0.125"
         );
-        assert!(s[1].message.starts_with("vessel 9 torn, nearest blade"));
-        // The same summary again (a frame repeated) says nothing new; a
-        // later frame that names tie 7 as released without its event (its
-        // frame skipped) announces it once.
-        assert!(n.of(&first, &r).is_empty());
-        let later = pb::TieSummary {
-            released: vec![4, 5, 7, 9],
-            ..Default::default()
-        };
-        let s = n.of(&later, &r);
-        assert_eq!(s.len(), 1);
+        let torn = tie_status(&notice(TieHow::Torn, pb::TieKind::Trabecula), &r);
         assert_eq!(
-            (s[0].error_name.as_str(), s[0].subcode),
-            ("TIE_RELEASED", 7)
+            (torn.code, torn.error_name.as_str()),
+            (status_code::OK, "TIE_TORN")
         );
-        assert!(n.of(&later, &r).is_empty());
+        let vessel = tie_status(&notice(TieHow::Torn, pb::TieKind::Vessel), &r);
+        assert_eq!(vessel.code, status_code::UNKNOWN_ERROR);
+        assert_eq!(vessel.error_name, "VESSEL_TORN");
+        assert!(vessel.message.starts_with("vessel 4 torn, nearest blade"));
+        let mut unseen = notice(TieHow::Released, pb::TieKind::Trabecula);
+        unseen.kind = None;
+        assert_eq!(tie_status(&unseen, &r).error_name, "TIE_RELEASED");
     }
 
     #[test]
