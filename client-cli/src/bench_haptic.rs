@@ -22,7 +22,11 @@
 //! solves the same problem on the same compliance, so `F_sample = F_full`
 //! to the contact solver's tolerance. (The full solve finds its contact
 //! rows on its own previous shape, 1 ms old; `hold_variation_full_rel`
-//! shows whether it settles at a held pose.)
+//! shows whether it settles at a held pose.) In scenes with ties the full
+//! solve takes the ties the runner's force loops have at that sample (cut
+//! by a blade in a sample, torn at the runner's steps) and tears none
+//! itself ([`StepEngine::mirror_ties`]): a sample is checked with its own
+//! ties, as the law says.
 //!
 //! `--strategy` runs every scene with another strategy: with
 //! `corotational` or `neo-hookean` the force loop solves on the tangent
@@ -527,6 +531,12 @@ pub fn measure(
             },
             &mut answers,
         );
+        // The ties as the runner's force loops have them (cut by a blade in
+        // a sample, torn at the runner's steps): the full solve checks the
+        // samples with those ties, not with ties it would tear itself.
+        if let Some(ties) = &runner.snapshot().force_model.ties {
+            full.mirror_ties(ties);
+        }
         let started = Instant::now();
         let (snap, report) = full.step(&full_snap, t, &current, vec![None; n]);
         m.full_step_us.push(started.elapsed().as_secs_f64() * 1e6);

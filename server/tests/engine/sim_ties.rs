@@ -224,3 +224,43 @@ fn ties_from_a_pairs_file_attach_at_the_nearest_surface_vertices_and_bad_lines_a
         "{e}"
     );
 }
+
+/// A reference engine that mirrors another's ties ([`StepEngine::mirror_ties`],
+/// what `fissure bench haptic` checks samples against) has that engine's
+/// ties and tears none itself: stepped at the same poses after each of the
+/// other's steps, it gives the same force (to the contact solver's
+/// tolerance) and records no event, while the other tears weak ties.
+#[test]
+fn a_mirror_engine_has_the_others_ties_and_tears_none_itself() {
+    let s = scene(&trabeculae(0.2, "rupture_strain = 0.2"));
+    let model = model(&s);
+    let mut a = StepEngine::new(&s, model.clone(), ColumnPolicy::Compute, None, None).unwrap();
+    let mut b = StepEngine::new(&s, model.clone(), ColumnPolicy::Compute, None, None).unwrap();
+    let (mut sa, mut sb) = (a.rest(0.0), b.rest(0.0));
+    let mut torn = 0;
+    for k in 0..=6 {
+        let pose = lifted(&s, 0.005 * k as f64 / 6.0);
+        let t = 0.02 * (k + 1) as f64;
+        sa = a.step(&sa, t, &[pose], vec![None]).0;
+        torn += sa.frame_summary.ties.events.len();
+        b.mirror_ties(sa.force_model.ties.as_ref().unwrap());
+        sb = b.step(&sb, t, &[pose], vec![None]).0;
+        assert!(
+            sb.frame_summary.ties.events.is_empty(),
+            "step {k}: the mirror tore"
+        );
+        assert_eq!(
+            sb.frame_summary.ties.trabeculae_intact,
+            sa.frame_summary.ties.trabeculae_intact
+        );
+        let (fa, fb) = (
+            sa.frame_summary.instruments[0].force_n,
+            sb.frame_summary.instruments[0].force_n,
+        );
+        assert!(
+            (fa - fb).norm() <= 1e-6 * fa.norm().max(1e-3),
+            "step {k}: {fa} N against the mirror's {fb} N"
+        );
+    }
+    assert!(torn > 0, "no tie tore");
+}

@@ -11,14 +11,23 @@ use crate::collide::Nearby;
 #[derive(Debug, Default)]
 pub struct PatchNodes {
     near: Vec<u32>,
+    exact: Vec<u32>,
     ahead: Vec<u32>,
 }
 
 impl PatchNodes {
-    /// Every node a row names.
+    /// Every node a row names; the plates' and the skull's rows with their
+    /// surface neighbours (a contact slides onto them), the ties' alone
+    /// (their rows never move).
     pub fn add_rows(&mut self, rows: &[Row]) {
-        self.near
-            .extend(rows.iter().flat_map(|r| r.row.nodes().map(|(n, _)| n)));
+        for r in rows {
+            let to = if r.owner == super::rows::TIE_OWNER {
+                &mut self.exact
+            } else {
+                &mut self.near
+            };
+            to.extend(r.row.nodes().map(|(n, _)| n));
+        }
     }
 
     /// Vertices near a plate: within `near_m` (m) of a face in the patch,
@@ -40,6 +49,7 @@ impl PatchNodes {
     pub fn finish(self, model: &Model) -> (Vec<u32>, Vec<u32>) {
         let Self {
             near: mut patch,
+            exact,
             mut ahead,
         } = self;
         patch.sort_unstable();
@@ -57,6 +67,7 @@ impl PatchNodes {
                 );
             }
         }
+        patch.extend(exact);
         for nodes in [&mut patch, &mut ahead] {
             nodes.sort_unstable();
             nodes.dedup();

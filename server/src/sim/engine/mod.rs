@@ -180,6 +180,14 @@ impl StepEngine {
         &self.model
     }
 
+    /// Gives this engine the ties another engine's force loops see now
+    /// (`other`: its latest snapshot's) and stops its own tearing, for a
+    /// reference full solve of that engine's samples
+    /// ([`TieStage::mirror`]). From the next step on.
+    pub fn mirror_ties(&mut self, other: &TiesAtStep) {
+        self.ties.mirror(&self.model, other);
+    }
+
     /// The solver strategy's name.
     pub fn strategy(&self) -> &'static str {
         self.deformer.strategy()
@@ -332,7 +340,7 @@ impl StepEngine {
                 }
                 break Ok(());
             };
-            if solved.is_err() || self.ties.is_empty() {
+            if solved.is_err() || !self.ties.tears() {
                 break solved;
             }
             // Ties stretched to their rupture tear, and the step solves again

@@ -166,6 +166,9 @@ pub struct TieStage {
     events: Vec<TieEvent>,
     cuts: Arc<TieCuts>,
     tore_vessel: Vec<bool>,
+    /// Whether ties tear here; `false` for a mirror of another engine's
+    /// ties ([`Self::mirror`]).
+    mirror: bool,
 }
 
 impl TieStage {
@@ -179,6 +182,7 @@ impl TieStage {
             states,
             rows,
             events: Vec::new(),
+            mirror: false,
         }
     }
 
@@ -224,6 +228,34 @@ impl TieStage {
     /// Whether the model has ties.
     pub fn is_empty(&self) -> bool {
         self.states.is_empty()
+    }
+
+    /// Whether ties tear at this stage's steps (not in a mirror).
+    pub fn tears(&self) -> bool {
+        !self.mirror && !self.states.is_empty()
+    }
+
+    /// Makes the ties those of `other` (another engine's, as its force
+    /// loops see them: its step's states less the cuts since) and stops
+    /// this stage's own tearing: a reference solve then has the ties of
+    /// the sample it checks. No event is recorded.
+    pub fn mirror(&mut self, model: &Model, other: &TiesAtStep) {
+        self.mirror = true;
+        let mut changed = false;
+        for (i, s) in self.states.iter_mut().enumerate() {
+            let want = match other.states.get(i) {
+                Some(TieState::Intact) | None if other.cuts.is_cut(i) => TieState::Cut,
+                Some(&st) => st,
+                None => TieState::Intact,
+            };
+            if *s != want {
+                *s = want;
+                changed = true;
+            }
+        }
+        if changed {
+            self.rows = TieRows::group(&model.ties, &self.states);
+        }
     }
 
     /// The rows of the intact ties' pairs (at rest), appended to `dst`.
