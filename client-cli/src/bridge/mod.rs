@@ -343,35 +343,28 @@ impl Bridge {
         let (stop, stopped) = tokio::sync::watch::channel(false);
         // Devices to tell of ties cut or torn (address and format), when
         // asked and the scene has ties.
-        let recipients: Option<Recipients> = if options.tie_events
-            && !client
-                .get_scene(pb::GetSceneRequest {})
-                .await
-                .context("GetScene")?
-                .into_inner()
-                .ties
-                .is_empty()
-        {
-            let frames = client
-                .watch(pb::WatchRequest {
-                    include_positions: false,
-                })
-                .await
-                .context("Watch")?
-                .into_inner();
-            let r = Recipients::default();
-            tokio::spawn(tie_loop(
-                frames,
-                socket.clone(),
-                r.clone(),
-                names.clone(),
-                counters.clone(),
-                stopped.clone(),
-            ));
-            Some(r)
-        } else {
-            None
-        };
+        let recipients: Option<Recipients> =
+            if options.tie_events && ties::scene_has_ties(&mut client).await? {
+                let frames = client
+                    .watch(pb::WatchRequest {
+                        include_positions: false,
+                    })
+                    .await
+                    .context("Watch")?
+                    .into_inner();
+                let r = Recipients::default();
+                tokio::spawn(tie_loop(
+                    frames,
+                    socket.clone(),
+                    r.clone(),
+                    names.clone(),
+                    counters.clone(),
+                    stopped.clone(),
+                ));
+                Some(r)
+            } else {
+                None
+            };
         let task = tokio::spawn(serve(lanes, socket, counters.clone(), recipients, stopped));
         Ok(Self {
             local_addr,

@@ -7,6 +7,20 @@
 use fissure_proto::v1 as pb;
 use std::collections::HashSet;
 
+/// Whether the server's scene has ties (then the bridges announce them).
+pub async fn scene_has_ties(
+    client: &mut pb::fissure_client::FissureClient<tonic::transport::Channel>,
+) -> anyhow::Result<bool> {
+    use anyhow::Context;
+    Ok(!client
+        .get_scene(pb::GetSceneRequest {})
+        .await
+        .context("GetScene")?
+        .into_inner()
+        .ties
+        .is_empty())
+}
+
 /// How a tie went.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum TieHow {

@@ -629,14 +629,7 @@ impl IgtlBridge {
             None => None,
         };
         let (tie_tx, _) = tokio::sync::broadcast::channel(TIE_QUEUE);
-        let has_ties = ties_device.is_some()
-            && !client
-                .get_scene(pb::GetSceneRequest {})
-                .await
-                .context("GetScene")?
-                .into_inner()
-                .ties
-                .is_empty();
+        let has_ties = ties_device.is_some() && super::ties::scene_has_ties(&mut client).await?;
         if surface_device.is_some() {
             let s = client
                 .get_surface(pb::GetSurfaceRequest {})
