@@ -52,7 +52,7 @@
 //! |-------:|-----------|--------------------------------------------------------|
 //! | 0      | [u8; 4]   | magic `b"FST1"`                                        |
 //! | 4      | u8        | version = 1                                            |
-//! | 5      | u8        | instrument index that cut it, or (torn) whose tip was nearest; 255: not bridged |
+//! | 5      | u8        | instrument index that cut it, or (torn) the pushing one whose tip was nearest; 255: not bridged |
 //! | 6      | u8        | kind: 1 arachnoid trabecula, 2 bridging vessel, 0 not known |
 //! | 7      | u8        | cause: 1 cut, 2 torn, 0 released in a frame the bridge did not receive (then time, place and strain are NaN) |
 //! | 8      | u32       | the tie's index in the scene                           |

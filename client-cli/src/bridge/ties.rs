@@ -41,7 +41,8 @@ pub struct TieNotice {
     pub kind: Option<pb::TieKind>,
     /// How it went.
     pub how: TieHow,
-    /// The instrument that cut it, or (torn) the one whose tip was nearest.
+    /// The instrument that cut it, or (torn) the pushing one whose tip was
+    /// nearest.
     pub instrument: String,
     /// Simulation time, s (NaN when not known).
     pub sim_time_s: f64,

@@ -104,7 +104,7 @@ pub struct TieEvent {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum TieCause {
     /// Tension reached its rupture criterion; `instrument` is the
-    /// instrument nearest the tie, which tore it.
+    /// instrument pushing the tissue nearest the tie, which tore it.
     Torn { instrument: u16 },
     /// An instrument's blade cut it.
     Cut { instrument: u16 },

@@ -264,3 +264,48 @@ fn a_mirror_engine_has_the_others_ties_and_tears_none_itself() {
     }
     assert!(torn > 0, "no tie tore");
 }
+
+/// A tear is blamed on the instrument that pushes the tissue: of those
+/// with a loaded row, the one whose tip is nearest the tie (an idle
+/// instrument nearer the tie is not blamed); with none pushing, the
+/// nearest of all.
+#[test]
+fn a_tear_is_blamed_on_the_nearest_instrument_that_pushes() {
+    use fissure_server::sim::engine::TieStage;
+    let text = include_str!("../../scenes/sylvian.toml").replace("paper-48k", "coarse");
+    let s = Scene::parse(
+        &format!("{text}\n{}", trabeculae(0.2, "rupture_strain = 0.2")),
+        "test",
+    )
+    .unwrap();
+    assert_eq!(s.instruments.len(), 2);
+    let m = model(&s);
+    let tie = m.ties[0];
+    let (xa, xb) = (m.mesh.nodes[tie.a as usize], m.mesh.nodes[tie.b as usize]);
+    // Tie 0's node pair stretched to twice the tie's rest length (strain 1
+    // > 0.2).
+    let mut u = vec![Vector3::zeros(); m.mesh.nodes.len()];
+    u[tie.b as usize] = (xb - xa).normalize() * tie.rest_length_m;
+    let mid = nalgebra::Point3::from(0.5 * (xa.coords + xb.coords));
+    let far = mid + Vector3::new(0.0, 0.0, 0.05);
+    let blamed = |pushing: &[bool]| {
+        let mut stage = TieStage::new(&m);
+        assert!(stage.tear(&m, &u, &[far, mid], pushing, 1.0));
+        // Tie 0 and the ties on its node pair tear, at one place.
+        let f = stage.frame(&m);
+        assert!(f.events.iter().any(|e| e.tie == 0));
+        let who: Vec<u16> = f
+            .events
+            .iter()
+            .map(|e| match e.cause {
+                TieCause::Torn { instrument } => instrument,
+                c => panic!("{c:?}"),
+            })
+            .collect();
+        assert!(who.iter().all(|&w| w == who[0]), "{:?}", f.events);
+        who[0]
+    };
+    assert_eq!(blamed(&[true, false]), 0, "the pushing one, though farther");
+    assert_eq!(blamed(&[false, false]), 1, "none pushing: the nearest");
+    assert_eq!(blamed(&[true, true]), 1, "both pushing: the nearer");
+}

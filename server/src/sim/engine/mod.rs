@@ -345,9 +345,22 @@ impl StepEngine {
             }
             // Ties stretched to their rupture tear, and the step solves again
             // without them (the load they carried passes to the others).
-            let torn = self
-                .ties
-                .tear(&model, self.deformer.displacements(), &tips, sim_time_s);
+            // Only an instrument that pushes the tissue can tear a tie.
+            let pushing: Vec<bool> = (0..tips.len())
+                .map(|k| {
+                    self.rows
+                        .iter()
+                        .zip(&self.deformer.answer().multipliers)
+                        .any(|(r, &l)| r.owner as usize == k && l != 0.0)
+                })
+                .collect();
+            let torn = self.ties.tear(
+                &model,
+                self.deformer.displacements(),
+                &tips,
+                &pushing,
+                sim_time_s,
+            );
             if !torn || tear_rounds >= TEAR_ROUNDS {
                 break 'tear solved;
             }

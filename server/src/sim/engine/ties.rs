@@ -275,8 +275,10 @@ impl TieStage {
 
     /// Tears every intact tie whose stretch at the solved displacements `u`
     /// (m) reaches its criterion; records the events at `sim_time_s`, each
-    /// torn by the instrument whose tip (`tips`, m) is nearest. Returns
-    /// whether any tore (then the rows are regrouped).
+    /// torn by the instrument whose tip (`tips`, m) is nearest among those
+    /// pushing the tissue (`pushing[k]`: instrument `k` has a loaded row;
+    /// among all when none does). Returns whether any tore (then the rows
+    /// are regrouped).
     ///
     /// The stretch is the tie's true one, `|x_b - x_a| - L0` at `x = X +
     /// u`: a fibre breaks at its real strain, whatever the rotation the
@@ -288,8 +290,10 @@ impl TieStage {
         model: &Model,
         u: &[Vector3<f64>],
         tips: &[Point3<f64>],
+        pushing: &[bool],
         sim_time_s: f64,
     ) -> bool {
+        let any_pushing = pushing.iter().any(|&p| p);
         let x = |v: u32| model.mesh.nodes[v as usize] + u[v as usize];
         let mut torn = false;
         for (i, tie) in model.ties.iter().enumerate() {
@@ -306,6 +310,7 @@ impl TieStage {
             let instrument = tips
                 .iter()
                 .enumerate()
+                .filter(|(k, _)| !any_pushing || pushing.get(*k) == Some(&true))
                 .map(|(k, tip)| (k, (tip - mid).norm()))
                 .min_by(|a, b| a.1.total_cmp(&b.1))
                 .map_or(0, |(k, _)| k as u16);
