@@ -205,10 +205,10 @@ pub struct Compliance {
     /// Per node: listed in `missing` (deduplication).
     listed: Vec<bool>,
     /// Nodes declared shared by every patch, their blocks once built, and
-    /// each node's index among them (`NONE`: not shared).
+    /// per node whether it is declared.
     share: Vec<u32>,
     shared: Option<Arc<SharedBlocks>>,
-    shared_of: Vec<u32>,
+    is_shared: Vec<bool>,
     // Contact solve buffers.
     c_nodes: Vec<u32>,
     c_slot: Vec<u32>,
@@ -378,7 +378,7 @@ impl Compliance {
             listed: vec![false; n_nodes],
             share: Vec::new(),
             shared: None,
-            shared_of: vec![NONE; n_nodes],
+            is_shared: vec![false; n_nodes],
             c_nodes: Vec::new(),
             c_slot: vec![NONE; n_nodes],
             c_force: Vec::new(),
@@ -1201,9 +1201,6 @@ impl Compliance {
                     }
                 }
             }
-            for (k, &n) in nodes.iter().enumerate() {
-                self.shared_of[n as usize] = k as u32;
-            }
             self.shared = Some(Arc::new(SharedBlocks {
                 nodes: nodes.clone(),
                 blocks,
@@ -1238,8 +1235,7 @@ impl Compliance {
         }
         let s = patch.nodes.len();
         for &n in &distinct {
-            if self.cache_slot[n as usize] != NONE && !(s > 0 && self.shared_of[n as usize] != NONE)
-            {
+            if self.cache_slot[n as usize] != NONE && !(s > 0 && self.is_shared[n as usize]) {
                 patch.nodes.push(n);
             }
         }
@@ -1322,7 +1318,7 @@ impl DeformationSolver for Compliance {
 
     fn share_patch_nodes(&mut self, nodes: &[u32]) {
         for &n in &self.share {
-            self.shared_of[n as usize] = NONE;
+            self.is_shared[n as usize] = false;
         }
         self.shared = None;
         self.share.clear();
@@ -1331,16 +1327,11 @@ impl DeformationSolver for Compliance {
             if nu < self.model.n_nodes()
                 && self.rec_of[nu] != NONE
                 && !self.model.support[3 * nu..3 * nu + 3].iter().any(|&f| f)
-                && self.shared_of[nu] == NONE
+                && !self.is_shared[nu]
             {
-                // Marked while listing (deduplication); set to the block
-                // index once built.
-                self.shared_of[nu] = 0;
+                self.is_shared[nu] = true;
                 self.share.push(n);
             }
-        }
-        for &n in &self.share {
-            self.shared_of[n as usize] = NONE;
         }
     }
 

@@ -346,14 +346,14 @@ impl StepEngine {
             // Ties stretched to their rupture tear, and the step solves again
             // without them (the load they carried passes to the others).
             // Only an instrument that pushes the tissue can tear a tie.
-            let pushing: Vec<bool> = (0..tips.len())
-                .map(|k| {
-                    self.rows
-                        .iter()
-                        .zip(&self.deformer.answer().multipliers)
-                        .any(|(r, &l)| r.owner as usize == k && l != 0.0)
-                })
-                .collect();
+            let mut pushing = vec![false; tips.len()];
+            for (r, &l) in self.rows.iter().zip(&self.deformer.answer().multipliers) {
+                if l != 0.0 {
+                    if let Some(p) = pushing.get_mut(r.owner as usize) {
+                        *p = true;
+                    }
+                }
+            }
             let torn = self.ties.tear(
                 &model,
                 self.deformer.displacements(),

@@ -109,6 +109,15 @@ pub struct TiesAtStep {
 }
 
 impl TiesAtStep {
+    /// Tie `i`'s state as the force loops have it now: the step's, or cut
+    /// if a blade cut it since.
+    pub fn state_now(&self, i: usize) -> TieState {
+        match self.states.get(i).copied().unwrap_or_default() {
+            TieState::Intact if self.cuts.is_cut(i) => TieState::Cut,
+            st => st,
+        }
+    }
+
     /// Rewrites the tie rows of `rows[start..]` (the step's tie rows, in
     /// pair order) for the cuts made since the step: a pair's stiffness
     /// loses its cut ties', and a pair left with none is switched off.
@@ -243,11 +252,7 @@ impl TieStage {
         self.mirror = true;
         let mut changed = false;
         for (i, s) in self.states.iter_mut().enumerate() {
-            let want = match other.states.get(i) {
-                Some(TieState::Intact) | None if other.cuts.is_cut(i) => TieState::Cut,
-                Some(&st) => st,
-                None => TieState::Intact,
-            };
+            let want = other.state_now(i);
             if *s != want {
                 *s = want;
                 changed = true;
