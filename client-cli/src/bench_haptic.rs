@@ -1234,10 +1234,20 @@ mod tests {
         let pair = |i: &str, t: &str| (i.to_owned(), t.to_owned());
         assert_eq!(
             of("sylvian"),
-            vec![vec![
-                pair("left", "sylvian-open-left"),
-                pair("right", "sylvian-open-right")
-            ]]
+            vec![
+                vec![
+                    pair("left", "sylvian-open-left"),
+                    pair("right", "sylvian-open-right")
+                ],
+                vec![
+                    pair("left", "sylvian-expert-left"),
+                    pair("right", "sylvian-expert-right")
+                ],
+                vec![
+                    pair("left", "sylvian-careless-left"),
+                    pair("right", "sylvian-careless-right")
+                ]
+            ]
         );
         assert_eq!(
             of("cube"),

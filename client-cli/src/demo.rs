@@ -187,6 +187,7 @@ pub async fn run(args: &DemoArgs) -> anyhow::Result<DemoReport> {
         ..SimOptions::default()
     };
     let scene_name = scene.name.clone();
+    let safe_force_n = scene.loops.safe_force_n;
     let sim = tokio::task::spawn_blocking(move || Simulation::start(scene, options)).await??;
     let server = serve("127.0.0.1:0".parse()?, ServeOptions::default()).await?;
     server.set_simulation(sim.clone()).await;
@@ -256,7 +257,9 @@ pub async fn run(args: &DemoArgs) -> anyhow::Result<DemoReport> {
     })
     .await??;
 
-    let mut files = vec![recording];
+    let assessed = crate::report::report(&recording, safe_force_n)
+        .with_context(|| format!("assessing {}", recording.display()))?;
+    let mut files = vec![recording.clone()];
     for (name, rows) in &forces {
         let path = args.out.join(format!("forces-{name}.csv"));
         write(&path, &forces_csv(rows))?;
@@ -264,6 +267,7 @@ pub async fn run(args: &DemoArgs) -> anyhow::Result<DemoReport> {
     }
     let frames = std::mem::take(&mut *frames.lock().expect("frames lock"));
     let frame_count = frames.len();
+    let frames_timings: Vec<pb::StepTimings> = frames.iter().filter_map(|f| f.timings).collect();
     let deepest = frames
         .iter()
         .max_by(|a, b| a.max_displacement_m.total_cmp(&b.max_displacement_m));
@@ -296,6 +300,9 @@ pub async fn run(args: &DemoArgs) -> anyhow::Result<DemoReport> {
             })
             .await??,
         );
+        let page = args.out.join("report.html");
+        crate::report::html::write(&page, &assessed, "session.fsrec", None)?;
+        files.push(page);
     }
     let mut summary = summary_table(&scene_name, &forces, &stats);
     summary.push_str(&format!(
@@ -305,6 +312,8 @@ pub async fn run(args: &DemoArgs) -> anyhow::Result<DemoReport> {
     if let Some(m) = &motion {
         summary.push_str(&m.lines());
     }
+    summary.push_str(&crate::report::assessment_lines(&assessed.assessment));
+    summary.push_str(&assess_cost_line(&frames_timings, &stats));
     let path = args.out.join("summary.txt");
     write(&path, &summary)?;
     files.push(path);
@@ -323,6 +332,30 @@ pub async fn run(args: &DemoArgs) -> anyhow::Result<DemoReport> {
         rigid,
         elapsed_s,
     })
+}
+
+/// What the injury measures cost: their p50 per step beside the server's
+/// deformation step p50 (the same steps, one run).
+fn assess_cost_line(timings: &[pb::StepTimings], stats: &pb::Stats) -> String {
+    let mut us: Vec<f64> = timings
+        .iter()
+        .skip(1)
+        .map(|t| t.assess_us)
+        .filter(|&t| t > 0.0)
+        .collect();
+    let Some(step) = stats.deformation_step.as_ref().filter(|s| s.p50_us > 0.0) else {
+        return String::new();
+    };
+    if us.is_empty() {
+        return String::new();
+    }
+    us.sort_by(f64::total_cmp);
+    let p50 = percentile(&us, 0.5);
+    format!(
+        "injury measures (pressure, strain): p50 {:.3} ms a step, {:.1} % of the step's p50\n",
+        p50 / 1e3,
+        100.0 * p50 / step.p50_us
+    )
 }
 
 /// The list of results printed at the end: one line per kind of file, the
@@ -345,6 +378,7 @@ fn describe_files(out: &Path, files: &[PathBuf]) -> String {
             "obj" => "deformed surface",
             "fsrec" => "session recording (fissure report / replay --recording)",
             "txt" => "summary table",
+            "html" => "assessment page: scores, plots, the worst strain (open in a browser)",
             _ => "",
         };
         s.push_str(&format!("  {:<34} {what}\n", name));

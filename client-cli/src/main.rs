@@ -45,8 +45,11 @@ enum Command {
         #[command(subcommand)]
         which: Bench,
     },
-    /// Summarise a session recording: duration, peak and mean force per
-    /// instrument, time above a safe-force threshold, path length, time in contact.
+    /// Summarise and assess a session recording: duration, peak and mean
+    /// force per instrument, time above a safe-force threshold, path length,
+    /// time in contact; the retraction pressure, the tissue's strain and the
+    /// injuries, each scored against the scene's thresholds (pass, warn,
+    /// fail); and with `--html` a page a teacher opens in a browser.
     Report {
         /// The recording (`.fsrec`, written by `fissure-server --record` or the demo).
         file: PathBuf,
@@ -56,6 +59,19 @@ enum Command {
         /// Print JSON instead of a table.
         #[arg(long)]
         json: bool,
+        /// Also write one self-contained HTML page (scores, plots against
+        /// time with the thresholds, the brain at the worst strain, the
+        /// events); nothing in it is fetched from the network.
+        #[arg(long, value_name = "OUT.html")]
+        html: Option<PathBuf>,
+        /// Another session (an expert's) to put beside this one: the same
+        /// measures in the tables, the same axes in the plots.
+        #[arg(long, value_name = "EXPERT.fsrec")]
+        compare: Option<PathBuf>,
+        /// Report the entries before a truncated last entry (a recorder
+        /// stopped mid-write) instead of refusing the file.
+        #[arg(long)]
+        accept_truncated: bool,
     },
     /// Speed against accuracy of the simulation's configurations on the
     /// scripted Sylvian opening, and stability at the extremes (CSV,
@@ -351,13 +367,24 @@ fn main() -> anyhow::Result<()> {
             file,
             threshold_n,
             json,
+            html,
+            compare,
+            accept_truncated,
         } => {
-            let r = fissure_cli::report::report(&file, threshold_n)?;
-            if json {
-                println!("{}", serde_json::to_string_pretty(&r)?);
-            } else {
-                print!("{}", fissure_cli::report::table(&r));
-            }
+            let options = fissure_cli::report::Options {
+                threshold_n,
+                accept_truncated,
+            };
+            print!(
+                "{}",
+                fissure_cli::report::command(
+                    &file,
+                    &options,
+                    json,
+                    html.as_deref(),
+                    compare.as_deref()
+                )?
+            );
         }
         Command::Health { server } => {
             use tonic_health::pb::health_check_response::ServingStatus;

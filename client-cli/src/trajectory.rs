@@ -118,6 +118,30 @@ pub const BUNDLED: &[(&str, &str, &str, &str)] = &[
         include_str!("../trajectories/sylvian-open-right.csv"),
     ),
     (
+        "sylvian-expert-left",
+        "sylvian",
+        "left",
+        include_str!("../trajectories/sylvian-expert-left.csv"),
+    ),
+    (
+        "sylvian-expert-right",
+        "sylvian",
+        "right",
+        include_str!("../trajectories/sylvian-expert-right.csv"),
+    ),
+    (
+        "sylvian-careless-left",
+        "sylvian",
+        "left",
+        include_str!("../trajectories/sylvian-careless-left.csv"),
+    ),
+    (
+        "sylvian-careless-right",
+        "sylvian",
+        "right",
+        include_str!("../trajectories/sylvian-careless-right.csv"),
+    ),
+    (
         "cube-press-left",
         "cube",
         "left",

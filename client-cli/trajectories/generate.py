@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Writes the bundled block and inter-hemispheric trajectories (1 kHz poses).
+"""Writes the bundled block, inter-hemispheric and Sylvian trajectories (1 kHz poses;
+sylvian-open-* are older and not written here).
 
 Run from this folder: `python3 generate.py`. Output: CSV files with the header
 `t_s,x_m,y_m,z_m,qw,qx,qy,qz` (s, m, unit quaternion w x y z); the pose is the
@@ -191,3 +192,33 @@ def syl_careless(t):
 write("sylvian-arachnoid-spatula", 5.2, syl_spatula)
 write("sylvian-arachnoid-blade", 5.2, syl_blade)
 write("sylvian-arachnoid-careless-spatula", 2.0, syl_careless)
+
+
+# Sylvian fissure (scene sylvian), both spatulas (left at y = 18 mm lifting
+# +z, right at y = 2 mm lowering -z), for the assessment's two sessions. The
+# walls are 1.5 mm from the mid-plane and each plate 1 mm thick, so a lift
+# of L pushes its wall L - 1 mm.
+# * expert: insert 20 mm, open gently (lift 1.8 mm: 0.8 mm into each wall)
+#   over 1 s, hold 1.1 s, close, withdraw;
+# * careless: insert 25 mm (deeper) in 0.4 s, lift 9 mm (8 mm into each
+#   wall) in 0.4 s, hold 2.9 s (longer), close, withdraw.
+SYL_OPEN_HOME_X = -0.1007412
+
+
+def syl_open(side, y, insert_keys, lift_keys):
+    def pose_at(t):
+        x = segments(t, [(k, SYL_OPEN_HOME_X + v) for k, v in insert_keys])
+        z = side * segments(t, lift_keys)
+        return (x, y, z), SYL_ALONG_X
+
+    return pose_at
+
+
+EXPERT_INSERT = [(0.2, 0.0), (0.8, 0.020), (3.7, 0.020), (4.3, 0.0)]
+EXPERT_LIFT = [(0.9, 0.0), (1.9, 0.0018), (3.0, 0.0018), (3.6, 0.0)]
+CARELESS_INSERT = [(0.2, 0.0), (0.6, 0.025), (4.4, 0.025), (4.9, 0.0)]
+CARELESS_LIFT = [(0.7, 0.0), (1.1, 0.009), (4.0, 0.009), (4.3, 0.0)]
+write("sylvian-expert-left", 4.4, syl_open(1.0, 0.018, EXPERT_INSERT, EXPERT_LIFT))
+write("sylvian-expert-right", 4.4, syl_open(-1.0, 0.002, EXPERT_INSERT, EXPERT_LIFT))
+write("sylvian-careless-left", 5.0, syl_open(1.0, 0.018, CARELESS_INSERT, CARELESS_LIFT))
+write("sylvian-careless-right", 5.0, syl_open(-1.0, 0.002, CARELESS_INSERT, CARELESS_LIFT))

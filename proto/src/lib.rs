@@ -11,6 +11,7 @@
 //! ([`motion`]), the checks of a triangle surface ([`surface`]) and the VTU
 //! writer of frame series ([`vtu`]).
 
+pub mod assessment;
 pub mod motion;
 pub mod recording;
 pub mod surface;

@@ -93,6 +93,8 @@ pub struct Recording {
     pub entries: Vec<pb::RecordingEntry>,
     /// Whether the last entry was cut short (a crash mid-write) and dropped.
     pub truncated: bool,
+    /// Where the dropped entry starts, bytes from the file's start.
+    pub truncated_at: Option<usize>,
     /// Where entries were dropped by the recorder (its queue was full).
     pub gaps: Vec<Gap>,
 }
@@ -130,18 +132,18 @@ pub fn read_recording(path: &Path) -> Result<Recording, ReadError> {
     let mut entries = Vec::new();
     let mut gaps = Vec::new();
     let mut buf = bytes.as_slice();
-    let mut truncated = false;
+    let mut truncated_at = None;
     while !buf.is_empty() {
         let offset = bytes.len() - buf.len();
         let len = match prost::encoding::decode_varint(&mut buf) {
             Ok(l) => l as usize,
             Err(_) => {
-                truncated = true;
+                truncated_at = Some(offset);
                 break;
             }
         };
         if len > buf.len() {
-            truncated = true;
+            truncated_at = Some(offset);
             break;
         }
         let malformed = |e: prost::DecodeError| ReadError::Malformed {
@@ -165,7 +167,8 @@ pub fn read_recording(path: &Path) -> Result<Recording, ReadError> {
     match entries.first().and_then(|e| e.entry.as_ref()) {
         Some(pb::recording_entry::Entry::Header(_)) => Ok(Recording {
             entries,
-            truncated,
+            truncated: truncated_at.is_some(),
+            truncated_at,
             gaps,
         }),
         _ => Err(ReadError::NoHeader { path: name }),
@@ -228,6 +231,7 @@ mod tests {
             version: 1,
             scene: Some(scene()),
             started_unix_s: 0.0,
+            surface: None,
         };
         let recorded = |seq| {
             pb::recording_entry::Entry::Pose(pb::RecordedPose {

@@ -109,6 +109,8 @@ pub struct Scene<'a> {
     pub values_mm: &'a [f64],
     /// What the values are, written above the scale, e.g. "displacement".
     pub quantity: &'a str,
+    /// Their unit, written under the quantity, e.g. "(mm)".
+    pub unit: &'a str,
     /// The spatulas.
     pub plates: &'a [Plate],
     /// The ties across the fissure that hold.
@@ -316,6 +318,7 @@ impl FrameRenderer {
             ((self.height - TITLE_BAND) as i32 - 120).clamp(80, 360),
             range,
             scene.quantity,
+            scene.unit,
         )?;
         // Force readouts bottom-left, names at the arrow tips.
         let st = TextStyle::new(14.0).align(HAlign::Left, VAlign::Bottom);
@@ -402,7 +405,7 @@ const BAR_W: i32 = 18;
 
 /// The colour scale: [`TISSUE_MAP`] from 0 (bottom) to `range_mm` (top) in
 /// a `bar_h` px bar whose top-left corner is (`x`, `y`), its ticks and labels
-/// on a `plotters` axis right of it, `quantity` and "(mm)" above.
+/// on a `plotters` axis right of it, `quantity` and its `unit` above.
 fn colour_scale(
     img: &mut Image,
     x: i32,
@@ -410,6 +413,7 @@ fn colour_scale(
     bar_h: i32,
     range_mm: f64,
     quantity: &str,
+    unit: &str,
 ) -> Result<(), RenderError> {
     let ink = RGBColor(40, 40, 40);
     let label_w = 60;
@@ -448,7 +452,7 @@ fn colour_scale(
         .colour([40, 40, 40])
         .align(HAlign::Left, VAlign::Bottom);
     draw_text(img, quantity, (x - 6) as f32, (y - 22) as f32, &st);
-    draw_text(img, "(mm)", (x - 6) as f32, (y - 7) as f32, &st);
+    draw_text(img, unit, (x - 6) as f32, (y - 7) as f32, &st);
     Ok(())
 }
 
@@ -495,7 +499,7 @@ mod tests {
     #[test]
     fn colour_scale_runs_from_rest_colour_at_bottom_to_top_colour_at_top() {
         let mut img = Image::new(200, 300, [255; 3]).unwrap();
-        colour_scale(&mut img, 20, 40, 200, 4.0, "displacement").unwrap();
+        colour_scale(&mut img, 20, 40, 200, 4.0, "displacement", "(mm)").unwrap();
         let near = |a: Rgb, b: Rgb| {
             a.iter()
                 .zip(b)
@@ -521,6 +525,7 @@ mod tests {
             triangles: &[[0, 1, 2]],
             values_mm: &[0.0; 2],
             quantity: "displacement",
+            unit: "(mm)",
             plates: &[],
             ties: &[],
             camera: CameraPreset {

@@ -27,7 +27,7 @@
 //! that the tissue reads as tissue and the deformation stands out.
 
 mod gif;
-mod view;
+pub(crate) mod view;
 mod vtu;
 
 pub use crate::render::frame::{

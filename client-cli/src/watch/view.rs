@@ -259,6 +259,30 @@ impl SessionView {
                     .collect()
             }
         };
+        self.render_values(
+            renderer,
+            frame,
+            &values_mm,
+            self.colour_by.label(),
+            "(mm)",
+            caption,
+        )
+    }
+
+    /// Draws `frame` with `renderer`, the surface coloured by `values` (one
+    /// per surface vertex, on the caption's scale, in `unit`) and labelled
+    /// `quantity`, the plates at the frame's poses with their forces.
+    pub fn render_values(
+        &self,
+        renderer: &mut FrameRenderer,
+        frame: &pb::DeformationFrame,
+        values: &[f64],
+        quantity: &str,
+        unit: &str,
+        caption: &Caption,
+    ) -> Result<Image, RenderError> {
+        let mut positions = Vec::with_capacity(self.rest.len());
+        self.positions_into(frame, &mut positions);
         let plates: Vec<Plate> = self
             .instruments
             .iter()
@@ -287,8 +311,9 @@ impl SessionView {
             &Scene {
                 positions: &positions,
                 triangles: &self.triangles,
-                values_mm: &values_mm,
-                quantity: self.colour_by.label(),
+                values_mm: values,
+                quantity,
+                unit,
                 plates: &plates,
                 ties: &ties,
                 camera: self.camera,

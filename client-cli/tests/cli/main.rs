@@ -7,6 +7,8 @@
 //! igtl_peers::`.
 
 #[cfg(feature = "lab")]
+mod assessment;
+#[cfg(feature = "lab")]
 mod bench_bridge;
 #[cfg(feature = "lab")]
 mod bench_haptic;

@@ -11,6 +11,7 @@
 //! Every value is checked by [`Scene::validate`]; an error names the field
 //! (`instrument[1].thickness_m`) and what is wrong with it.
 
+pub mod assessment;
 pub mod region;
 pub mod ties;
 
@@ -125,6 +126,10 @@ pub struct Scene {
     /// or `direct` strategy.
     #[serde(default)]
     pub ties: Vec<ties::TieSpec>,
+    /// The thresholds the session's injury measures are scored against
+    /// (`[assessment]`, [`assessment`]); the cited defaults when absent.
+    #[serde(default)]
+    pub assessment: assessment::AssessmentSpec,
 }
 
 /// A region of interest around the working fissure.
@@ -1083,6 +1088,9 @@ impl Scene {
                 }
             }
         }
+        self.assessment
+            .check()
+            .map_err(|(field, reason)| bad(field, reason))?;
         for (i, t) in self.ties.iter().enumerate() {
             let at = format!("ties[{i}]");
             t.check(&at).map_err(|(field, reason)| bad(field, reason))?;

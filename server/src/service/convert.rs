@@ -107,6 +107,7 @@ pub fn scene_description(scene: &Scene, model: &Model) -> pb::SceneDescription {
                 rest_length_m: t.rest_length_m,
             })
             .collect(),
+        assessment: Some(assessment(&scene.assessment)),
         contact_law: scene.contact.law.name().into(),
         friction_coefficient: match scene.contact.law {
             ContactLaw::Coulomb => scene.contact.friction_coefficient.unwrap_or(0.0),
@@ -203,11 +204,59 @@ fn reaction(r: &InstrumentReaction) -> pb::InstrumentReaction {
         pending_vertices: r.pending_vertices,
         position_m: Some(vec3(&r.position_m)),
         orientation: Some(quat(r.orientation)),
+        pressure: Some(pressure(&r.pressure)),
     }
 }
 
-/// A frame message, with or without positions.
-pub fn frame(f: &Frame, include_positions: bool) -> pb::DeformationFrame {
+fn pressure(p: &crate::sim::injury::Pressure) -> pb::RetractionPressure {
+    pb::RetractionPressure {
+        contact_area_m2: p.contact_area_m2,
+        normal_force_n: p.normal_force_n,
+        peak_pa: p.peak_pa,
+        mean_pa: p.mean_pa,
+        time_above_s: p.time_above_s,
+        pressure_time_pa_s: p.pressure_time_pa_s,
+    }
+}
+
+fn strain(f: &Frame, include_picture: bool) -> pb::TissueStrain {
+    let s = &f.strain;
+    pb::TissueStrain {
+        max_principal: s.max_principal,
+        at_m: Some(vec3(&s.at_m.coords)),
+        volume_above_m3: s.volume_above_m3,
+        threshold: s.threshold,
+        picture: f
+            .strain_picture
+            .as_ref()
+            .filter(|_| include_picture)
+            .map(|p| pb::StrainPicture {
+                positions_m: p.positions.iter().flat_map(|x| *x).collect(),
+                strain: p.strain.clone(),
+            }),
+    }
+}
+
+fn levels(l: crate::scene::assessment::Levels) -> Option<pb::Levels> {
+    Some(pb::Levels {
+        warn: l.warn,
+        fail: l.fail,
+    })
+}
+
+/// The scene's assessment thresholds.
+pub fn assessment(a: &crate::scene::assessment::AssessmentSpec) -> pb::AssessmentThresholds {
+    pb::AssessmentThresholds {
+        pressure_pa: levels(a.pressure_pa),
+        time_above_s: levels(a.time_above_s),
+        pressure_time_pa_s: levels(a.pressure_time_pa_s),
+        strain: levels(a.strain),
+        strained_volume_m3: levels(a.strained_volume_m3),
+    }
+}
+
+/// A frame message, with or without positions and the strain picture.
+pub fn frame(f: &Frame, include_positions: bool, include_picture: bool) -> pb::DeformationFrame {
     pb::DeformationFrame {
         frame: f.frame,
         sim_time_s: f.sim_time_s,
@@ -221,11 +270,13 @@ pub fn frame(f: &Frame, include_positions: bool) -> pb::DeformationFrame {
             collision_us: f.timings.collision_us,
             solve_us: f.timings.solve_us,
             total_us: f.timings.total_us,
+            assess_us: f.timings.assess_us,
         }),
         solver_error: f.solver_error.clone().unwrap_or_default(),
         max_displacement_m: f.max_displacement_m,
         rigid: Some(rigid_part(&f.rigid)),
         ties: tie_summary(&f.ties, &f.instruments),
+        strain: Some(strain(f, include_picture)),
     }
 }
 

@@ -367,7 +367,7 @@ impl Fissure for FissureService {
         let stream = WatchStream::new(rx)
             .map(move |frame| {
                 let _keep = &guard;
-                Ok(convert::frame(&frame, include))
+                Ok(convert::frame(&frame, include, include))
             })
             .take_until(async move {
                 let _ = stopping.wait_for(|s| *s).await;

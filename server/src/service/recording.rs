@@ -183,11 +183,12 @@ impl std::fmt::Debug for Recorder {
     }
 }
 
-fn header(scene: &pb::SceneDescription) -> pb::RecordingEntry {
+fn header(scene: &pb::SceneDescription, surface: Option<pb::SurfaceMesh>) -> pb::RecordingEntry {
     pb::RecordingEntry {
         entry: Some(pb::recording_entry::Entry::Header(pb::RecordingHeader {
             version: 1,
             scene: Some(scene.clone()),
+            surface,
             started_unix_s: std::time::SystemTime::now()
                 .duration_since(std::time::UNIX_EPOCH)
                 .map(|d| d.as_secs_f64())
@@ -200,11 +201,19 @@ impl Recorder {
     /// Creates (truncates) the file and writes the header; the queue holds
     /// [`QUEUE_CAPACITY`] entries. The file is synced when the recording is
     /// finished.
-    pub fn create(path: &Path, scene: &pb::SceneDescription) -> std::io::Result<Self> {
+    pub fn create(
+        path: &Path,
+        scene: &pb::SceneDescription,
+        surface: Option<pb::SurfaceMesh>,
+    ) -> std::io::Result<Self> {
         let file = std::fs::File::create(path)?;
-        Self::start(BufWriter::new(file), scene, QUEUE_CAPACITY, |out| {
-            out.get_ref().sync_all()
-        })
+        Self::start(
+            BufWriter::new(file),
+            scene,
+            surface,
+            QUEUE_CAPACITY,
+            |out| out.get_ref().sync_all(),
+        )
     }
 
     /// Records to any writer (buffered here), with a queue of `capacity`
@@ -214,16 +223,17 @@ impl Recorder {
         scene: &pb::SceneDescription,
         capacity: usize,
     ) -> std::io::Result<Self> {
-        Self::start(BufWriter::new(out), scene, capacity, |_| Ok(()))
+        Self::start(BufWriter::new(out), scene, None, capacity, |_| Ok(()))
     }
 
     fn start<W: Write + Send + 'static>(
         mut out: BufWriter<W>,
         scene: &pb::SceneDescription,
+        surface: Option<pb::SurfaceMesh>,
         capacity: usize,
         close: impl FnOnce(&mut BufWriter<W>) -> std::io::Result<()> + Send + 'static,
     ) -> std::io::Result<Self> {
-        out.write_all(&header(scene).encode_length_delimited_to_vec())?;
+        out.write_all(&header(scene, surface).encode_length_delimited_to_vec())?;
         out.flush()?;
         let capacity = capacity.max(1);
         let shared = Arc::new(Shared {
@@ -308,11 +318,12 @@ impl Recorder {
         );
     }
 
-    /// Records a frame summary (without positions).
+    /// Records a frame summary: without positions, with the strain picture
+    /// where the frame has one (the report draws the worst frame's).
     pub fn frame(&self, frame: &Frame) {
         self.send(
             Kind::Frame,
-            pb::recording_entry::Entry::Frame(super::convert::frame(frame, false)),
+            pb::recording_entry::Entry::Frame(super::convert::frame(frame, false, true)),
         );
     }
 
@@ -512,7 +523,8 @@ impl OpenJournal for ToFile {
 
     fn open(&self, scene: &Scene, model: &Model) -> std::io::Result<Arc<dyn Journal>> {
         let header = super::convert::scene_description(scene, model);
-        Ok(Arc::new(Recorder::create(&self.0, &header)?))
+        let surface = super::convert::surface(model);
+        Ok(Arc::new(Recorder::create(&self.0, &header, Some(surface))?))
     }
 }
 

@@ -33,6 +33,7 @@ pub mod budget;
 pub mod engine;
 pub mod force_loop;
 pub mod haptic_stream;
+pub mod injury;
 pub mod journal;
 pub mod local_model;
 pub mod motion;

@@ -31,6 +31,9 @@ pub struct InstrumentReaction {
     pub position_m: Vector3<f64>,
     /// Orientation used (w, x, y, z).
     pub orientation: [f64; 4],
+    /// The retraction pressure under it, and its session sums
+    /// ([`super::injury`]).
+    pub pressure: super::injury::Pressure,
 }
 
 /// Stage timings of one step, microseconds.
@@ -42,6 +45,8 @@ pub struct StepTimings {
     pub solve_us: f64,
     /// Whole step.
     pub total_us: f64,
+    /// The injury measures ([`super::injury`]), part of the whole step.
+    pub assess_us: f64,
 }
 
 /// One deformation frame, as watchers and recordings see it.
@@ -68,6 +73,12 @@ pub struct Frame {
     /// The ties across the fissure: how many hold, and what happened to
     /// them in this step.
     pub ties: TieFrame,
+    /// The tissue's largest principal strain ([`super::injury`]).
+    pub strain: super::injury::StrainMeasure,
+    /// The strain as a picture, in the frames where the session's largest
+    /// strain grew by a tenth since the last picture (the worst frame's is
+    /// the last one sent).
+    pub strain_picture: Option<Arc<super::injury::StrainPicture>>,
 }
 
 /// The ties of one frame.
@@ -151,6 +162,7 @@ impl InstrumentReaction {
             pending_vertices: 0,
             position_m: Vector3::from(spec.home_position_m),
             orientation: spec.home_orientation,
+            pressure: Default::default(),
         }
     }
 }
@@ -177,7 +189,21 @@ impl Frame {
             max_displacement_m,
             rigid,
             ties: TieFrame::default(),
+            strain: Default::default(),
+            strain_picture: None,
         }
+    }
+
+    /// This frame with the tissue's `strain` and, where one is due, its
+    /// `picture`.
+    pub fn with_strain(
+        mut self,
+        strain: super::injury::StrainMeasure,
+        picture: Option<super::injury::StrainPicture>,
+    ) -> Self {
+        self.strain = strain;
+        self.strain_picture = picture.map(Arc::new);
+        self
     }
 
     /// This frame with `ties`.
@@ -235,6 +261,7 @@ impl Snapshot {
         summary.solver_error = Some(error.clone());
         // Releases belong to the frame that made them.
         summary.ties.events.clear();
+        summary.strain_picture = None;
         let mut force_model = (*self.force_model).clone();
         force_model.frame = frame;
         Self {

@@ -33,4 +33,5 @@ mod fem_ties;
 mod fem_validation;
 mod mesh_generation;
 mod mesh_io;
+mod sim_injury;
 mod sim_ties;

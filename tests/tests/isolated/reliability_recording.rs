@@ -115,6 +115,7 @@ fn frame(k: u64) -> Frame {
         pending_vertices: 0,
         position_m: Vector3::new(x, 0.005, 0.043),
         orientation: [0.5, -0.5, 0.5, 0.5],
+        pressure: Default::default(),
     };
     Frame {
         frame: k,
@@ -126,6 +127,8 @@ fn frame(k: u64) -> Frame {
         max_displacement_m: 1e-3,
         rigid: Default::default(),
         ties: Default::default(),
+        strain: Default::default(),
+        strain_picture: None,
     }
 }
 

@@ -13,6 +13,7 @@
 //! composes them into the step ([`StepEngine`]).
 
 use super::SimError;
+use super::injury::{InjuryGeometry, InjuryStage};
 use super::local_model::ForceModel;
 use super::rows::{self, Anchors, FreePositions, Row, SKULL_OWNER};
 use super::snapshot::{Frame, InstrumentReaction, Snapshot, StepTimings};
@@ -85,6 +86,7 @@ pub struct StepEngine {
     rule: RowRule,
     skull: Option<SkullRows>,
     ties: TieStage,
+    injury: InjuryStage,
     next_frame: u64,
     rows: Vec<Row>,
     warm: Vec<f64>,
@@ -166,6 +168,14 @@ impl StepEngine {
             rule: RowRule::of(scene),
             skull: SkullRows::of(scene),
             ties: TieStage::new(&model),
+            injury: InjuryStage::new(
+                Arc::new(InjuryGeometry::new(
+                    &model.mesh,
+                    &model.surface,
+                    &model.from_volume,
+                )),
+                scene.assessment,
+            ),
             next_frame: 0,
             rows: Vec::new(),
             warm: Vec::new(),
@@ -202,6 +212,7 @@ impl StepEngine {
         }
         self.anchors = Anchors::default();
         self.ties = TieStage::new(&self.model);
+        self.injury.reset();
         let frame = self.next_frame;
         self.next_frame += 1;
         let mut snap = self.model.rest_snapshot(&self.scene, frame, sim_time_s);
@@ -375,6 +386,7 @@ impl StepEngine {
             collision_us,
             solve_us,
             total_us: total,
+            assess_us: 0.0,
         };
         if let Err(e) = result {
             tracing::warn!(frame, error = %e, "deformation step failed; keeping the last good state");
@@ -653,6 +665,19 @@ impl StepEngine {
             .map(|&v| displacements[v as usize].norm())
             .fold(0.0, f64::max);
         let mut step_force = Vec::with_capacity(self.scene.instruments.len());
+        let assess_started = Instant::now();
+        let (pressures, strain, picture) = self.injury.measure(
+            sim_time_s,
+            &self.rows,
+            &self.lambda,
+            self.scene.instruments.len(),
+            &displacements,
+            &surface,
+        );
+        let timings = StepTimings {
+            assess_us: assess_started.elapsed().as_secs_f64() * 1e6,
+            ..timings
+        };
         let instruments = self
             .scene
             .instruments
@@ -691,6 +716,7 @@ impl StepEngine {
                     pending_vertices: waiting.len() as u32,
                     position_m: handle,
                     orientation: [q.w, q.i, q.j, q.k],
+                    pressure: pressures[k],
                 }
             })
             .collect();
@@ -708,7 +734,8 @@ impl StepEngine {
             max_d,
             rigid,
         )
-        .with_ties(self.ties.frame(model));
+        .with_ties(self.ties.frame(model))
+        .with_strain(strain, picture);
         let mut force_model = ForceModel::new(
             frame,
             patch.patch,

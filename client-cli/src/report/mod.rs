@@ -1,5 +1,10 @@
-//! `fissure report`: a summary of a session recording, and the trajectories it
-//! holds (for `fissure replay --recording`).
+//! `fissure report`: a summary of a session recording (forces, motion, ties),
+//! its assessment ([`assess`]: what the session did to the brain, scored
+//! against the scene's thresholds), the page a teacher opens ([`html`]),
+//! and the trajectories it holds (for `fissure replay --recording`).
+
+pub mod assess;
+pub mod html;
 
 use crate::trajectory::{Trajectory, Waypoint};
 use fissure_proto::recording;
@@ -132,6 +137,48 @@ pub struct Report {
     pub motion: Option<MotionReport>,
     /// The ties across the fissure (absent when the scene has none).
     pub ties: Option<TieReport>,
+    /// What the session did to the brain, scored.
+    pub assessment: assess::Assessment,
+    /// The curves and the picture the page draws (left out of the JSON).
+    #[serde(skip)]
+    pub traces: Traces,
+}
+
+/// What the page draws of a session.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Traces {
+    /// The scene as recorded.
+    pub scene: Option<pb::SceneDescription>,
+    /// The rest surface (recordings of this version on).
+    pub surface: Option<pb::SurfaceMesh>,
+    /// Per instrument: time (s) and force magnitude (N) of its samples.
+    pub force: Vec<(String, Vec<[f64; 2]>)>,
+    /// Per instrument: time (s) and mean retraction pressure (Pa) of the
+    /// frames.
+    pub pressure: Vec<(String, Vec<[f64; 2]>)>,
+    /// Time (s) and largest principal strain of the frames.
+    pub strain: Vec<[f64; 2]>,
+    /// The frame of the worst strain picture, its positions the picture's.
+    pub worst: Option<pb::DeformationFrame>,
+}
+
+/// How to read a recording.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Options {
+    /// Safe-force threshold, N.
+    pub threshold_n: f64,
+    /// Report what precedes a truncated last entry instead of refusing
+    /// the file.
+    pub accept_truncated: bool,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Self {
+            threshold_n: 1.0,
+            accept_truncated: false,
+        }
+    }
 }
 
 /// What became of the ties over a recording.
@@ -235,9 +282,29 @@ fn norm(v: &Option<pb::Vec3>) -> f64 {
         .map_or(0.0, |v| (v.x * v.x + v.y * v.y + v.z * v.z).sqrt())
 }
 
-/// Reads a recording and summarises it; `threshold_n` is the safe-force threshold.
+/// Reads a recording and summarises it; `threshold_n` is the safe-force
+/// threshold. A truncated last entry is an error naming its byte offset.
 pub fn report(path: &Path, threshold_n: f64) -> anyhow::Result<Report> {
+    report_with(
+        path,
+        &Options {
+            threshold_n,
+            ..Default::default()
+        },
+    )
+}
+
+/// Reads a recording and summarises it.
+pub fn report_with(path: &Path, options: &Options) -> anyhow::Result<Report> {
+    let threshold_n = options.threshold_n;
     let rec = recording::read_recording(path)?;
+    if let (Some(at), false) = (rec.truncated_at, options.accept_truncated) {
+        anyhow::bail!(
+            "{}: the recording is truncated: its last entry, at byte {at}, is cut short \
+             (the recorder stopped mid-write); `--accept-truncated` reports the entries before it",
+            path.display()
+        );
+    }
     let lost = rec.lost();
     let lost = LostEntries {
         poses: lost.poses,
@@ -253,18 +320,27 @@ pub fn report(path: &Path, threshold_n: f64) -> anyhow::Result<Report> {
     let mut ties: Option<TieReport> = None;
     let mut forces: BTreeMap<String, Vec<pb::ForceSample>> = BTreeMap::new();
     let mut poses: BTreeMap<String, Vec<pb::PoseSample>> = BTreeMap::new();
+    let mut assessor = assess::Assessor::new(Default::default(), false);
+    let mut traces = Traces::default();
     for e in rec.entries {
         match e.entry {
             Some(pb::recording_entry::Entry::Header(h)) => {
-                scene = h.scene.map(|s| s.name).unwrap_or_default()
+                let (thresholds, from_scene) = assess::thresholds(h.scene.as_ref());
+                assessor = assess::Assessor::new(thresholds, from_scene);
+                scene = h.scene.as_ref().map(|s| s.name.clone()).unwrap_or_default();
+                traces.scene = h.scene;
+                traces.surface = h.surface;
             }
             Some(pb::recording_entry::Entry::Pose(p)) => {
                 poses.entry(p.instrument).or_default().extend(p.pose);
             }
             Some(pb::recording_entry::Entry::Force(f)) => {
+                if let Some(s) = &f.sample {
+                    assessor.force(&f.instrument, s);
+                }
                 forces.entry(f.instrument).or_default().extend(f.sample);
             }
-            Some(pb::recording_entry::Entry::Frame(f)) => {
+            Some(pb::recording_entry::Entry::Frame(mut f)) => {
                 frames += 1;
                 if let Some(m) = MotionReport::of(&f) {
                     if motion.is_none_or(|best| m.max_displacement_m > best.max_displacement_m) {
@@ -277,6 +353,8 @@ pub fn report(path: &Path, threshold_n: f64) -> anyhow::Result<Report> {
                 if let Some(t) = &f.ties {
                     TieReport::add(&mut ties, t);
                 }
+                assessor.frame(&f);
+                traces.add_frame(&mut f);
             }
             // Gaps are in `rec.gaps`; `None`: a member of a later version.
             Some(pb::recording_entry::Entry::Gap(_)) | None => {}
@@ -332,7 +410,15 @@ pub fn report(path: &Path, threshold_n: f64) -> anyhow::Result<Report> {
                 .sum();
         }
         instruments.push(r);
+        traces.force.push((
+            name.clone(),
+            samples.iter().map(|s| [s.t_s, norm(&s.force_n)]).collect(),
+        ));
     }
+    let peaks: Vec<(String, f64)> = instruments
+        .iter()
+        .map(|i| (i.instrument.clone(), i.peak_force_n))
+        .collect();
     Ok(Report {
         scene,
         duration_s: if t_max >= t_min { t_max - t_min } else { 0.0 },
@@ -344,7 +430,86 @@ pub fn report(path: &Path, threshold_n: f64) -> anyhow::Result<Report> {
         instruments,
         motion,
         ties,
+        assessment: assessor.finish(&peaks, threshold_n),
+        traces,
     })
+}
+
+impl Traces {
+    /// Takes what the page draws of frame `f` (its strain picture moves
+    /// into [`Traces::worst`] when it is the worst so far).
+    fn add_frame(&mut self, f: &mut pb::DeformationFrame) {
+        let t = f.sim_time_s;
+        for (k, r) in f.instruments.iter().enumerate() {
+            if self.pressure.len() <= k {
+                self.pressure.push((r.name.clone(), Vec::new()));
+            }
+            let p = r.pressure.as_ref().map_or(0.0, |p| p.mean_pa);
+            self.pressure[k].1.push([t, p]);
+        }
+        let Some(strain) = f.strain.as_mut() else {
+            return;
+        };
+        self.strain.push([t, strain.max_principal]);
+        let worst = self
+            .worst
+            .as_ref()
+            .and_then(|w| w.strain.as_ref())
+            .map_or(f64::NEG_INFINITY, |s| s.max_principal);
+        if strain.max_principal > worst {
+            if let Some(picture) = strain.picture.take() {
+                let mut w = f.clone();
+                w.positions_m = picture.positions_m.clone();
+                if let Some(s) = w.strain.as_mut() {
+                    s.picture = Some(picture);
+                }
+                self.worst = Some(w);
+            }
+        }
+    }
+}
+
+/// `fissure report`: reads `file` (and `compare`, an expert's session to
+/// put beside it), and gives the text to print: the tables, or with `json`
+/// the JSON (`{"session", "beside"}` with `compare`). With `html`, writes the
+/// page there, only once both recordings have been read (a bad file leaves
+/// any page already there as it was).
+pub fn command(
+    file: &Path,
+    options: &Options,
+    json: bool,
+    html: Option<&Path>,
+    compare: Option<&Path>,
+) -> anyhow::Result<String> {
+    let r = report_with(file, options)?;
+    let other = compare.map(|c| report_with(c, options)).transpose()?;
+    let mut out = if json {
+        let value = match &other {
+            Some(o) => serde_json::json!({ "session": r, "beside": o }),
+            None => serde_json::to_value(&r)?,
+        };
+        serde_json::to_string_pretty(&value)? + "\n"
+    } else {
+        let mut s = table(&r);
+        if let (Some(o), Some(c)) = (&other, compare) {
+            s.push_str(&format!("\nbeside it, {}:\n\n", c.display()));
+            s.push_str(&table(o));
+        }
+        s
+    };
+    if let Some(page) = html {
+        let beside = compare.map(|c| c.display().to_string());
+        html::write(
+            page,
+            &r,
+            &file.display().to_string(),
+            other.as_ref().zip(beside.as_deref()),
+        )?;
+        if !json {
+            out.push_str(&format!("\npage written: {}\n", page.display()));
+        }
+    }
+    Ok(out)
 }
 
 /// The trajectories of a recording, per instrument (the accepted poses).
@@ -439,6 +604,50 @@ pub fn table(r: &Report) -> String {
         s.push('\n');
         s.push_str(&t.lines());
     }
+    s.push_str(&assessment_lines(&r.assessment));
+    s
+}
+
+/// The assessment as text: the scores, then the events.
+pub fn assessment_lines(a: &assess::Assessment) -> String {
+    let mut s = format!(
+        "\nassessment (thresholds: {}): {}\n",
+        if a.thresholds_from_scene {
+            "the scene's"
+        } else {
+            "the defaults; the recording carries none"
+        },
+        a.grade.map_or("nothing scored", |g| g.name())
+    );
+    s.push_str(&format!(
+        "{:<40} {:<10} {:>26} {:>6} {:>26} {:>26}\n",
+        "measure", "instrument", "value", "grade", "warns at", "fails at"
+    ));
+    for m in &a.scores {
+        s.push_str(&format!(
+            "{:<40} {:<10} {:>26} {:>6} {:>26} {:>26}\n",
+            m.measure,
+            m.instrument.as_deref().unwrap_or("-"),
+            m.shown(m.value),
+            m.grade.name(),
+            m.shown(m.levels.warn),
+            m.shown(m.levels.fail),
+        ));
+    }
+    if a.events.is_empty() {
+        s.push_str("events: none\n");
+    } else {
+        s.push_str("events:\n");
+        for e in &a.events {
+            s.push_str(&format!(
+                "  t = {:>8.3} s  {:<10} {}{}\n",
+                e.t_s,
+                e.instrument,
+                e.what,
+                if e.injury { " (an injury)" } else { "" }
+            ));
+        }
+    }
     s
 }
 
@@ -467,6 +676,7 @@ mod tests {
                     ..Default::default()
                 }),
                 started_unix_s: 0.0,
+                surface: None,
             }),
         );
         for &k in seqs {
@@ -557,6 +767,7 @@ mod tests {
                     ..Default::default()
                 }),
                 started_unix_s: 0.0,
+                surface: None,
             }),
         );
         put(&mut file, frame(0, (10, 2), vec![]));
