@@ -19,6 +19,10 @@ pub const FORCE_LEN: usize = 112;
 pub const TIE_MAGIC: [u8; 4] = *b"FST1";
 /// Length of a binary tie datagram, bytes.
 pub const TIE_LEN: usize = 64;
+/// Magic of a binary assessment alert datagram.
+pub const ALERT_MAGIC: [u8; 4] = *b"FSA1";
+/// Length of a binary assessment alert datagram, bytes.
+pub const ALERT_LEN: usize = 32;
 /// Largest datagram read, bytes (longer ones are refused).
 pub const MAX_DATAGRAM: usize = 1024;
 
@@ -457,6 +461,109 @@ pub fn encode_tie_json(n: &super::ties::TieNotice, out: &mut Vec<u8>) -> std::io
     writeln!(out, "}}")
 }
 
+/// A measure of the assessment reaching a level, as a binary datagram
+/// ([`ALERT_LEN`] bytes; layout in the module above).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AlertDatagram {
+    /// 1 warn, 2 fail.
+    pub grade: u8,
+    /// 1 mean retraction pressure (Pa), 2 time above the warning pressure
+    /// (s), 3 pressure-time product (Pa s), 4 principal strain, 5 tissue
+    /// volume above the warning strain (m^3); 0 another.
+    pub measure: u8,
+    /// Index of the instrument among the bridged ones (255: the tissue's,
+    /// or not bridged).
+    pub instrument: u8,
+    /// Simulation time, s.
+    pub t_s: f64,
+    /// The value, SI.
+    pub value: f64,
+    /// The level reached, SI.
+    pub level: f64,
+}
+
+impl AlertDatagram {
+    /// The datagram of `a`, its instrument at `instrument` of the bridged
+    /// ones.
+    pub fn of(a: &crate::report::assess::Alert, instrument: Option<usize>) -> Self {
+        use fissure_proto::assessment::Grade;
+        Self {
+            grade: match a.grade {
+                Grade::Fail => 2,
+                Grade::Warn => 1,
+                Grade::Pass => 0,
+            },
+            measure: match a.measure {
+                "mean retraction pressure" => 1,
+                "time above the warning pressure" => 2,
+                "pressure-time product" => 3,
+                "principal strain" => 4,
+                "tissue volume above the warning strain" => 5,
+                _ => 0,
+            },
+            instrument: instrument.and_then(|i| u8::try_from(i).ok()).unwrap_or(255),
+            t_s: a.t_s,
+            value: a.value,
+            level: a.level,
+        }
+    }
+}
+
+/// Encodes a binary alert datagram into `out`.
+pub fn encode_alert(a: &AlertDatagram, out: &mut [u8; ALERT_LEN]) {
+    out.fill(0);
+    out[0..4].copy_from_slice(&ALERT_MAGIC);
+    out[4] = VERSION;
+    out[5] = a.grade;
+    out[6] = a.measure;
+    out[7] = a.instrument;
+    out[8..16].copy_from_slice(&a.t_s.to_le_bytes());
+    out[16..24].copy_from_slice(&a.value.to_le_bytes());
+    out[24..32].copy_from_slice(&a.level.to_le_bytes());
+}
+
+/// Decodes a binary alert datagram (`None` when it is not one).
+pub fn decode_alert(b: &[u8]) -> Option<AlertDatagram> {
+    if b.len() != ALERT_LEN || b[0..4] != ALERT_MAGIC || b[4] != VERSION {
+        return None;
+    }
+    Some(AlertDatagram {
+        grade: b[5],
+        measure: b[6],
+        instrument: b[7],
+        t_s: f64_at(b, 8),
+        value: f64_at(b, 16),
+        level: f64_at(b, 24),
+    })
+}
+
+/// Writes the JSON line of an alert into `out` (cleared first):
+/// `{"event":"assessment","grade":"warn","measure":"mean retraction pressure","instrument":"left","t_s":1.25,"value":2700.0,"level":2666.4,"unit":"Pa"}`
+/// (`"instrument"` absent for the tissue's measures).
+pub fn encode_alert_json(
+    a: &crate::report::assess::Alert,
+    out: &mut Vec<u8>,
+) -> std::io::Result<()> {
+    out.clear();
+    write!(
+        out,
+        "{{\"event\":\"assessment\",\"grade\":\"{}\",\"measure\":",
+        a.grade.name()
+    )?;
+    write_json_str(out, a.measure)?;
+    if let Some(i) = &a.instrument {
+        write!(out, ",\"instrument\":")?;
+        write_json_str(out, i)?;
+    }
+    write!(
+        out,
+        ",\"t_s\":{},\"value\":{:e},\"level\":{:e},\"unit\":",
+        a.t_s, a.value, a.level
+    )?;
+    write_json_str(out, a.unit)?;
+    writeln!(out, "}}")
+}
+
 fn write_json_str(out: &mut Vec<u8>, s: &str) -> std::io::Result<()> {
     out.push(b'"');
     for c in s.chars() {
@@ -854,5 +961,35 @@ mod tests {
         assert_eq!(v["status"], "ok");
         assert_eq!(v["message"], "bad\nquat");
         assert_eq!(*json.last().unwrap(), b'\n');
+    }
+
+    /// An alert round-trips through its binary layout, and its JSON line
+    /// parses with the fields named.
+    #[test]
+    fn an_alert_round_trips_and_its_json_line_parses() {
+        use fissure_proto::assessment::Grade;
+        let alert = crate::report::assess::Alert {
+            t_s: 1.25,
+            measure: "mean retraction pressure",
+            instrument: Some("left".into()),
+            value: 2700.0,
+            unit: "Pa",
+            grade: Grade::Warn,
+            level: 2666.4,
+        };
+        let d = AlertDatagram::of(&alert, Some(0));
+        let mut b = [0u8; ALERT_LEN];
+        encode_alert(&d, &mut b);
+        assert_eq!(&b[0..4], b"FSA1");
+        assert_eq!(decode_alert(&b), Some(d));
+        assert_eq!((d.grade, d.measure, d.instrument), (1, 1, 0));
+        assert_eq!(decode_alert(&b[..ALERT_LEN - 1]), None);
+        let mut json = Vec::new();
+        encode_alert_json(&alert, &mut json).unwrap();
+        let v: serde_json::Value = serde_json::from_slice(&json).unwrap();
+        assert_eq!(v["event"], "assessment");
+        assert_eq!(v["grade"], "warn");
+        assert_eq!(v["instrument"], "left");
+        assert_eq!(v["value"], 2700.0);
     }
 }

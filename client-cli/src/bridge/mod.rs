@@ -65,6 +65,24 @@
 //! A torn vessel (kind 2, cause 2) is an injury; the force samples of the
 //! instrument that tore it also carry `SAFETY_FLAG_VESSEL_TORN`.
 //!
+//! **Binary assessment alert** (`fissure bridge --assess-events`),
+//! [`ALERT_LEN`] = 32 bytes, sent to every device that has sent a pose
+//! (binary ones) when a measure of the assessment (`fissure report`: the
+//! retraction pressure, the tissue's strain) first reaches its warning
+//! level and its failing level, so that a device program can warn the
+//! trainee during the session:
+//!
+//! | offset | type      | field                                                  |
+//! |-------:|-----------|--------------------------------------------------------|
+//! | 0      | [u8; 4]   | magic `b"FSA1"`                                        |
+//! | 4      | u8        | version = 1                                            |
+//! | 5      | u8        | level reached: 1 warn, 2 fail                          |
+//! | 6      | u8        | measure: 1 mean retraction pressure (Pa), 2 time above the warning pressure (s), 3 pressure-time product (Pa s), 4 principal strain, 5 tissue volume above the warning strain (m^3) |
+//! | 7      | u8        | instrument index; 255: the tissue's measure            |
+//! | 8      | f64       | simulation time of the step, s                         |
+//! | 16     | f64       | the value (SI)                                         |
+//! | 24     | f64       | the level it reached (SI)                              |
+//!
 //! **JSON** (one object per datagram, a trailing newline allowed): a
 //! datagram whose first non-blank byte is `{` is read as
 //! `{"instrument": "left", "seq": 7, "t_s": 0.007, "p": [x, y, z],
@@ -75,7 +93,8 @@
 //! `"not-forwarded"`. A tie event to a JSON device is one line:
 //! `{"event":"tie","tie":4,"cause":"cut","kind":"trabecula","instrument":"blade","t_s":1.25,"p":[..],"strain":0.125}`
 //! (`"cause"` `"cut"`, `"torn"` or `"released"`, the last with no more
-//! fields).
+//! fields). An assessment alert to a JSON device is one line:
+//! `{"event":"assessment","grade":"warn","measure":"mean retraction pressure","instrument":"left","t_s":1.25,"value":2.7e3,"level":2.666e3,"unit":"Pa"}`.
 //!
 //! Datagrams that do not parse, and any over [`MAX_DATAGRAM`] bytes, are
 //! dropped and counted ([`parse_datagram`] names what is wrong; it never
@@ -129,6 +148,8 @@ pub struct Counters {
     pub rejected: AtomicU64,
     /// Tie datagrams sent (one per tie and device).
     pub tie_events: AtomicU64,
+    /// Assessment alert datagrams sent (one per alert and device).
+    pub assess_events: AtomicU64,
 }
 
 /// A snapshot of [`Counters`].
@@ -148,6 +169,8 @@ pub struct BridgeStats {
     pub rejected: u64,
     /// Tie datagrams sent (one per tie and device).
     pub tie_events: u64,
+    /// Assessment alert datagrams sent (one per alert and device).
+    pub assess_events: u64,
 }
 
 impl Counters {
@@ -161,6 +184,7 @@ impl Counters {
             answered: l(&self.answered),
             rejected: l(&self.rejected),
             tie_events: l(&self.tie_events),
+            assess_events: l(&self.assess_events),
         }
     }
 }
@@ -206,6 +230,13 @@ pub struct BridgeArgs {
     /// format (binary b"FST1" or a JSON line; module documentation).
     #[arg(long)]
     pub tie_events: bool,
+    /// UDP: send every device that has sent a pose a datagram when a
+    /// measure of the assessment (retraction pressure, tissue strain) first
+    /// reaches its warning and its failing level (the scene's
+    /// `[assessment]`), in the device's format (binary b"FSA1" or a JSON
+    /// line; module documentation).
+    #[arg(long)]
+    pub assess_events: bool,
     /// Speak OpenIGTLink instead of UDP: listen for peers (3D Slicer's
     /// OpenIGTLinkIF as a client, ...) on this TCP address (default
     /// 127.0.0.1:18944, loopback only).
@@ -233,7 +264,9 @@ pub struct BridgeArgs {
     /// Device name of the deformed surface's POLYDATA messages.
     #[arg(long, default_value = "fissure_surface", help_heading = "OpenIGTLink")]
     pub igtl_surface_device: String,
-    /// Send no surface (no POLYDATA, no Watch subscription).
+    /// Send no surface (no POLYDATA; the bridge still watches the frames
+    /// for the ties' and the assessment's STATUS messages unless
+    /// `--igtl-no-ties` and `--igtl-no-assess` are given too).
     #[arg(long, help_heading = "OpenIGTLink")]
     pub igtl_no_surface: bool,
     /// Send the triangles with every POLYDATA, not only with a peer's first.
@@ -246,6 +279,14 @@ pub struct BridgeArgs {
     /// Send no tie STATUS messages.
     #[arg(long, help_heading = "OpenIGTLink")]
     pub igtl_no_ties: bool,
+    /// Device name of the STATUS messages announcing a measure of the
+    /// assessment (retraction pressure, tissue strain) reaching its warning
+    /// level (`ASSESS_WARN`) or its failing level (`ASSESS_FAIL`).
+    #[arg(long, default_value = "fissure_assess", help_heading = "OpenIGTLink")]
+    pub igtl_assess_device: String,
+    /// Send no assessment STATUS messages.
+    #[arg(long, help_heading = "OpenIGTLink")]
+    pub igtl_no_assess: bool,
 }
 
 impl BridgeArgs {
@@ -268,6 +309,11 @@ impl BridgeArgs {
                     self.igtl_ties_device != "fissure_ties",
                 ),
                 ("--igtl-no-ties", self.igtl_no_ties),
+                (
+                    "--igtl-assess-device",
+                    self.igtl_assess_device != "fissure_assess",
+                ),
+                ("--igtl-no-assess", self.igtl_no_assess),
             ];
             if let Some((flag, _)) = given.iter().find(|(_, g)| *g) {
                 bail!(
@@ -292,6 +338,7 @@ impl BridgeArgs {
             surface_device: (!self.igtl_no_surface).then(|| self.igtl_surface_device.clone()),
             topology_every: self.igtl_topology_every,
             ties_device: (!self.igtl_no_ties).then(|| self.igtl_ties_device.clone()),
+            assess_device: (!self.igtl_no_assess).then(|| self.igtl_assess_device.clone()),
         }))
     }
 }
@@ -302,6 +349,9 @@ pub struct UdpOptions {
     /// Send every device that has sent a pose a datagram per tie cut or
     /// torn (scenes with ties), in the device's format.
     pub tie_events: bool,
+    /// Send every device that has sent a pose a datagram when a measure of
+    /// the assessment first reaches its warning or its failing level.
+    pub assess_events: bool,
 }
 
 impl Bridge {
@@ -341,30 +391,46 @@ impl Bridge {
         })
         .await?;
         let (stop, stopped) = tokio::sync::watch::channel(false);
-        // Devices to tell of ties cut or torn (address and format), when
-        // asked and the scene has ties.
-        let recipients: Option<Recipients> =
-            if options.tie_events && ties::scene_has_ties(&mut client).await? {
-                let frames = client
-                    .watch(pb::WatchRequest {
-                        include_positions: false,
-                    })
-                    .await
-                    .context("Watch")?
-                    .into_inner();
-                let r = Recipients::default();
-                tokio::spawn(tie_loop(
-                    frames,
-                    socket.clone(),
-                    r.clone(),
-                    names.clone(),
-                    counters.clone(),
-                    stopped.clone(),
-                ));
-                Some(r)
-            } else {
-                None
-            };
+        // Devices to tell of ties cut or torn and of the assessment's
+        // alerts (address and format), when asked (ties: when the scene has
+        // them).
+        let ties = options.tie_events && ties::scene_has_ties(&mut client).await?;
+        let alerts = if options.assess_events {
+            let scene = client
+                .get_scene(pb::GetSceneRequest {})
+                .await
+                .context("GetScene")?
+                .into_inner();
+            let (thresholds, _) = crate::report::assess::thresholds(Some(&scene));
+            Some(crate::report::assess::LiveAlerts::new(thresholds))
+        } else {
+            None
+        };
+        let recipients: Option<Recipients> = if ties || alerts.is_some() {
+            let frames = client
+                .watch(pb::WatchRequest {
+                    include_positions: false,
+                })
+                .await
+                .context("Watch")?
+                .into_inner();
+            let r = Recipients::default();
+            tokio::spawn(event_loop(
+                frames,
+                EventSinks {
+                    socket: socket.clone(),
+                    recipients: r.clone(),
+                    names: names.clone(),
+                    counters: counters.clone(),
+                },
+                ties,
+                alerts,
+                stopped.clone(),
+            ));
+            Some(r)
+        } else {
+            None
+        };
         let task = tokio::spawn(serve(lanes, socket, counters.clone(), recipients, stopped));
         Ok(Self {
             local_addr,
@@ -517,21 +583,49 @@ impl Recipients {
     }
 }
 
-/// Reads the deformation frames and sends every device that has sent a
-/// pose a datagram per tie cut or torn ([`ties::TieNotices`]), in the
-/// device's format; `names` are the bridged instruments (their index goes
-/// into the binary datagram).
-async fn tie_loop(
-    mut frames: tonic::Streaming<pb::DeformationFrame>,
+/// Where [`event_loop`] sends: the bridge's socket, to its recipients, with
+/// the bridged instruments' names (for their indices).
+struct EventSinks {
     socket: Arc<UdpSocket>,
     recipients: Recipients,
     names: Vec<String>,
     counters: Arc<Counters>,
+}
+
+impl EventSinks {
+    /// Sends `bin` to the binary recipients and `json` to the JSON ones;
+    /// counts each datagram sent in `sent`.
+    async fn send(&self, bin: &[u8], json: &[u8], sent: &AtomicU64, what: &str) {
+        for (to, format) in self.recipients.list() {
+            let bytes: &[u8] = match format {
+                Format::Binary => bin,
+                Format::Json => json,
+            };
+            match self.socket.send_to(bytes, to).await {
+                Ok(_) => {
+                    sent.fetch_add(1, Ordering::Relaxed);
+                }
+                Err(e) => tracing::warn!("{what} to {to}: {e}"),
+            }
+        }
+    }
+}
+
+/// Reads deformation frames and tells every recipient of each tie cut or
+/// torn (with `ties`) and of each measure of the assessment reaching a
+/// level (with `alerts`).
+async fn event_loop(
+    mut frames: tonic::Streaming<pb::DeformationFrame>,
+    sinks: EventSinks,
+    ties: bool,
+    mut alerts: Option<crate::report::assess::LiveAlerts>,
     mut stopped: tokio::sync::watch::Receiver<bool>,
 ) {
     let mut notices = ties::TieNotices::default();
     let mut bin = [0u8; TIE_LEN];
+    let mut alert_bin = [0u8; ALERT_LEN];
     let mut json = Vec::new();
+    let index = |name: &str| sinks.names.iter().position(|x| x == name);
     loop {
         let frame = tokio::select! {
             f = frames.message() => f,
@@ -541,28 +635,35 @@ async fn tie_loop(
             Ok(Some(f)) => f,
             Ok(None) => return,
             Err(e) => {
-                tracing::warn!("UDP bridge: the watch stream for tie events ended: {e}");
+                tracing::warn!("UDP bridge: the watch stream for events ended: {e}");
                 return;
             }
         };
-        let Some(summary) = &f.ties else { continue };
-        for n in notices.of(summary) {
-            let index = names.iter().position(|x| *x == n.instrument);
-            encode_tie(&TieDatagram::of(&n, index), &mut bin);
-            if encode_tie_json(&n, &mut json).is_err() {
-                continue;
-            }
-            for (to, format) in recipients.list() {
-                let bytes: &[u8] = match format {
-                    Format::Binary => &bin,
-                    Format::Json => &json,
-                };
-                match socket.send_to(bytes, to).await {
-                    Ok(_) => {
-                        counters.tie_events.fetch_add(1, Ordering::Relaxed);
-                    }
-                    Err(e) => tracing::warn!("tie event to {to}: {e}"),
+        if let Some(live) = alerts.as_mut() {
+            for a in live.frame(&f) {
+                let i = a.instrument.as_deref().and_then(index);
+                encode_alert(&AlertDatagram::of(&a, i), &mut alert_bin);
+                if encode_alert_json(&a, &mut json).is_ok() {
+                    sinks
+                        .send(
+                            &alert_bin,
+                            &json,
+                            &sinks.counters.assess_events,
+                            "assessment alert",
+                        )
+                        .await;
                 }
+            }
+        }
+        let Some(summary) = f.ties.as_ref().filter(|_| ties) else {
+            continue;
+        };
+        for n in notices.of(summary) {
+            encode_tie(&TieDatagram::of(&n, index(&n.instrument)), &mut bin);
+            if encode_tie_json(&n, &mut json).is_ok() {
+                sinks
+                    .send(&bin, &json, &sinks.counters.tie_events, "tie event")
+                    .await;
             }
         }
     }
@@ -707,6 +808,7 @@ async fn run_udp(args: &BridgeArgs) -> anyhow::Result<BridgeStats> {
         args.token.as_deref(),
         UdpOptions {
             tie_events: args.tie_events,
+            assess_events: args.assess_events,
         },
     )
     .await?;
@@ -727,14 +829,15 @@ async fn run_udp(args: &BridgeArgs) -> anyhow::Result<BridgeStats> {
     }
     let stats = bridge.stop().await?;
     eprintln!(
-        "datagrams received {}, bad {}, poses forwarded {}, not forwarded {}, rejected by the server {}, answers sent {}, tie events sent {}",
+        "datagrams received {}, bad {}, poses forwarded {}, not forwarded {}, rejected by the server {}, answers sent {}, tie events sent {}, assessment alerts sent {}",
         stats.received,
         stats.bad,
         stats.forwarded,
         stats.not_forwarded,
         stats.rejected,
         stats.answered,
-        stats.tie_events
+        stats.tie_events,
+        stats.assess_events
     );
     Ok(stats)
 }

@@ -400,6 +400,130 @@ impl Assessor {
     }
 }
 
+/// A measure reaching a level during a session: what a live watcher or a
+/// bridge tells the trainee.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Alert {
+    /// Simulation time of the frame, s.
+    pub t_s: f64,
+    /// What is measured.
+    pub measure: &'static str,
+    /// The instrument (none: the tissue).
+    pub instrument: Option<String>,
+    /// The value, SI (`unit`).
+    pub value: f64,
+    /// The SI unit.
+    pub unit: &'static str,
+    /// The level reached: `warn` or `fail`.
+    pub grade: Grade,
+    /// That level's value, SI.
+    pub level: f64,
+}
+
+impl Alert {
+    /// One line: `t = 1.230 s: left: mean retraction pressure 21.4 mmHg
+    /// (2.85 kPa) reached warn (20.0 mmHg (2.67 kPa))`.
+    pub fn line(&self) -> String {
+        let shown = Score::new(self.measure, None, self.value, self.unit, warn_only(1.0));
+        let who = self
+            .instrument
+            .as_deref()
+            .map_or(String::new(), |i| format!("{i}: "));
+        format!(
+            "t = {:.3} s: {who}{} {} reached {} ({})",
+            self.t_s,
+            self.measure,
+            shown.shown(self.value),
+            self.grade.name(),
+            shown.shown(self.level)
+        )
+    }
+}
+
+/// Reads a session's frames as they come and says when a measure first
+/// reaches its warning level, then its failing level (once each per
+/// measure and instrument; a reset of the session does not repeat them).
+#[derive(Debug, Clone, Default)]
+pub struct LiveAlerts {
+    thresholds: AssessmentSpec,
+    reached: std::collections::BTreeMap<(&'static str, Option<String>), Grade>,
+}
+
+impl LiveAlerts {
+    /// Alerts against `thresholds`.
+    pub fn new(thresholds: AssessmentSpec) -> Self {
+        Self {
+            thresholds,
+            reached: Default::default(),
+        }
+    }
+
+    /// The alerts of frame `f`.
+    pub fn frame(&mut self, f: &pb::DeformationFrame) -> Vec<Alert> {
+        let th = self.thresholds;
+        let mut values: Vec<(&'static str, Option<String>, f64, &'static str, Levels)> = Vec::new();
+        for r in &f.instruments {
+            if let Some(p) = &r.pressure {
+                let i = Some(r.name.clone());
+                values.push((
+                    "mean retraction pressure",
+                    i.clone(),
+                    p.mean_pa,
+                    "Pa",
+                    th.pressure_pa,
+                ));
+                values.push((
+                    "time above the warning pressure",
+                    i.clone(),
+                    p.time_above_s,
+                    "s",
+                    th.time_above_s,
+                ));
+                values.push((
+                    "pressure-time product",
+                    i,
+                    p.pressure_time_pa_s,
+                    "Pa s",
+                    th.pressure_time_pa_s,
+                ));
+            }
+        }
+        if let Some(s) = &f.strain {
+            values.push(("principal strain", None, s.max_principal, "", th.strain));
+            values.push((
+                "tissue volume above the warning strain",
+                None,
+                s.volume_above_m3,
+                "m^3",
+                th.strained_volume_m3,
+            ));
+        }
+        let mut out = Vec::new();
+        for (measure, instrument, value, unit, levels) in values {
+            let grade = levels.grade(value);
+            let key = (measure, instrument.clone());
+            let before = self.reached.get(&key).copied().unwrap_or(Grade::Pass);
+            if grade > before {
+                self.reached.insert(key, grade);
+                out.push(Alert {
+                    t_s: f.sim_time_s,
+                    measure,
+                    instrument,
+                    value,
+                    unit,
+                    grade,
+                    level: if grade == Grade::Fail {
+                        levels.fail
+                    } else {
+                        levels.warn
+                    },
+                });
+            }
+        }
+        out
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -477,5 +601,40 @@ mod tests {
         assert_eq!(r.safety.force_clamped, 3);
         let times: Vec<f64> = r.events.iter().map(|e| e.t_s).collect();
         assert_eq!(times, [1e-3, 4e-3]);
+    }
+
+    /// Each measure alerts once at its warning level and once at its
+    /// failing level, whatever comes after.
+    #[test]
+    fn a_measure_alerts_once_per_level() {
+        let mut live = LiveAlerts::new(AssessmentSpec::default());
+        let grades = |live: &mut LiveAlerts, f: &pb::DeformationFrame| {
+            live.frame(f)
+                .iter()
+                .map(|a| (a.measure, a.grade))
+                .collect::<Vec<_>>()
+        };
+        assert!(grades(&mut live, &frame(0.0, 100.0, 0.0, 0.0, 0.01)).is_empty());
+        assert_eq!(
+            grades(&mut live, &frame(0.1, 3000.0, 0.0, 0.0, 0.15)),
+            [
+                ("mean retraction pressure", Grade::Warn),
+                ("principal strain", Grade::Warn),
+                ("tissue volume above the warning strain", Grade::Warn)
+            ]
+        );
+        assert!(grades(&mut live, &frame(0.2, 3100.0, 0.1, 0.0, 0.16)).is_empty());
+        assert_eq!(
+            grades(&mut live, &frame(0.3, 4500.0, 0.2, 0.0, 0.1)),
+            [("mean retraction pressure", Grade::Fail)]
+        );
+        let a = &live.frame(&frame(0.4, 0.0, 0.0, 0.0, 0.3))[0];
+        assert_eq!(a.grade, Grade::Fail);
+        assert!(
+            a.line()
+                .contains("principal strain 0.300 reached fail (0.210)"),
+            "{}",
+            a.line()
+        );
     }
 }

@@ -7,7 +7,11 @@
 //! * PNG images of the deformed surface coloured by displacement magnitude
 //!   (mm), with the spatulas as plates and their reaction forces as arrows
 //!   (`frame-NNNNNN.png`);
-//! * an animated GIF of the session (`session.gif`).
+//! * an animated GIF of the session (`session.gif`);
+//! * on the standard output, a line when a measure of the assessment (the
+//!   retraction pressure, the tissue's strain; [`crate::report::assess`])
+//!   first reaches its warning level and its failing level, and the scores
+//!   of the frames received at the end.
 //!
 //! The files are completed (the `.pvd` index, the last PNG, the GIF) however
 //! the stream ends: the server shutting down, the connection failing,
@@ -214,6 +218,9 @@ pub async fn run(args: &WatchArgs) -> anyhow::Result<WatchReport> {
         ended: WatchEnd::ServerEnded,
         files: Vec::new(),
     };
+    let (thresholds, _) = crate::report::assess::thresholds(Some(&scene));
+    let mut live = crate::report::assess::LiveAlerts::new(thresholds);
+    let mut assessor = crate::report::assess::Assessor::new(thresholds, true);
     let mut max_mm: f64 = 0.0;
     let mut last: Option<pb::DeformationFrame> = None;
     let mut times = Vec::new();
@@ -240,6 +247,12 @@ pub async fn run(args: &WatchArgs) -> anyhow::Result<WatchReport> {
             _ = &mut ctrl_c => { ended = Some(WatchEnd::Interrupted); None }
         };
         let Some(frame) = frame else { continue };
+        // Every frame received is assessed (the engine's sums make a
+        // skipped frame lose nothing but its own peak).
+        for alert in live.frame(&frame) {
+            println!("{}", alert.line());
+        }
+        assessor.frame(&frame);
         report.received += 1;
         report.frames = Some(match report.frames {
             None => (frame.frame, frame.frame),
@@ -317,6 +330,12 @@ pub async fn run(args: &WatchArgs) -> anyhow::Result<WatchReport> {
             },
         )?;
         report.files.push(path);
+    }
+    if report.received > 0 {
+        print!(
+            "{}",
+            crate::report::assessment_lines(&assessor.finish(&[], f64::INFINITY))
+        );
     }
     let span = report
         .frames

@@ -5,6 +5,13 @@
 //! 20 mm and lifted 5 mm in stepped mode over 400 poses (20 deformation
 //! steps); the weak ties tear as the wall lifts. The law: each tie the
 //! frames report torn comes once, as torn, and none twice.
+//!
+//! The same session's assessment alerts (the scene's `[assessment]` with
+//! a low pressure level, 50 Pa to warn and 500 Pa to fail, that the lift
+//! passes): the mean retraction pressure under the spatula is announced
+//! once at each level, warn before fail, with its value at or above the
+//! level (OpenIGTLink: STATUS `ASSESS_WARN` and `ASSESS_FAIL`, device
+//! `fissure_assess`; UDP with `--assess-events`: `b"FSA1"` datagrams).
 
 use fissure_cli::bridge::igtl::codec::{
     self, Body, HEADER_LEN, Transform, name_field, parse_message, s_to_timestamp,
@@ -12,7 +19,8 @@ use fissure_cli::bridge::igtl::codec::{
 };
 use fissure_cli::bridge::igtl::{IgtlBridge, IgtlOptions};
 use fissure_cli::bridge::{
-    Bridge, FORCE_LEN, TIE_LEN, UdpOptions, decode_force, decode_tie, encode_pose,
+    ALERT_LEN, Bridge, FORCE_LEN, TIE_LEN, UdpOptions, decode_alert, decode_force, decode_tie,
+    encode_pose,
 };
 use fissure_server::scene::Scene;
 use fissure_server::service::{RunningServer, ServeOptions, serve};
@@ -39,7 +47,7 @@ async fn start_server() -> anyhow::Result<Server> {
     let text = include_str!("../../../server/scenes/sylvian.toml").replace("paper-48k", "coarse");
     let cut = text.rfind("[[instrument]]").expect("two instruments");
     let text = format!(
-        "{}\n[[ties]]\nkind = \"trabecula\"\nregion = {{ landmark = \"sylvian-left\" }}\ndensity_per_mm2 = 0.2\nseed = 11\nstiffness_n_per_m = 0.5\nmax_gap_m = 0.010\nrupture_strain = 0.2\n",
+        "{}\n[[ties]]\nkind = \"trabecula\"\nregion = {{ landmark = \"sylvian-left\" }}\ndensity_per_mm2 = 0.2\nseed = 11\nstiffness_n_per_m = 0.5\nmax_gap_m = 0.010\nrupture_strain = 0.2\n\n[assessment]\npressure_pa = {{ warn = 50.0, fail = 500.0 }}\n",
         &text[..cut]
     );
     let scene = Scene::parse(&text, "test")?;
@@ -111,6 +119,7 @@ async fn torn_ties_reach_an_igtl_peer_as_status_messages() -> anyhow::Result<()>
     let bridge = IgtlBridge::start(&server.url, &["left".to_owned()], None, &options).await?;
     let mut s = TcpStream::connect(bridge.local_addr.expect("listening")).await?;
     let mut torn = Vec::new();
+    let mut alerts = Vec::new();
     for i in 1..=POSES {
         let pose = server.pose(i);
         let r = pose.rotation.to_rotation_matrix();
@@ -138,12 +147,23 @@ async fn torn_ties_reach_an_igtl_peer_as_status_messages() -> anyhow::Result<()>
                     assert!(st.message.starts_with("trabecula "), "{st:?}");
                     torn.push(u32::try_from(st.subcode)?);
                 }
+                Body::Status(st)
+                    if h.device() == "fissure_assess"
+                        && st.message.contains("mean retraction pressure") =>
+                {
+                    alerts.push((st.error_name.clone(), st.subcode));
+                }
                 Body::Sensor(_) if h.device() == "left_torque" => break,
                 _ => {}
             }
         }
     }
     once(&torn);
+    assert_eq!(
+        alerts,
+        [("ASSESS_WARN".to_owned(), 1), ("ASSESS_FAIL".to_owned(), 2)],
+        "the pressure's alerts"
+    );
     drop(s);
     bridge.stop().await?;
     server.stop().await
@@ -157,12 +177,17 @@ async fn torn_ties_reach_a_udp_device_as_tie_datagrams() -> anyhow::Result<()> {
         "127.0.0.1:0".parse()?,
         &[],
         None,
-        UdpOptions { tie_events: true },
+        UdpOptions {
+            tie_events: true,
+            assess_events: true,
+        },
     )
     .await?;
     let device = UdpSocket::bind("127.0.0.1:0").await?;
     device.connect(bridge.local_addr).await?;
     let mut torn = Vec::new();
+    let mut alerts = Vec::new();
+    let mut alert_count = 0u64;
     let mut buf = [0u8; 2048];
     for i in 1..=POSES {
         let pose = server.pose(i);
@@ -178,6 +203,14 @@ async fn torn_ties_reach_a_udp_device_as_tie_datagrams() -> anyhow::Result<()> {
                 assert_eq!((t.instrument, t.kind, t.cause), (0, 1, 2), "{t:?}");
                 assert!(t.strain >= 0.2 && t.t_s > 0.0, "{t:?}");
                 torn.push(t.tie);
+            } else if n == ALERT_LEN {
+                let a = decode_alert(&buf[..n]).expect("an alert datagram");
+                alert_count += 1;
+                assert!(a.value >= a.level && a.t_s > 0.0, "{a:?}");
+                if a.measure == 1 {
+                    assert_eq!(a.instrument, 0, "{a:?}");
+                    alerts.push(a.grade);
+                }
             } else if n == FORCE_LEN {
                 let f = decode_force(&buf[..n]).expect("a force datagram");
                 if f.sequence == i {
@@ -187,7 +220,9 @@ async fn torn_ties_reach_a_udp_device_as_tie_datagrams() -> anyhow::Result<()> {
         }
     }
     once(&torn);
+    assert_eq!(alerts, [1, 2], "the pressure's alerts: warn, then fail");
     let stats = bridge.stop().await?;
     assert_eq!(stats.tie_events, torn.len() as u64);
+    assert_eq!(stats.assess_events, alert_count);
     server.stop().await
 }

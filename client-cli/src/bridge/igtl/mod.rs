@@ -225,6 +225,9 @@ pub struct IgtlOptions {
     /// Device name of the ties' STATUS messages (scenes with ties); `None`:
     /// none.
     pub ties_device: Option<String>,
+    /// Device name of the STATUS messages of the assessment's alerts (a
+    /// measure reaching its warning or failing level); `None`: none.
+    pub assess_device: Option<String>,
 }
 
 impl Default for IgtlOptions {
@@ -237,6 +240,7 @@ impl Default for IgtlOptions {
             surface_device: Some("fissure_surface".to_owned()),
             topology_every: false,
             ties_device: Some("fissure_ties".to_owned()),
+            assess_device: Some("fissure_assess".to_owned()),
         }
     }
 }
@@ -630,6 +634,21 @@ impl IgtlBridge {
         };
         let (tie_tx, _) = tokio::sync::broadcast::channel(TIE_QUEUE);
         let has_ties = ties_device.is_some() && super::ties::scene_has_ties(&mut client).await?;
+        let assess = match &options.assess_device {
+            Some(d) => {
+                let device = name_field::<20>(d).with_context(|| {
+                    format!("--igtl-assess-device {d:?}: at most 20 printable ASCII characters")
+                })?;
+                let scene = client
+                    .get_scene(pb::GetSceneRequest {})
+                    .await
+                    .context("GetScene")?
+                    .into_inner();
+                let (thresholds, _) = crate::report::assess::thresholds(Some(&scene));
+                Some((device, crate::report::assess::LiveAlerts::new(thresholds)))
+            }
+            None => None,
+        };
         if surface_device.is_some() {
             let s = client
                 .get_surface(pb::GetSurfaceRequest {})
@@ -643,7 +662,7 @@ impl IgtlBridge {
                 .collect();
             topology = Cells::triangles(&tris);
         }
-        if surface_device.is_some() || has_ties {
+        if surface_device.is_some() || has_ties || assess.is_some() {
             let stream = client
                 .watch(pb::WatchRequest {
                     include_positions: surface_device.is_some(),
@@ -657,6 +676,7 @@ impl IgtlBridge {
                 FrameOutputs {
                     registration: options.registration,
                     ties_device: ties_device.filter(|_| has_ties),
+                    assess,
                     tie_statuses: tie_tx.clone(),
                     counters: counters.clone(),
                 },
@@ -735,17 +755,20 @@ pub const TIE_QUEUE: usize = 1024;
 struct FrameOutputs {
     registration: Registration,
     ties_device: Option<[u8; 20]>,
+    /// The assessment's device and its alerts.
+    assess: Option<([u8; 20], crate::report::assess::LiveAlerts)>,
     tie_statuses: tokio::sync::broadcast::Sender<Arc<Vec<u8>>>,
     counters: Arc<IgtlCounters>,
 }
 
 /// Reads deformation frames and publishes them, converted to the sender's
 /// frame, for the writers; with a ties device, each tie cut or torn as a
-/// STATUS to every peer.
+/// STATUS to every peer; with an assessment device, each measure reaching
+/// a level.
 async fn surface_loop(
     mut stream: tonic::Streaming<pb::DeformationFrame>,
     tx: tokio::sync::watch::Sender<Option<Arc<SurfaceFrame>>>,
-    out: FrameOutputs,
+    mut out: FrameOutputs,
     mut stopped: tokio::sync::watch::Receiver<bool>,
 ) {
     let registration = out.registration;
@@ -764,10 +787,23 @@ async fn surface_loop(
             }
         };
         out.counters.surface_frames.fetch_add(1, Ordering::Relaxed);
+        let now = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0.0, |d| d.as_secs_f64());
+        if let Some((device, live)) = out.assess.as_mut() {
+            for alert in live.frame(&f) {
+                let mut buf = Vec::new();
+                status_message(
+                    &mut buf,
+                    *device,
+                    codec::s_to_timestamp(now),
+                    &assess_status(&alert),
+                );
+                // No peer yet: nobody to tell.
+                let _ = out.tie_statuses.send(Arc::new(buf));
+            }
+        }
         if let (Some(device), Some(ties)) = (out.ties_device, &f.ties) {
-            let now = std::time::SystemTime::now()
-                .duration_since(std::time::UNIX_EPOCH)
-                .map_or(0.0, |d| d.as_secs_f64());
             for notice in notices.of(ties) {
                 let status = tie_status(&notice, &registration);
                 let mut buf = Vec::new();
@@ -788,6 +824,22 @@ async fn surface_loop(
             frame: f.frame,
             points,
         })));
+    }
+}
+
+/// The STATUS of an assessment alert: `ASSESS_WARN` (code OK, subcode 1)
+/// or `ASSESS_FAIL` (an error, subcode 2), the alert's line as text.
+pub fn assess_status(a: &crate::report::assess::Alert) -> StatusMsg {
+    use fissure_proto::assessment::Grade;
+    let (code, subcode, name) = match a.grade {
+        Grade::Fail => (status_code::UNKNOWN_ERROR, 2, "ASSESS_FAIL"),
+        _ => (status_code::OK, 1, "ASSESS_WARN"),
+    };
+    StatusMsg {
+        code,
+        subcode,
+        error_name: name.to_owned(),
+        message: a.line(),
     }
 }
 
