@@ -461,7 +461,7 @@ fn pictures(t: &Report, t_name: &str, e: Option<(&Report, &str)>) -> anyhow::Res
             None => {
                 let _ = writeln!(
                     h,
-                    "<p>{}: no strain picture in the recording (no frame strained the tissue by 0.001, or the recording predates pictures).</p>",
+                    "<p>{}: no strain picture in the recording (no frame strained the tissue by 0.01, or the recording predates pictures).</p>",
                     escape(name)
                 );
             }

@@ -16,7 +16,11 @@
 //!   beyond the face's outline is a candidate of a rim face (a side strip or
 //!   the tip) that covers it the same way, within the plate's thickness (or
 //!   the rim nodes' reach) behind it: the plate's edges push too, whether
-//!   or not the instrument has rim nodes;
+//!   or not the instrument has rim nodes. A rim face claims a vertex deeper
+//!   than the entry depth ([`super::contact::entry_depth_m`]: what the
+//!   plate travels in a step) behind it only where it pushed it last time:
+//!   deeper tissue came in through a large face, and the rim would push it
+//!   out across the plate's width;
 //! * **nearby** otherwise, when within [`DetectOptions::ahead_m`] of the
 //!   face's box (in front of it, or beside its outline): its compliance is
 //!   wanted soon.
@@ -174,7 +178,17 @@ pub(crate) fn candidates(
                 // push what lies beyond the face's outline; tissue under
                 // the outline between covered vertices is pushed at the
                 // polygon points of [`edges`]).
-                let mut covered = (fp.outside_m <= tol && fp.gap_m <= band).then_some((face, fp));
+                // A rim face (a side strip, the tip) meets tissue by moving
+                // sideways or forwards, at most the entry depth a step: a
+                // vertex deeper behind it that it did not push last time
+                // came in through a large face, and the rim would push it
+                // across the plate's width.
+                let rim_meets =
+                    |r: FaceId, gap: f64| gap >= -entry || tool.history.is_seed(r.index() as u8, v);
+                let mut covered = (fp.outside_m <= tol
+                    && fp.gap_m <= band
+                    && (matches!(face, FaceId::A | FaceId::B) || rim_meets(face, fp.gap_m)))
+                .then_some((face, fp));
                 if let (Some(solved), Some((f, p))) = (query.solved, covered) {
                     let large = matches!(f, FaceId::A | FaceId::B);
                     if large && !tool.history.is_seed(f.index() as u8, v) {
@@ -198,9 +212,17 @@ pub(crate) fn candidates(
                 if covered.is_none() && beside() {
                     covered = RIM.iter().filter(|&&r| r != face).find_map(|&r| {
                         let rp = inst.plate.project(r, &x);
+                        // On another shape than the solved one, the same
+                        // test on the solved position.
+                        let solved_gap = query.solved.map(|solved| {
+                            (tool.pose.rotation * rp.normal)
+                                .dot(&(solved[v as usize] - tool.pose * rp.point))
+                        });
                         (rp.outside_m <= tol
                             && rp.gap_m <= band
-                            && rp.gap_m >= -rim_reach[r.index()])
+                            && rp.gap_m >= -rim_reach[r.index()]
+                            && rim_meets(r, rp.gap_m)
+                            && solved_gap.is_none_or(|g| rim_meets(r, g)))
                         .then_some((r, rp))
                     });
                 }
@@ -252,7 +274,10 @@ pub(crate) fn candidates(
 ///   pushes does too: a step's answer does not jump with the choice of a
 ///   node;
 /// * on a curved face and on the rim faces, the deepest node's line meets
-///   the triangle at the candidate point.
+///   the triangle at the candidate point; a rim face's only within the
+///   entry depth ([`super::contact::entry_depth_m`]) behind it (deeper, the
+///   tissue came in through a large face, and the rim node's line crosses
+///   the plate's width to it).
 ///
 /// (Where covered vertices hold the triangle on the face, a point's gap is
 /// closed by them and its row stays inactive.)
@@ -358,6 +383,16 @@ fn edges(
                         }
                     }
                 }
+                continue;
+            }
+            // A rim face's point deeper behind it than the plate travels
+            // in a deformation interval did not meet that face: the plate
+            // moved into the tissue through a large face, and the rim
+            // node's line crosses the plate's width to it (a row on it
+            // would push the tissue out through the plate's other side).
+            if matches!(face, FaceId::SidePlusY | FaceId::SideMinusY | FaceId::Tip)
+                && p.t < -super::contact::entry_depth_m(band, inst.plate.thickness)
+            {
                 continue;
             }
             let g = first + p.node as usize;

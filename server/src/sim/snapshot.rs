@@ -76,7 +76,7 @@ pub struct Frame {
     /// The tissue's largest principal strain ([`super::injury`]).
     pub strain: super::injury::StrainMeasure,
     /// The strain as a picture, in the frames where the session's largest
-    /// strain grew by a tenth since the last picture (the worst frame's is
+    /// strain grew by a quarter since the last picture (the worst frame's is
     /// the last one sent).
     pub strain_picture: Option<Arc<super::injury::StrainPicture>>,
 }

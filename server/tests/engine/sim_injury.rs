@@ -10,7 +10,7 @@
 //!   pressure, retracting clears it, and the pressure-time product sums
 //!   the frames' held pressures;
 //! * a strain picture comes only when the session's worst strain grows by
-//!   a tenth.
+//!   a quarter.
 //!
 //! The strain of a stretched and turned tetrahedron against the analytic
 //! Green-Lagrange strain, and the closed-form eigenvalue against an
@@ -160,7 +160,7 @@ fn a_uniform_press_has_the_analytic_contact_pressure_and_strain() {
 }
 
 /// A picture comes with the first frame whose strain passes the floor,
-/// and again only when the session's largest strain grows by a tenth: none
+/// and again only when the session's largest strain grows by a quarter: none
 /// while a press is held, none for 5% deeper, some for twice as deep,
 /// none on retraction.
 #[test]
@@ -193,12 +193,12 @@ fn a_strain_picture_comes_when_the_worst_strain_grows() {
             "the picture's largest {top}, the frame's {}",
             f.strain.max_principal
         );
-        assert!(f.strain.max_principal >= 1.1 * last);
+        assert!(f.strain.max_principal >= 1.25 * last);
         last = f.strain.max_principal;
         when.push(f.sim_time_s);
     }
     let count = |a: f64, b: f64| when.iter().filter(|&&t| t > a && t <= b).count();
-    assert!(count(0.0, 0.1) >= 2, "pictures at {when:?}");
+    assert!(count(0.0, 0.1) >= 1, "pictures at {when:?}");
     assert_eq!(count(0.12, 0.3), 0, "pictures at {when:?}");
     assert!(count(0.3, 0.34) >= 1, "pictures at {when:?}");
     assert_eq!(count(0.4, 0.5), 0, "pictures at {when:?}");
