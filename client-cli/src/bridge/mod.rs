@@ -396,13 +396,7 @@ impl Bridge {
         // them).
         let ties = options.tie_events && ties::scene_has_ties(&mut client).await?;
         let alerts = if options.assess_events {
-            let scene = client
-                .get_scene(pb::GetSceneRequest {})
-                .await
-                .context("GetScene")?
-                .into_inner();
-            let (thresholds, _) = crate::report::assess::thresholds(Some(&scene));
-            Some(crate::report::assess::LiveAlerts::new(thresholds))
+            Some(live_alerts(&mut client).await?)
         } else {
             None
         };
@@ -581,6 +575,20 @@ impl Recipients {
         let m = self.0.lock().unwrap_or_else(|e| e.into_inner());
         m.iter().map(|(a, f)| (*a, *f)).collect()
     }
+}
+
+/// The assessment's live alerts against the server's scene's thresholds
+/// (both bridges tell their devices of them).
+pub(crate) async fn live_alerts(
+    client: &mut pb::fissure_client::FissureClient<tonic::transport::Channel>,
+) -> anyhow::Result<crate::report::assess::LiveAlerts> {
+    let scene = client
+        .get_scene(pb::GetSceneRequest {})
+        .await
+        .context("GetScene")?
+        .into_inner();
+    let (thresholds, _) = crate::report::assess::thresholds(Some(&scene));
+    Ok(crate::report::assess::LiveAlerts::new(thresholds))
 }
 
 /// Where [`event_loop`] sends: the bridge's socket, to its recipients, with

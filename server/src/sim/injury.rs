@@ -600,17 +600,22 @@ mod tests {
     use super::*;
     use nalgebra::{Rotation3, SymmetricEigen};
 
-    /// The closed form equals nalgebra's symmetric eigen-solver, on
-    /// random, diagonal, repeated and zero matrices.
-    #[test]
-    fn the_closed_form_eigenvalue_equals_an_iterative_solver() {
-        let mut seed = 7u64;
-        let mut next = || {
+    /// Numbers uniform in [-1, 1) from `seed` (a linear congruential
+    /// generator: reproducible, nothing to install).
+    fn uniform(mut seed: u64) -> impl FnMut() -> f64 {
+        move || {
             seed = seed
                 .wrapping_mul(6364136223846793005)
                 .wrapping_add(1442695040888963407);
             ((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
-        };
+        }
+    }
+
+    /// The closed form equals nalgebra's symmetric eigen-solver, on
+    /// random, diagonal, repeated and zero matrices.
+    #[test]
+    fn the_closed_form_eigenvalue_equals_an_iterative_solver() {
+        let mut next = uniform(7);
         let mut cases = vec![
             Matrix3::zeros(),
             Matrix3::identity() * 0.3,
@@ -680,13 +685,7 @@ mod tests {
         };
         let from_volume = vec![u32::MAX; mesh.nodes.len()];
         let g = InjuryGeometry::new(&mesh, &surface, &from_volume);
-        let mut seed = 11u64;
-        let mut next = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
-        };
+        let mut next = uniform(11);
         for scale in [1e-7, 1e-4, 1e-3, 5e-3] {
             // A smooth field plus noise at a few nodes: a hot spot.
             let u: Vec<Vector3<f64>> = mesh

@@ -639,13 +639,7 @@ impl IgtlBridge {
                 let device = name_field::<20>(d).with_context(|| {
                     format!("--igtl-assess-device {d:?}: at most 20 printable ASCII characters")
                 })?;
-                let scene = client
-                    .get_scene(pb::GetSceneRequest {})
-                    .await
-                    .context("GetScene")?
-                    .into_inner();
-                let (thresholds, _) = crate::report::assess::thresholds(Some(&scene));
-                Some((device, crate::report::assess::LiveAlerts::new(thresholds)))
+                Some((device, super::live_alerts(&mut client).await?))
             }
             None => None,
         };
