@@ -421,8 +421,9 @@ pub struct Alert {
 }
 
 impl Alert {
-    /// One line: `t = 1.230 s: left: mean retraction pressure 21.4 mmHg
-    /// (2.85 kPa) reached warn (20.0 mmHg (2.67 kPa))`.
+    /// One line, ASCII (it goes into OpenIGTLink STATUS texts): `t =
+    /// 1.230 s: left: mean retraction pressure 21.4 mmHg (2.85 kPa)
+    /// reached warn (20.0 mmHg (2.67 kPa))`.
     pub fn line(&self) -> String {
         let shown = Score::new(self.measure, None, self.value, self.unit, warn_only(1.0));
         let who = self
@@ -437,6 +438,7 @@ impl Alert {
             self.grade.name(),
             shown.shown(self.level)
         )
+        .replace('³', "^3")
     }
 }
 
@@ -636,5 +638,10 @@ mod tests {
             "{}",
             a.line()
         );
+        // Volumes are written mm^3 in a line (ASCII).
+        let mut big = frame(0.6, 0.0, 0.0, 0.0, 0.3);
+        big.strain.as_mut().unwrap().volume_above_m3 = 2e-7;
+        let line = live.frame(&big)[0].line();
+        assert!(line.is_ascii() && line.contains("200.00 mm^3"), "{line}");
     }
 }
