@@ -497,7 +497,12 @@ fn picture(r: &Report, top: f64) -> anyhow::Result<Option<(String, String)>> {
             "largest principal strain {:.3} at t = {:.2} s",
             strain.max_principal, worst.sim_time_s
         ),
-        subtitle: format!("frame {}", worst.frame),
+        // Pictures come when the largest strain grew by a quarter: the
+        // last one may be below the session's largest.
+        subtitle: format!(
+            "frame {}, the last pictured (the session's largest strain: {:.3})",
+            worst.frame, r.assessment.strain.peak
+        ),
         range_mm: (top * 100.0).max(1e-3),
         force_scale: None,
     };
