@@ -11,7 +11,7 @@
 
 use super::plot::chart::{FONT, chart_err, draw_over, linear_label, rgb};
 use super::raster::{
-    Background, Camera, Colouring, EdgeStyle, MeshRef, RenderOptions, Renderer, TriMesh,
+    Background, Camera, Colouring, EdgeStyle, MeshRef, RenderOptions, Renderer, Shading, TriMesh,
 };
 use super::text::{HAlign, TextStyle, VAlign, draw_text};
 use super::{Image, RenderError, Rgb};
@@ -54,6 +54,8 @@ pub fn tissue_colour(t: f64) -> Rgb {
 pub const STEEL: Rgb = [150, 160, 176];
 /// Plate colour while it touches tissue.
 pub const STEEL_CONTACT: Rgb = [95, 130, 190];
+/// A blade's cutting edge.
+pub const CUTTING_EDGE: Rgb = [235, 150, 20];
 /// Force arrows, per instrument.
 pub const ARROWS: [Rgb; 2] = [[20, 90, 220], [20, 150, 90]];
 
@@ -82,6 +84,9 @@ pub struct Caption {
     pub force_scale: Option<f64>,
 }
 
+/// A closed triangle surface: vertex positions (m) and outward triangles.
+pub type Outline = (Vec<Point3<f64>>, Vec<[u32; 3]>);
+
 /// A spatula to draw: a plate with its reaction force.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Plate {
@@ -89,8 +94,15 @@ pub struct Plate {
     pub name: String,
     /// Pose of the plate's centre (local to world), m.
     pub pose: Isometry3<f64>,
-    /// Half-extents along the local axes (half thickness, width, length), m.
+    /// Half-extents along the local axes (half thickness, width, length), m:
+    /// the box drawn when there is no [`Plate::outline`].
     pub half_extents: Vector3<f64>,
+    /// The plate's true surface, posed (m, outward triangles): a curved
+    /// plate bent, a trapezoid tapered. `None`: the box.
+    pub outline: Option<Outline>,
+    /// A blade's cutting edge, posed (m), drawn as an amber rod over the
+    /// tissue and the plate (it is inside the fissure when it cuts).
+    pub cutting_edge: Option<[Point3<f64>; 2]>,
     /// Reaction force on the spatula, N (drawn from the plate's centre).
     pub force: Option<Vector3<f64>>,
     /// Whether it touches tissue.
@@ -141,26 +153,15 @@ fn tie_rods(ties: &[TieSegment], r: f64) -> Vec<TriMesh> {
     let mut out: Vec<TriMesh> = Vec::new();
     for vessel in [false, true] {
         let mut all: Option<TriMesh> = None;
+        let (w, colour) = if vessel {
+            (3.0 * r, VESSEL)
+        } else {
+            (r, TRABECULA)
+        };
         for t in ties.iter().filter(|t| t.vessel == vessel) {
-            let d = t.b - t.a;
-            let len = d.norm();
-            if !(len > 0.0 && len.is_finite()) {
+            let Some(rod) = rod(t.a, t.b, w, colour) else {
                 continue;
-            }
-            let rotation = nalgebra::UnitQuaternion::rotation_between(&Vector3::z(), &d)
-                .unwrap_or_else(|| {
-                    nalgebra::UnitQuaternion::from_axis_angle(
-                        &Vector3::x_axis(),
-                        std::f64::consts::PI,
-                    )
-                });
-            let pose = Isometry3::from_parts(nalgebra::center(&t.a, &t.b).coords.into(), rotation);
-            let w = if vessel { 3.0 * r } else { r };
-            let rod = TriMesh::cuboid(
-                &pose,
-                Vector3::new(w, w, 0.5 * len),
-                if vessel { VESSEL } else { TRABECULA },
-            );
+            };
             match &mut all {
                 Some(m) => m.append(&rod),
                 None => all = Some(rod),
@@ -169,6 +170,26 @@ fn tie_rods(ties: &[TieSegment], r: f64) -> Vec<TriMesh> {
         out.extend(all);
     }
     out
+}
+
+/// A square rod of half-width `w` from `a` to `b` (m); `None` when the two
+/// coincide or are not finite.
+fn rod(a: Point3<f64>, b: Point3<f64>, w: f64, colour: Rgb) -> Option<TriMesh> {
+    let d = b - a;
+    let len = d.norm();
+    if !(len > 0.0 && len.is_finite()) {
+        return None;
+    }
+    let rotation =
+        nalgebra::UnitQuaternion::rotation_between(&Vector3::z(), &d).unwrap_or_else(|| {
+            nalgebra::UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI)
+        });
+    let pose = Isometry3::from_parts(nalgebra::center(&a, &b).coords.into(), rotation);
+    Some(TriMesh::cuboid(
+        &pose,
+        Vector3::new(w, w, 0.5 * len),
+        colour,
+    ))
 }
 
 /// Draws [`Scene`]s at one size, keeping the rasteriser's buffers between
@@ -231,7 +252,16 @@ impl FrameRenderer {
             .iter()
             .map(|p| {
                 let c = if p.touching { STEEL_CONTACT } else { STEEL };
-                TriMesh::cuboid(&p.pose, p.half_extents, c)
+                match &p.outline {
+                    Some((positions, triangles)) => TriMesh {
+                        positions: positions.clone(),
+                        triangles: triangles.clone(),
+                        colour: c,
+                        shading: Shading::Flat,
+                        specular: 0.5,
+                    },
+                    None => TriMesh::cuboid(&p.pose, p.half_extents, c),
+                }
             })
             .collect();
         let (lo, hi) = scene.camera.frame_box;
@@ -284,9 +314,17 @@ impl FrameRenderer {
             });
         }
         let rods = tie_rods(scene.ties, 0.0015 * diag);
+        let edges: Vec<TriMesh> = scene
+            .plates
+            .iter()
+            .filter_map(|p| p.cutting_edge)
+            .filter_map(|[a, b]| rod(a, b, 0.002 * diag, CUTTING_EDGE))
+            .collect();
         let mut meshes = vec![surface];
         meshes.extend(plates.iter().map(TriMesh::as_mesh));
         meshes.extend(rods.iter().map(TriMesh::as_mesh));
+        // Over everything: the edge is inside the fissure when it cuts.
+        meshes.extend(edges.iter().map(|e| e.as_mesh().on_top()));
         meshes.extend(arrows.iter().map(|(_, a)| a.as_mesh().on_top()));
         let picture = self.renderer.render(&cam, &meshes)?;
 
@@ -515,6 +553,112 @@ mod tests {
             .filter(|&(x, y)| img.get(x, y).unwrap()[0] < 200)
             .count();
         assert!(ink > 50, "{ink} dark pixels of labels");
+    }
+
+    /// A plate drawn from its outline shows the outline's form (a
+    /// trapezoid: narrower at the base than the box of its tip width), and
+    /// a blade's cutting edge is drawn in amber; without an edge there is
+    /// no amber.
+    #[test]
+    fn a_plate_is_drawn_from_its_outline_with_its_cutting_edge() {
+        // A trapezoid plate 1 x (4 to 12) x 40 mm along +z, seen from +x.
+        let (h2, l) = (0.0005, 0.04);
+        let mut positions = Vec::new();
+        for (z, w2) in [(0.0, 0.002), (l, 0.006)] {
+            for (y, x) in [(-w2, h2), (w2, h2), (w2, -h2), (-w2, -h2)] {
+                positions.push(Point3::new(x, y, z));
+            }
+        }
+        let mut triangles = Vec::new();
+        for j in 0..4u32 {
+            let (p, q) = (j, (j + 1) % 4);
+            triangles.push([p, q, q + 4]);
+            triangles.push([p, q + 4, p + 4]);
+        }
+        triangles.extend([[0, 2, 1], [0, 3, 2], [4, 5, 6], [4, 6, 7]]);
+        let plate = |edge: Option<[Point3<f64>; 2]>| Plate {
+            name: "blade".into(),
+            pose: Isometry3::translation(0.0, 0.0, 0.5 * l),
+            half_extents: Vector3::new(h2, 0.006, 0.5 * l),
+            outline: Some((positions.clone(), triangles.clone())),
+            cutting_edge: edge,
+            force: None,
+            touching: false,
+        };
+        let edge = [Point3::new(0.0, -0.006, l), Point3::new(0.0, 0.006, l)];
+        let draw = |p: Plate| {
+            let mut r = FrameRenderer::new(320, 320).unwrap();
+            let far = [
+                Point3::new(-1.0, 0.0, 0.0),
+                Point3::new(-1.0, 0.001, 0.0),
+                Point3::new(-1.0, 0.0, 0.001),
+            ];
+            let scene = Scene {
+                positions: &far,
+                triangles: &[[0, 1, 2]],
+                values_mm: &[0.0; 3],
+                quantity: "displacement",
+                unit: "(mm)",
+                plates: std::slice::from_ref(&p),
+                ties: &[],
+                camera: CameraPreset {
+                    azimuth_deg: 0.0,
+                    elevation_deg: 0.0,
+                    frame_box: (Point3::new(0.0, -0.01, 0.0), Point3::new(0.001, 0.01, l)),
+                },
+            };
+            let cap = Caption {
+                title: String::new(),
+                subtitle: String::new(),
+                range_mm: 1.0,
+                force_scale: None,
+            };
+            r.render(&scene, &cap).unwrap()
+        };
+        // Amber pixels of `img` that `other` does not have (the colour
+        // scale has orange of its own).
+        let amber = |img: &Image, other: &Image| {
+            let (w, h) = (img.width(), img.height());
+            (0..w)
+                .flat_map(|x| (0..h).map(move |y| (x, y)))
+                .filter(|&(x, y)| {
+                    let c = img.get(x, y).unwrap();
+                    let [r, g, b] = c.map(f64::from);
+                    c != other.get(x, y).unwrap()
+                        && r > 100.0
+                        && b < 0.35 * r
+                        && g > 0.4 * r
+                        && g < 0.8 * r
+                })
+                .count()
+        };
+        let steel = |img: &Image, row: u32| {
+            (0..img.width())
+                .filter(|&x| {
+                    // Steel is blue-grey and darker than the background.
+                    let [r, _, b] = img.get(x, row).unwrap();
+                    b > r && b > 100 && r < 200
+                })
+                .count()
+        };
+        let with_edge = draw(plate(Some(edge)));
+        let without = draw(plate(None));
+        let drawn = amber(&with_edge, &without);
+        assert!(drawn > 20, "{drawn} amber pixels");
+        assert_eq!(amber(&without, &with_edge), 0);
+        // Steel rows near the tip are wider than near the base (12 mm
+        // against 4 mm across): the outline, not the box, was drawn.
+        let rows: Vec<(u32, usize)> = (0..without.height())
+            .map(|y| (y, steel(&without, y)))
+            .filter(|&(_, n)| n > 0)
+            .collect();
+        let (first, last) = (rows.first().unwrap(), rows.last().unwrap());
+        let (wide, narrow) = if first.1 > last.1 {
+            (first.1, last.1)
+        } else {
+            (last.1, first.1)
+        };
+        assert!(wide as f64 > 2.0 * narrow as f64, "steel widths {rows:?}");
     }
 
     #[test]

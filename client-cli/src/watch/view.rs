@@ -2,7 +2,7 @@
 //! and the camera of each scene; and the translation of a session's frame
 //! into the [`Scene`] that [`FrameRenderer`] draws.
 
-use crate::render::frame::{CameraPreset, Caption, FrameRenderer, Plate, Scene, bounds};
+use crate::render::frame::{CameraPreset, Caption, FrameRenderer, Outline, Plate, Scene, bounds};
 use crate::render::{Image, RenderError};
 use fissure_proto::motion::RigidFit;
 use fissure_proto::v1 as pb;
@@ -101,6 +101,53 @@ pub fn plate(
         centre,
         Vector3::new(0.5 * ins.thickness_m, 0.5 * ins.width_m, 0.5 * ins.length_m),
     )
+}
+
+/// The plate's true surface (`InstrumentDescription.outline`) at handle
+/// pose `pose`, m; `None` when the description has none or it is not a
+/// finite, indexed triangle mesh (a server of an older proto, or a bad
+/// message: the box is drawn then).
+pub fn outline(ins: &pb::InstrumentDescription, pose: &Isometry3<f64>) -> Option<Outline> {
+    let mesh = ins.outline.as_ref()?;
+    let xyz = &mesh.rest_positions_m;
+    if xyz.is_empty() || xyz.len() % 3 != 0 || mesh.triangles.len() % 3 != 0 {
+        return None;
+    }
+    if !xyz.iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    let n = (xyz.len() / 3) as u32;
+    if mesh.triangles.is_empty() || mesh.triangles.iter().any(|&i| i >= n) {
+        return None;
+    }
+    let points = xyz
+        .chunks_exact(3)
+        .map(|c| pose * Point3::new(c[0], c[1], c[2]))
+        .collect();
+    let triangles = mesh
+        .triangles
+        .chunks_exact(3)
+        .map(|c| [c[0], c[1], c[2]])
+        .collect();
+    Some((points, triangles))
+}
+
+/// A blade's cutting edge at handle pose `pose`, m; `None` for shapes that
+/// do not cut.
+pub fn cutting_edge(
+    ins: &pb::InstrumentDescription,
+    pose: &Isometry3<f64>,
+) -> Option<[Point3<f64>; 2]> {
+    let at = |v: &pb::Vec3| pose * Point3::new(v.x, v.y, v.z);
+    let (a, b) = (
+        at(ins.cutting_edge_from_m.as_ref()?),
+        at(ins.cutting_edge_to_m.as_ref()?),
+    );
+    (a.coords
+        .iter()
+        .chain(b.coords.iter())
+        .all(|v| v.is_finite()))
+    .then_some([a, b])
 }
 
 impl SessionView {
@@ -293,6 +340,8 @@ impl SessionView {
                     name: ins.name.clone(),
                     pose: centre,
                     half_extents,
+                    outline: outline(ins, &pose),
+                    cutting_edge: cutting_edge(ins, &pose),
                     force,
                     touching,
                 }
@@ -340,5 +389,75 @@ pub fn caption_of(scene: &str, frame: &pb::DeformationFrame, range_mm: f64) -> C
         ),
         range_mm,
         force_scale: None,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn described(points: Vec<f64>, triangles: Vec<u32>) -> pb::InstrumentDescription {
+        pb::InstrumentDescription {
+            outline: Some(pb::SurfaceMesh {
+                rest_positions_m: points,
+                triangles,
+            }),
+            cutting_edge_from_m: Some(pb::Vec3 {
+                x: 0.0,
+                y: -0.001,
+                z: 0.04,
+            }),
+            cutting_edge_to_m: Some(pb::Vec3 {
+                x: 0.0,
+                y: 0.001,
+                z: 0.04,
+            }),
+            ..Default::default()
+        }
+    }
+
+    /// The outline and the cutting edge are drawn where the pose puts the
+    /// instrument frame: a point `p` of the frame at `pose * p`.
+    #[test]
+    fn the_outline_and_edge_follow_the_instruments_pose() {
+        let ins = described(
+            vec![0.0, 0.0, 0.0, 0.0, 0.0, 0.04, 0.001, 0.0, 0.0],
+            vec![0, 1, 2],
+        );
+        let pose = Isometry3::from_parts(
+            Translation3::new(0.1, 0.2, 0.3),
+            UnitQuaternion::from_axis_angle(&Vector3::y_axis(), std::f64::consts::FRAC_PI_2),
+        );
+        let (points, triangles) = outline(&ins, &pose).unwrap();
+        assert_eq!(triangles, vec![[0, 1, 2]]);
+        // +z of the frame is +x of the scene under this pose.
+        assert!((points[1] - Point3::new(0.14, 0.2, 0.3)).norm() < 1e-15);
+        let [a, b] = cutting_edge(&ins, &pose).unwrap();
+        assert!((a - Point3::new(0.14, 0.199, 0.3)).norm() < 1e-15);
+        assert!((b - Point3::new(0.14, 0.201, 0.3)).norm() < 1e-15);
+    }
+
+    /// A description without a usable outline (none, an index past the
+    /// vertices, a ragged list, a non-finite coordinate) draws the box: it
+    /// never panics on a server's message.
+    #[test]
+    fn a_bad_outline_falls_back_to_the_box() {
+        let pose = Isometry3::identity();
+        assert!(outline(&pb::InstrumentDescription::default(), &pose).is_none());
+        let bad = [
+            described(vec![0.0; 9], vec![0, 1, 3]),
+            described(vec![0.0; 8], vec![0, 1, 2]),
+            described(vec![0.0; 9], vec![0, 1]),
+            described(
+                vec![0.0, 0.0, f64::NAN, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+                vec![0, 1, 2],
+            ),
+            described(vec![], vec![]),
+        ];
+        for ins in &bad {
+            assert!(outline(ins, &pose).is_none(), "{:?}", ins.outline);
+        }
+        let no_edge = pb::InstrumentDescription::default();
+        assert!(cutting_edge(&no_edge, &pose).is_none());
     }
 }

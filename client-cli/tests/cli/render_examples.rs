@@ -38,6 +38,8 @@ fn spatula(push: f64, force: Option<Vector3<f64>>) -> Plate {
         name: "right".into(),
         pose: Isometry3::from_parts(Translation3::new(0.03 + push, 0.015, 0.032), rot),
         half_extents: Vector3::new(0.0005, 0.006, 0.02),
+        outline: None,
+        cutting_edge: None,
         touching: force.is_some(),
         force,
     }

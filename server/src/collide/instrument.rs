@@ -162,6 +162,55 @@ impl Plate {
             }
         }
     }
+
+    /// The plate's closed outward surface in the instrument frame (m), for
+    /// clients that draw the real tool: the two faces, the two side edges,
+    /// the base and the tip, over `n` rings along the length (one for a
+    /// flat plate, whose faces are planar; a chord angle of at most
+    /// [`Self::OUTLINE_CHORD_RAD`] for a curved one, so that the drawn faces
+    /// lie within `R (1 - cos(a/2)) <= 0.3 %` of `R` of the true ones).
+    /// Ring `i` at `s_i = i L / n` has its corners in the order face A at
+    /// `-w/2`, face A at `+w/2`, face B at `+w/2`, face B at `-w/2`
+    /// (counter-clockwise about the tangent), so that `4 (n + 1)` vertices
+    /// and `8 n + 4` triangles close the plate with outward normals (right-
+    /// hand rule).
+    pub fn outline(&self) -> (Vec<Point3<f64>>, Vec<[u32; 3]>) {
+        let n = match self.bend_radius {
+            None => 1,
+            Some(r) => ((self.length / r.abs()) / Self::OUTLINE_CHORD_RAD)
+                .ceil()
+                .clamp(1.0, 256.0) as usize,
+        };
+        let h2 = 0.5 * self.thickness;
+        let mut positions = Vec::with_capacity(4 * (n + 1));
+        for i in 0..=n {
+            let s = self.length * i as f64 / n as f64;
+            let w2 = 0.5 * self.width_at(s);
+            for (y, side) in [(-w2, h2), (w2, h2), (w2, -h2), (-w2, -h2)] {
+                let (m, normal, _) = self.frame_at(s, y);
+                positions.push(m + side * normal);
+            }
+        }
+        let mut triangles = Vec::with_capacity(8 * n + 4);
+        let corner = |ring: usize, j: usize| (4 * ring + j % 4) as u32;
+        for i in 0..n {
+            for j in 0..4 {
+                let (p, q) = (corner(i, j), corner(i, j + 1));
+                let (r, t) = (corner(i + 1, j + 1), corner(i + 1, j));
+                triangles.push([p, q, r]);
+                triangles.push([p, r, t]);
+            }
+        }
+        // The base faces -T(0), the tip +T(L).
+        triangles.push([corner(0, 0), corner(0, 2), corner(0, 1)]);
+        triangles.push([corner(0, 0), corner(0, 3), corner(0, 2)]);
+        triangles.push([corner(n, 0), corner(n, 1), corner(n, 2)]);
+        triangles.push([corner(n, 0), corner(n, 2), corner(n, 3)]);
+        (positions, triangles)
+    }
+
+    /// The largest bend angle between two rings of [`Self::outline`], rad.
+    pub const OUTLINE_CHORD_RAD: f64 = 0.15;
 }
 
 /// The outline of a plate as a scene names it: its kind and the parameter
@@ -467,6 +516,80 @@ impl Instrument {
 mod tests {
     use super::*;
     use nalgebra::{Translation3, UnitQuaternion};
+
+    /// Volume of a closed outward-oriented triangle mesh (divergence
+    /// theorem: the sum of the signed tetrahedra to the origin), m^3.
+    fn enclosed_volume(p: &[Point3<f64>], t: &[[u32; 3]]) -> f64 {
+        t.iter()
+            .map(|f| {
+                let [a, b, c] = f.map(|i| p[i as usize].coords);
+                a.dot(&b.cross(&c)) / 6.0
+            })
+            .sum()
+    }
+
+    /// A plate's drawn outline is a closed, consistently oriented surface
+    /// (every edge used once in each direction) enclosing the plate's
+    /// volume: exactly `h w l` (flat), `h (w_base + w_tip) / 2 l`
+    /// (trapezoid), and for a bent plate `h w l` less the chords' sag,
+    /// `1 - sin(a) / a <= a^2 / 6` of it for ring angle `a`.
+    #[test]
+    fn the_outline_of_every_plate_is_closed_and_encloses_its_volume() {
+        let (h, w, l) = (0.002, 0.01, 0.05);
+        let cases = [
+            (Plate::flat(h, w, l), h * w * l, 1e-12),
+            (
+                Plate::trapezoid(h, 0.004, w, l),
+                h * 0.5 * (0.004 + w) * l,
+                1e-12,
+            ),
+            (
+                Plate::curved(h, w, l, 0.04),
+                h * w * l,
+                0.15f64.powi(2) / 6.0,
+            ),
+            (
+                Plate::curved(h, w, l, -0.04),
+                h * w * l,
+                0.15f64.powi(2) / 6.0,
+            ),
+        ];
+        for (plate, volume, rel) in cases {
+            let (p, t) = plate.outline();
+            let mut edges = std::collections::HashMap::new();
+            for f in &t {
+                for k in 0..3 {
+                    *edges.entry((f[k], f[(k + 1) % 3])).or_insert(0) += 1;
+                }
+            }
+            for (&(a, b), &count) in &edges {
+                assert_eq!(count, 1, "{plate:?}: edge {a}-{b} used {count} times");
+                assert_eq!(
+                    edges.get(&(b, a)),
+                    Some(&1),
+                    "{plate:?}: edge {a}-{b} is open"
+                );
+            }
+            let v = enclosed_volume(&p, &t);
+            assert!(
+                v > 0.0 && ((v - volume) / volume).abs() <= rel,
+                "{plate:?}: volume {v:e} m^3, expected {volume:e}"
+            );
+        }
+    }
+
+    /// The outline's tip ring holds the blade's cutting edge: the edge's
+    /// ends are the midpoints of the tip's two side edges.
+    #[test]
+    fn a_blades_cutting_edge_lies_on_its_outlines_tip() {
+        let (h, w, l) = (0.0005, 0.003, 0.04);
+        let (p, _) = PlateShape::Blade.plate(h, w, l).outline();
+        let edge = PlateShape::Blade.cutting_edge(w, l).unwrap();
+        let tip = &p[p.len() - 4..];
+        let left = nalgebra::center(&tip[0], &tip[3]);
+        let right = nalgebra::center(&tip[1], &tip[2]);
+        assert!((left - edge[0]).norm() < 1e-15 && (right - edge[1]).norm() < 1e-15);
+    }
 
     fn check_pairing(inst: &Instrument) {
         for (i, n) in inst.nodes.iter().enumerate() {

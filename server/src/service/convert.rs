@@ -1,5 +1,6 @@
 //! Conversions between engine values and `fissure.v1` messages.
 
+use crate::collide::instrument::{Plate, PlateShape};
 use crate::scene::{ContactLaw, Scene, Strategy};
 use crate::sim::ForceOut;
 use crate::sim::engine::Model;
@@ -15,6 +16,15 @@ pub fn vec3(v: &Vector3<f64>) -> pb::Vec3 {
         x: v.x,
         y: v.y,
         z: v.z,
+    }
+}
+
+/// A plate's drawn surface ([`Plate::outline`]) in the instrument frame.
+fn plate_outline(plate: &Plate) -> pb::SurfaceMesh {
+    let (points, triangles) = plate.outline();
+    pb::SurfaceMesh {
+        rest_positions_m: points.iter().flat_map(|p| [p.x, p.y, p.z]).collect(),
+        triangles: triangles.into_iter().flatten().collect(),
     }
 }
 
@@ -62,21 +72,36 @@ pub fn scene_description(scene: &Scene, model: &Model) -> pb::SceneDescription {
             .instruments
             .iter()
             .enumerate()
-            .map(|(i, ins)| pb::InstrumentDescription {
-                name: ins.name.clone(),
-                shape: ins.shape.name().into(),
-                thickness_m: ins.thickness_m,
-                width_m: ins.width_m,
-                length_m: ins.length_m,
-                nodes_per_face: ins.nodes_per_face,
-                rim_nodes: model.rim_node_count(i) as u32,
-                handle_m: Some(pb::Vec3 {
-                    x: 0.0,
-                    y: 0.0,
-                    z: 0.0,
-                }),
-                home_position_m: Some(arr3(ins.home_position_m)),
-                home_orientation: Some(quat(ins.home_orientation)),
+            .map(|(i, ins)| {
+                let plate = ins.shape.plate(ins.thickness_m, ins.width_m, ins.length_m);
+                let edge = ins.shape.cutting_edge(ins.width_m, ins.length_m);
+                pb::InstrumentDescription {
+                    name: ins.name.clone(),
+                    shape: ins.shape.name().into(),
+                    thickness_m: ins.thickness_m,
+                    width_m: ins.width_m,
+                    length_m: ins.length_m,
+                    nodes_per_face: ins.nodes_per_face,
+                    rim_nodes: model.rim_node_count(i) as u32,
+                    handle_m: Some(pb::Vec3 {
+                        x: 0.0,
+                        y: 0.0,
+                        z: 0.0,
+                    }),
+                    home_position_m: Some(arr3(ins.home_position_m)),
+                    home_orientation: Some(quat(ins.home_orientation)),
+                    base_width_m: match ins.shape {
+                        PlateShape::Trapezoid { base_width_m } => base_width_m,
+                        _ => 0.0,
+                    },
+                    bend_radius_m: match ins.shape {
+                        PlateShape::Curved { bend_radius_m } => bend_radius_m,
+                        _ => 0.0,
+                    },
+                    cutting_edge_from_m: edge.map(|e| vec3(&e[0].coords)),
+                    cutting_edge_to_m: edge.map(|e| vec3(&e[1].coords)),
+                    outline: Some(plate_outline(&plate)),
+                }
             })
             .collect(),
         loops: Some(pb::LoopConfig {
@@ -403,6 +428,75 @@ mod tests {
             (2.5, 40, 2_000, 3, 1, 2, 12, 1 << 20)
         );
         assert_eq!(m.claimed, ["left"]);
+    }
+
+    /// The description carries each plate's parameters, its true outline
+    /// (posed by the instrument frame: the base ring at `z = 0`, the tip's
+    /// at the plate's length) and a blade's cutting edge, so that a client
+    /// draws the tool the server collides with.
+    #[test]
+    fn the_description_carries_each_shapes_outline_and_a_blades_edge() {
+        use crate::collide::instrument::PlateShape;
+        let (mut scene, _) = Scene::load("cube").unwrap();
+        let shapes = [
+            PlateShape::Flat,
+            PlateShape::Trapezoid {
+                base_width_m: 0.5 * scene.instruments[0].width_m,
+            },
+            PlateShape::Curved {
+                bend_radius_m: 4.0 * scene.instruments[0].length_m,
+            },
+            PlateShape::Blade,
+        ];
+        let model = Model::build(&scene).unwrap();
+        for shape in shapes {
+            scene.instruments[0].shape = shape;
+            let d = scene_description(&scene, &model);
+            let ins = &d.instruments[0];
+            let spec = &scene.instruments[0];
+            assert_eq!(ins.shape, shape.name());
+            let mesh = ins.outline.as_ref().unwrap();
+            let (points, triangles) = spec
+                .shape
+                .plate(spec.thickness_m, spec.width_m, spec.length_m)
+                .outline();
+            assert_eq!(mesh.rest_positions_m.len(), 3 * points.len());
+            assert_eq!(mesh.triangles.len(), 3 * triangles.len());
+            assert_eq!(
+                mesh.rest_positions_m[2], 0.0,
+                "{shape:?}: base at the handle"
+            );
+            let tip_z = mesh.rest_positions_m[mesh.rest_positions_m.len() - 1];
+            if let PlateShape::Curved { bend_radius_m } = shape {
+                // The last corner is face B's: half a thickness inside.
+                let expected = (bend_radius_m - 0.5 * spec.thickness_m)
+                    * (spec.length_m / bend_radius_m).sin();
+                assert!(
+                    (tip_z - expected).abs() < 1e-12,
+                    "{shape:?}: tip at {tip_z}"
+                );
+            } else {
+                assert_eq!(tip_z, spec.length_m, "{shape:?}");
+            }
+            match shape {
+                PlateShape::Trapezoid { base_width_m } => {
+                    assert_eq!(ins.base_width_m, base_width_m)
+                }
+                PlateShape::Curved { bend_radius_m } => {
+                    assert_eq!(ins.bend_radius_m, bend_radius_m)
+                }
+                _ => assert_eq!((ins.base_width_m, ins.bend_radius_m), (0.0, 0.0)),
+            }
+            let edge = ins.cutting_edge_from_m.zip(ins.cutting_edge_to_m);
+            assert_eq!(edge.is_some(), shape == PlateShape::Blade, "{shape:?}");
+            if let Some((a, b)) = edge {
+                let w2 = 0.5 * spec.width_m;
+                assert_eq!(
+                    [a.x, a.y, a.z, b.x, b.y, b.z],
+                    [0.0, -w2, spec.length_m, 0.0, w2, spec.length_m]
+                );
+            }
+        }
     }
 
     /// `Material.model` names the constitutive law a strategy solves: the
