@@ -105,19 +105,36 @@ impl Pattern {
             diag,
             scatter: Vec::new(),
         };
-        pattern.scatter = tets
-            .iter()
-            .map(|t| {
-                let mut s = [0u32; 78];
-                for (k, &(p, q)) in LOCAL_PAIRS.iter().enumerate() {
-                    let gp = 3 * t[p as usize / 3] as usize + p as usize % 3;
-                    let gq = 3 * t[q as usize / 3] as usize + q as usize % 3;
-                    s[k] = pattern.index(gp.max(gq), gp.min(gq)) as u32;
-                }
-                s
-            })
-            .collect();
+        pattern.scatter = tets.iter().map(|t| pattern.scatter_of(t)).collect();
         pattern
+    }
+
+    /// The pattern of [`Pattern::new`] widened to couple each node pair of
+    /// `pairs` (the ties' pairs of a nonlinear strategy,
+    /// [`super::ties::TieSprings`]), with a scatter map per pair after the
+    /// elements': pair `i` is the pseudo-element `tets.len() + i` on the
+    /// nodes `[a, b, a, b]`, so that its tangent goes through the element
+    /// path (node bases, elimination) unchanged.
+    pub fn with_pairs(n_nodes: usize, tets: &[[u32; 4]], pairs: &[[u32; 2]]) -> Self {
+        let mut pattern = Self::with_groups(n_nodes, tets, pairs.iter().map(|p| &p[..]));
+        let extra: Vec<[u32; 78]> = pairs
+            .iter()
+            .map(|&[a, b]| pattern.scatter_of(&[a, b, a, b]))
+            .collect();
+        pattern.scatter.extend(extra);
+        pattern
+    }
+
+    /// The value index of each pair of [`LOCAL_PAIRS`] of the element on
+    /// nodes `t` (every pair of them coupled in the pattern).
+    fn scatter_of(&self, t: &[u32; 4]) -> [u32; 78] {
+        let mut s = [0u32; 78];
+        for (k, &(p, q)) in LOCAL_PAIRS.iter().enumerate() {
+            let gp = 3 * t[p as usize / 3] as usize + p as usize % 3;
+            let gq = 3 * t[q as usize / 3] as usize + q as usize % 3;
+            s[k] = self.index(gp.max(gq), gp.min(gq)) as u32;
+        }
+        s
     }
 
     /// Value index of entry `(row, col)`, `row >= col`; panics when absent

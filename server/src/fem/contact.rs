@@ -360,7 +360,7 @@ pub fn solve_by_active_set<S: DeformationSolver + ?Sized>(
             .any(|r| r.compliance_m_per_n > 0.0 || r.nodes().any(|(_, w)| w < 0.0))
     {
         return Err(SolveError::InvalidModel(format!(
-            "strategy {} cannot take ties (rows between two nodes with a compliance of their own): they need a strategy that takes nodal loads (compliance, direct)",
+            "strategy {} cannot take tie rows (rows between two nodes with a compliance of their own; it holds ties as springs of its energy, DeformationSolver::set_tie_springs): rows need a strategy that takes nodal loads (compliance, direct)",
             solver.name()
         )));
     }

@@ -64,6 +64,7 @@ use super::element::polar_rotation_fast;
 use super::model::Model;
 use super::par::{NodeGather, Par, for_each_chunk, try_for_each_chunk_pair};
 use super::tangent::TangentPatch;
+use super::ties::TieSprings;
 use super::{CompliancePatch, Solution, SolveError};
 use nalgebra::{Matrix3, Vector3};
 
@@ -198,6 +199,8 @@ pub struct Corotational {
     pub last_inner_iterations: u32,
     /// The tangent compliance of the last step, for the force loop.
     tangent: TangentPatch,
+    /// The intact ties, as springs of the energy.
+    springs: TieSprings,
 }
 
 impl std::fmt::Debug for Corotational {
@@ -260,6 +263,7 @@ impl Corotational {
             floor,
             last_inner_iterations: 0,
             tangent,
+            springs: TieSprings::default(),
         })
     }
 
@@ -319,6 +323,7 @@ impl Corotational {
             Some((element, jacobian)) => Err(SolveError::Inverted { element, jacobian }),
             None => {
                 self.gather_map.gather(self.par, &self.elem, &mut self.f);
+                self.springs.add_forces(&m.rest, u, &mut self.f);
                 Ok(())
             }
         }
@@ -341,6 +346,8 @@ impl Corotational {
             }
         });
         self.gather_map.gather(self.par, &self.elem, &mut self.q);
+        self.springs
+            .add_product(&m.rest, &self.u, &self.p, &mut self.q);
     }
 
     /// Projection off the supports and the step's constraint rows.
@@ -515,8 +522,10 @@ impl Corotational {
     fn step<C: Into<Constraint> + Copy>(&mut self, cons: &[C]) -> Result<&Solution, SolveError> {
         self.tangent.invalidate();
         self.lin.prepare_constraints(cons)?;
-        let iterations = if self.lin.step_rows().rows.is_empty() {
-            // Nothing enforced: the rest state is the equilibrium.
+        let iterations = if self.lin.step_rows().rows.is_empty() && self.springs.pairs.is_empty() {
+            // Nothing enforced: the rest state is the equilibrium (ties
+            // are seeded at their rest length, but the springs are solved
+            // for all the same).
             self.reset();
             self.last_inner_iterations = 0;
             1
@@ -593,18 +602,23 @@ impl Corotational {
         }
         let m = self.lin.model();
         let rot = &self.rot;
-        let refactored = self.tangent.refactor(m, |e| {
-            let r = rot[e];
-            let mut k = m.kel[e];
-            for a in 0..4 {
-                for b in 0..4 {
-                    let kab: Matrix3<f64> = k.fixed_view::<3, 3>(3 * a, 3 * b).into_owned();
-                    k.fixed_view_mut::<3, 3>(3 * a, 3 * b)
-                        .copy_from(&(r * kab * r.transpose()));
+        let springs: Vec<_> = self.springs.elements(&m.rest, &self.u).collect();
+        let refactored = self.tangent.refactor(
+            m,
+            |e| {
+                let r = rot[e];
+                let mut k = m.kel[e];
+                for a in 0..4 {
+                    for b in 0..4 {
+                        let kab: Matrix3<f64> = k.fixed_view::<3, 3>(3 * a, 3 * b).into_owned();
+                        k.fixed_view_mut::<3, 3>(3 * a, 3 * b)
+                            .copy_from(&(r * kab * r.transpose()));
+                    }
                 }
-            }
-            Some(k)
-        });
+                Some(k)
+            },
+            &springs,
+        );
         if refactored.is_err() {
             return false;
         }
@@ -625,6 +639,16 @@ stepping_solver!(
     [lin.model()]
     fn compliance_patch(&mut self, nodes: &[u32], patch: &mut CompliancePatch) -> bool {
         self.tangent_patch(nodes, patch)
+    }
+
+    fn set_tie_springs(&mut self, springs: &TieSprings) -> bool {
+        if self.springs != *springs {
+            self.springs.clone_from(springs);
+            self.tangent.invalidate();
+            // The last correction was of other springs.
+            self.corr_valid = false;
+        }
+        true
     }
 );
 

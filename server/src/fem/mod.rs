@@ -261,6 +261,15 @@ pub trait DeformationSolver: Send {
     fn compliance_patch(&mut self, _nodes: &[u32], _patch: &mut CompliancePatch) -> bool {
         false
     }
+    /// Strategies that hold the ties as springs of their own energy (the
+    /// nonlinear ones, [`ties::TieSprings`]) take the intact pairs here and
+    /// answer `true`: the next steps and local models have them, and the
+    /// contact rows carry no tie. `false` (the default): the strategy takes
+    /// ties as contact rows ([`ties::TieRows`]). Each pair's index is among
+    /// [`SolverOptions::tie_pairs`].
+    fn set_tie_springs(&mut self, _springs: &ties::TieSprings) -> bool {
+        false
+    }
     /// Declares nodes that every later patch holds (the ties' nodes): a
     /// strategy whose compliance never changes computes their blocks among
     /// themselves once and shares them ([`contact::SharedBlocks`]). The
@@ -442,6 +451,12 @@ pub struct SolverOptions {
     pub cache_nodes: Option<usize>,
     /// The element formulation (default [`Element::Tet4`]).
     pub element: Element,
+    /// The node pairs the scene's ties join ([`ties::TieRows`] with every
+    /// tie intact): `corotational` and `neo-hookean` couple them in their
+    /// sparsity pattern and hold the intact ones as springs of their energy
+    /// ([`DeformationSolver::set_tie_springs`]); the linear strategies take
+    /// ties as contact rows and ignore it.
+    pub tie_pairs: Vec<[u32; 2]>,
 }
 
 impl Default for SolverOptions {
@@ -455,6 +470,7 @@ impl Default for SolverOptions {
             parallelism: par::default_par(),
             cache_nodes: None,
             element: Element::default(),
+            tie_pairs: Vec::new(),
         }
     }
 }
@@ -488,6 +504,9 @@ pub fn build_solver(
             )));
         }
         foundation::fold_into(&mut model, f)?;
+    }
+    if !strategy.is_linear() && !options.tie_pairs.is_empty() {
+        model.couple_pairs(&options.tie_pairs)?;
     }
     let solver: Box<dyn DeformationSolver> = match strategy {
         Strategy::Direct => Box::new(direct::Direct::new(model)?),

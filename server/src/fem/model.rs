@@ -155,6 +155,30 @@ impl Model {
         self.pressure = Some(p);
     }
 
+    /// Couples each node pair of `pairs` in the pattern (pair `i` is the
+    /// pseudo-element `tets.len() + i`, [`Pattern::with_pairs`]): the ties
+    /// a nonlinear strategy holds as springs of its energy
+    /// ([`super::ties::TieSprings`]). Not with the nodal-pressure element
+    /// (a linear one; linear strategies take ties as contact rows).
+    pub fn couple_pairs(&mut self, pairs: &[[u32; 2]]) -> Result<(), SolveError> {
+        if self.pressure.is_some() {
+            return Err(SolveError::InvalidModel(
+                "tie springs are for the nonlinear strategies, which take tet4".into(),
+            ));
+        }
+        let n = self.n_nodes() as u32;
+        if let Some(p) = pairs
+            .iter()
+            .find(|p| p[0] >= n || p[1] >= n || p[0] == p[1])
+        {
+            return Err(SolveError::InvalidModel(format!(
+                "tie pair {p:?}: needs two distinct nodes below {n}"
+            )));
+        }
+        self.pattern = Pattern::with_pairs(self.n_nodes(), &self.tets, pairs);
+        Ok(())
+    }
+
     /// Adds `K x` of the element matrices and the nodal volumetric part
     /// into `y` (DOF vectors; `y` is overwritten).
     pub fn matvec(&self, x: &[f64], y: &mut [f64]) {

@@ -36,6 +36,7 @@ use super::element::{neo_hookean_element_h, neo_hookean_energy, neo_hookean_forc
 use super::factor::SparseLlt;
 use super::model::Model;
 use super::tangent::TangentPatch;
+use super::ties::TieSprings;
 use super::{CompliancePatch, Solution, SolveError};
 use nalgebra::{SVector, Vector3};
 
@@ -64,6 +65,8 @@ pub struct NeoHookean {
     tangent: TangentPatch,
     /// Internal force at the last good state (the patch's), N.
     f_good: Vec<f64>,
+    /// The intact ties, as springs of the energy.
+    springs: TieSprings,
 }
 
 /// Sufficient-decrease constant of the line search (Armijo's `c1`).
@@ -93,6 +96,7 @@ impl NeoHookean {
         Ok(Self {
             tangent: TangentPatch::new(&model)?,
             f_good: vec![0.0; n],
+            springs: TieSprings::default(),
             factor: SparseLlt::new(&model.pattern)?,
             rows: StepRows::new(model.n_nodes()),
             frame: Frame::new(model.support.clone()),
@@ -118,8 +122,11 @@ impl NeoHookean {
 
     /// Total strain energy (J) at displacement `u` and the bound of its
     /// rounding, or the first inverted element.
-    fn energy(m: &Model, u: &[f64]) -> Result<Energy, SolveError> {
-        let (mut w, mut mag) = (0.0, 0.0);
+    fn energy(m: &Model, springs: &TieSprings, u: &[f64]) -> Result<Energy, SolveError> {
+        // The springs' energy is a sum of non-negative terms: its own
+        // magnitude.
+        let ws = springs.energy(&m.rest, u);
+        let (mut w, mut mag) = (ws, ws);
         for (e, t) in m.tets.iter().enumerate() {
             let h = m.geoms[e].displacement_gradient(&corner_u(t, u));
             match neo_hookean_energy(&h, m.lambda, m.mu) {
@@ -149,6 +156,7 @@ impl NeoHookean {
                 }
             }
         }
+        self.springs.add_forces(&m.rest, u, &mut self.ftrial);
         self.frame.to_node_basis(&mut self.ftrial);
         Ok(self.free_norm(&self.ftrial))
     }
@@ -187,6 +195,19 @@ impl NeoHookean {
                 &m.pattern,
                 e,
                 t,
+                &k,
+                &self.lift,
+                &mut self.values,
+                &mut self.rhs,
+            );
+        }
+        self.springs.add_forces(&m.rest, &self.u, &mut self.f);
+        for (i, t, mut k) in self.springs.elements(&m.rest, &self.u) {
+            self.frame.rotate_element(&t, &mut k);
+            self.frame.scatter(
+                &m.pattern,
+                m.tets.len() + i,
+                &t,
                 &k,
                 &self.lift,
                 &mut self.values,
@@ -269,7 +290,7 @@ impl NeoHookean {
             // Line search (module documentation). While the enforced
             // values are not met, any step that inverts nothing is taken.
             let w0 = if met {
-                Some(Self::energy(&self.model, &self.u)?)
+                Some(Self::energy(&self.model, &self.springs, &self.u)?)
             } else {
                 None
             };
@@ -281,7 +302,7 @@ impl NeoHookean {
                 for i in 0..self.u.len() {
                     self.trial[i] = self.u[i] + alpha * self.rhs[i];
                 }
-                match Self::energy(&self.model, &self.trial) {
+                match Self::energy(&self.model, &self.springs, &self.trial) {
                     Ok(w) => {
                         accepted = match w0 {
                             None => true,
@@ -333,7 +354,7 @@ impl NeoHookean {
         self.tangent.invalidate();
         self.rows.set(cons, &self.model.support)?;
         self.frame.set(&self.rows);
-        let iterations = if self.rows.rows.is_empty() {
+        let iterations = if self.rows.rows.is_empty() && self.springs.pairs.is_empty() {
             // Nothing enforced: the rest state is the equilibrium (and no
             // warm start survives).
             self.u.fill(0.0);
@@ -377,20 +398,31 @@ impl NeoHookean {
     /// state ([`super::tangent`]); `false` when its factorization fails.
     fn tangent_patch(&mut self, nodes: &[u32], patch: &mut CompliancePatch) -> bool {
         let (m, u, f) = (&self.model, &self.good, &mut self.f_good);
-        if !self.tangent.is_fresh() {
+        let fresh = self.tangent.is_fresh();
+        if !fresh {
             f.fill(0.0);
+            self.springs.add_forces(&m.rest, u, f);
         }
-        let refactored = self.tangent.refactor(m, |e| {
-            let t = &m.tets[e];
-            let h = m.geoms[e].displacement_gradient(&corner_u(t, u));
-            let (forces, k) = neo_hookean_element_h(&m.geoms[e], &h, m.lambda, m.mu)?;
-            let mut fe = SVector::<f64, 12>::zeros();
-            for a in 0..4 {
-                fe.fixed_rows_mut::<3>(3 * a).copy_from(&forces[a]);
-            }
-            scatter_add(t, &fe, f);
-            Some(k)
-        });
+        let springs: Vec<_> = if fresh {
+            Vec::new()
+        } else {
+            self.springs.elements(&m.rest, u).collect()
+        };
+        let refactored = self.tangent.refactor(
+            m,
+            |e| {
+                let t = &m.tets[e];
+                let h = m.geoms[e].displacement_gradient(&corner_u(t, u));
+                let (forces, k) = neo_hookean_element_h(&m.geoms[e], &h, m.lambda, m.mu)?;
+                let mut fe = SVector::<f64, 12>::zeros();
+                for a in 0..4 {
+                    fe.fixed_rows_mut::<3>(3 * a).copy_from(&forces[a]);
+                }
+                scatter_add(t, &fe, f);
+                Some(k)
+            },
+            &springs,
+        );
         if refactored.is_err() {
             return false;
         }
@@ -411,5 +443,13 @@ stepping_solver!(
     [model]
     fn compliance_patch(&mut self, nodes: &[u32], patch: &mut CompliancePatch) -> bool {
         self.tangent_patch(nodes, patch)
+    }
+
+    fn set_tie_springs(&mut self, springs: &TieSprings) -> bool {
+        if self.springs != *springs {
+            self.springs.clone_from(springs);
+            self.tangent.invalidate();
+        }
+        true
     }
 );

@@ -268,6 +268,10 @@ impl DeformationSolver for SkullSolver {
         self.inner.cache_bytes()
     }
 
+    fn set_tie_springs(&mut self, springs: &super::ties::TieSprings) -> bool {
+        self.inner.set_tie_springs(springs)
+    }
+
     fn last_solution(&self) -> Option<&Solution> {
         Some(&self.solution)
     }

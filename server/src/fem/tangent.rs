@@ -73,6 +73,8 @@ impl TangentPatch {
     }
 
     /// Assembles `sum_e k(e)` (the element tangents, global basis, N/m)
+    /// and the tie springs' tangents `springs` (pseudo-element index among
+    /// the model's pairs, nodes, matrix)
     /// with the supports eliminated and factors it, unless the factor is of
     /// the current state already. When `k` gives a matrix that is not
     /// positive definite, `model.kel` (the rest stiffness) is used instead.
@@ -80,6 +82,7 @@ impl TangentPatch {
         &mut self,
         model: &Model,
         mut k: impl FnMut(usize) -> Option<ElementMatrix>,
+        springs: &[(usize, [u32; 4], ElementMatrix)],
     ) -> Result<(), SolveError> {
         if self.fresh {
             return Ok(());
@@ -93,6 +96,20 @@ impl TangentPatch {
                 this.frame.scatter(
                     &model.pattern,
                     e,
+                    t,
+                    ke,
+                    &this.zeros,
+                    &mut this.values,
+                    &mut this.rhs,
+                );
+            }
+            // The ties' springs (pseudo-elements after the tetrahedra,
+            // [`super::ties::TieSprings::elements`]), positive
+            // semi-definite, in the rest fallback too.
+            for (i, t, ke) in springs {
+                this.frame.scatter(
+                    &model.pattern,
+                    model.tets.len() + i,
                     t,
                     ke,
                     &this.zeros,

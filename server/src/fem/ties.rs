@@ -17,9 +17,24 @@
 //! the row's gap is `g = -s + c T`, and `T >= 0`, `g >= 0`, `T g = 0` is
 //! exactly `T = k max(0, s)`. [`TieRows::row`] writes the stretch at rest,
 //! `s(u) = |X_b - X_a| - L0 + n . (u_b - u_a)` with `n` the rest direction:
-//! the small-displacement theory of the linear strategies (the only ones
-//! that take ties), so that a tie's row is the same in every step and every
-//! force sample, and a sample equals a full solve.
+//! the small-displacement theory of the linear strategies, so that a tie's
+//! row is the same in every step and every force sample, and a sample
+//! equals a full solve.
+//!
+//! # In the nonlinear strategies: springs of the energy
+//! `corotational` and `neo-hookean` solve large rotations, where a row
+//! written at rest would pull along a direction the walls have turned away
+//! from; and their contact solve has no path for a row between two nodes
+//! with its own compliance (they take no nodal loads). They hold the intact
+//! ties as springs of their own energy instead ([`TieSprings`]: the true
+//! length and direction at every iterate, energy `k max(0, s)^2 / 2`, the
+//! material and geometric tangent), coupled in their sparsity pattern at
+//! construction (each pair a pseudo-element, so the tangent goes through
+//! their element assembly and elimination unchanged). Their local model for
+//! the force loop is their tangent compliance, springs included, so a
+//! sample is the linearization of the full problem about the last step, as
+//! for their tissue; a blade's cut reaches them at the next step (there is
+//! no tie row in their force loop to drop).
 //!
 //! The alternative, the ties' stiffness `sum k n n^T` added to `K` and the
 //! cached compliance updated by the Woodbury identity as ties are cut,
@@ -205,6 +220,124 @@ impl TieRows {
             RowKind::Unilateral,
             1.0 / pair.stiffness_n_per_m,
         )
+    }
+}
+
+/// The intact ties as springs of a nonlinear strategy's own energy
+/// (`corotational`, `neo-hookean`): the law of the module documentation at
+/// the current shape, not its small-displacement row.
+///
+/// With `d = (X_b - X_a) + (u_b - u_a)`, `L = |d|`, `n = d / L` and the
+/// stretch `s = L - L0`, a stretched pair (`s > 0`) stores the energy
+/// `k s^2 / 2` (J), adds the internal force `dE/du_b = T n = -dE/du_a`
+/// (N, `T = k s`) and the tangent block
+/// `K_bb = K_aa = -K_ab = k n n^T + (T / L) (I - n n^T)` (N/m: the
+/// material part along the tie and the geometric part across it, both
+/// positive semi-definite); a slack pair carries nothing. Pairs are the
+/// [`TieRows`] grouping (one per node pair, stiffnesses summed), each with
+/// its index among the pairs the strategy coupled in its sparsity pattern
+/// at construction ([`super::SolverOptions::tie_pairs`]).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct TieSprings {
+    /// The intact pairs and their index among the declared ones.
+    pub pairs: Vec<(usize, TiePair)>,
+}
+
+/// What one spring does at a displacement: its direction, length (m),
+/// tension (N) and tangent block `K_aa` (N/m); `None` while slack.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SpringState {
+    /// Unit direction from `a` to `b`.
+    pub n: Vector3<f64>,
+    /// Tension `k max(0, s)`, N.
+    pub tension_n: f64,
+    /// `K_aa = k n n^T + (T / L) (I - n n^T)`, N/m.
+    pub block: nalgebra::Matrix3<f64>,
+}
+
+impl TieSprings {
+    /// The state of pair `p` at displacement `u` (DOF vector, m) over rest
+    /// positions `rest` (m).
+    pub fn state(p: &TiePair, rest: &[Point3<f64>], u: &[f64]) -> Option<SpringState> {
+        let (a, b) = (p.a as usize, p.b as usize);
+        let du = Vector3::new(
+            u[3 * b] - u[3 * a],
+            u[3 * b + 1] - u[3 * a + 1],
+            u[3 * b + 2] - u[3 * a + 2],
+        );
+        let d = (rest[b] - rest[a]) + du;
+        let len = d.norm();
+        let s = len - p.rest_length_m;
+        if !(s > 0.0 && len > 0.0) {
+            return None;
+        }
+        let n = d / len;
+        let k = p.stiffness_n_per_m;
+        let tension_n = k * s;
+        let nn = n * n.transpose();
+        let block = k * nn + (tension_n / len) * (nalgebra::Matrix3::identity() - nn);
+        Some(SpringState {
+            n,
+            tension_n,
+            block,
+        })
+    }
+
+    /// Their energy at `u`, J.
+    pub fn energy(&self, rest: &[Point3<f64>], u: &[f64]) -> f64 {
+        self.pairs
+            .iter()
+            .filter_map(|(_, p)| {
+                Self::state(p, rest, u).map(|s| 0.5 * s.tension_n.powi(2) / p.stiffness_n_per_m)
+            })
+            .sum()
+    }
+
+    /// Adds their internal force at `u` (N, DOF vector) to `f`.
+    pub fn add_forces(&self, rest: &[Point3<f64>], u: &[f64], f: &mut [f64]) {
+        for (_, p) in &self.pairs {
+            if let Some(st) = Self::state(p, rest, u) {
+                let t = st.tension_n * st.n;
+                for i in 0..3 {
+                    f[3 * p.a as usize + i] -= t[i];
+                    f[3 * p.b as usize + i] += t[i];
+                }
+            }
+        }
+    }
+
+    /// Adds their tangent at `u` times `x` to `y` (DOF vectors).
+    pub fn add_product(&self, rest: &[Point3<f64>], u: &[f64], x: &[f64], y: &mut [f64]) {
+        for (_, p) in &self.pairs {
+            if let Some(st) = Self::state(p, rest, u) {
+                let (a, b) = (3 * p.a as usize, 3 * p.b as usize);
+                let dx = Vector3::new(x[b] - x[a], x[b + 1] - x[a + 1], x[b + 2] - x[a + 2]);
+                let q = st.block * dx;
+                for i in 0..3 {
+                    y[a + i] -= q[i];
+                    y[b + i] += q[i];
+                }
+            }
+        }
+    }
+
+    /// Their tangent blocks at `u` as pseudo-elements on the nodes
+    /// `[a, b, a, b]` (the `[a, b]` blocks of a 12 x 12 element matrix,
+    /// zero elsewhere), each with its declared index, for assembly through
+    /// the element path ([`super::assembly::Pattern::with_pairs`]).
+    pub fn elements<'a>(
+        &'a self,
+        rest: &'a [Point3<f64>],
+        u: &'a [f64],
+    ) -> impl Iterator<Item = (usize, [u32; 4], super::element::ElementMatrix)> + 'a {
+        self.pairs.iter().filter_map(move |(i, p)| {
+            let st = Self::state(p, rest, u)?;
+            let mut k = super::element::ElementMatrix::zeros();
+            for (r, c, sign) in [(0, 0, 1.0), (3, 3, 1.0), (0, 3, -1.0), (3, 0, -1.0)] {
+                k.fixed_view_mut::<3, 3>(r, c).copy_from(&(sign * st.block));
+            }
+            Some((*i, [p.a, p.b, p.a, p.b], k))
+        })
     }
 }
 

@@ -1097,15 +1097,6 @@ impl Scene {
             if let Some(r) = &t.region {
                 check_region(format!("{at}.region"), r)?;
             }
-            if !self.solver.strategy.is_linear() {
-                return Err(bad(
-                    at,
-                    format!(
-                        "ties need solver.strategy = \"compliance\" or \"direct\" (the scene has {:?})",
-                        self.solver.strategy.name()
-                    ),
-                ));
-            }
         }
         Ok(())
     }

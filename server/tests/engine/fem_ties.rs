@@ -10,11 +10,22 @@
 //!   in the operator, not rows beside it), for soft and stiff ties, and
 //!   after some ties are cut, a factorization with the remaining ones;
 //! * a slack tie carries nothing and moves nothing;
-//! * strategies without nodal loads refuse ties with an error naming them.
+//! * strategies without nodal loads refuse tie *rows* with an error naming
+//!   them; they hold ties as springs of their energy instead
+//!   ([`fissure_server::fem::ties::TieSprings`]), and there:
+//!   * a stretched spring pulls with `k` times its true stretch, balanced by
+//!     the supports (equilibrium of each block);
+//!   * at a small stretch it agrees with the linear strategies' row;
+//!   * a slack spring moves nothing;
+//!   * the force loop's local model (the tangent compliance) has the
+//!     spring in series with the tissue (Sherman-Morrison).
 
+use fissure_server::fem::corotational::IterativeOptions;
 use fissure_server::fem::lcp::RowKind;
+use fissure_server::fem::ties::{TiePair, TieSprings};
 use fissure_server::fem::{
-    ContactAnswer, ContactRow, DeformationSolver, Material, SolverOptions, Strategy, build_solver,
+    CompliancePatch, ContactAnswer, ContactRow, DeformationSolver, Material, SolverOptions,
+    Strategy, build_solver,
 };
 use fissure_server::mesh::TetMesh;
 use fissure_server::mesh::blocks::cube;
@@ -534,5 +545,173 @@ fn a_patch_sharing_the_ties_blocks_equals_a_plain_patch_block_for_block() {
                 assert!((prod - want * v).norm() <= 1e-12 * scale * v.norm());
             }
         }
+    }
+}
+
+/// A nonlinear strategy holding the springs of `pairs` (`(a, b)`), solved
+/// to the reference tolerance.
+fn spring_solver(
+    s: Strategy,
+    mesh: &TetMesh,
+    fixed: &[u32],
+    pairs: &[[u32; 2]],
+) -> Box<dyn DeformationSolver> {
+    let m = Material {
+        youngs_modulus_pa: E,
+        poisson_ratio: 0.3,
+    };
+    let opts = SolverOptions {
+        tie_pairs: pairs.to_vec(),
+        iterative: IterativeOptions::reference(),
+        ..Default::default()
+    };
+    build_solver(s, mesh, m, fixed, &opts).unwrap()
+}
+
+/// One spring from `a` to `b` of rest length `l0` (m) and stiffness `k`
+/// (N/m), declared pair 0.
+fn one_spring(a: u32, b: u32, l0: f64, k: f64) -> TieSprings {
+    TieSprings {
+        pairs: vec![(
+            0,
+            TiePair {
+                first_tie: 0,
+                a,
+                b,
+                rest_length_m: l0,
+                stiffness_n_per_m: k,
+            },
+        )],
+    }
+}
+
+const NONLINEAR: [Strategy; 2] = [Strategy::Corotational, Strategy::NeoHookean];
+
+#[test]
+fn a_nonlinear_strategys_tie_pulls_with_k_times_its_true_stretch_balanced_by_the_supports() {
+    let (mesh, fixed, lower, upper) = two_blocks(3);
+    let a = near(&mesh, &lower, 0.5 * L, 0.5 * L);
+    let b = near(&mesh, &upper, 0.5 * L, 0.5 * L);
+    // Seeded 0.5 mm short across the 3 mm gap: a 17 % pre-stretch.
+    let (l0, k) = (GAP - 0.0005, 2.0);
+    for s in NONLINEAR {
+        let mut solver = spring_solver(s, &mesh, &fixed, &[[a, b]]);
+        assert!(
+            solver.set_tie_springs(&one_spring(a, b, l0, k)),
+            "{}",
+            s.name()
+        );
+        let u = solver.solve(&[]).unwrap().displacements.clone();
+        let xa = mesh.nodes[a as usize] + u[a as usize];
+        let xb = mesh.nodes[b as usize] + u[b as usize];
+        let len = (xb - xa).norm();
+        let n = (xb - xa) / len;
+        let tension = k * (len - l0);
+        // The walls came together, not all the way.
+        assert!(len < GAP && len > l0, "{}: length {len} m", s.name());
+        // The lower block is held by its supports alone against the tie's
+        // pull `T n` on `a`.
+        let reactions = solver.support_reactions();
+        let lower_sum: Vector3<f64> = fixed
+            .iter()
+            .zip(reactions)
+            .filter(|(v, _)| mesh.nodes[**v as usize].z < 0.5 * L)
+            .map(|(_, r)| *r)
+            .sum();
+        let err = (lower_sum + tension * n).norm();
+        assert!(
+            err <= 1e-6 * tension,
+            "{}: supports {lower_sum:?} N against the tie's {:?} N",
+            s.name(),
+            tension * n
+        );
+    }
+}
+
+#[test]
+fn at_a_small_stretch_a_nonlinear_strategys_tie_agrees_with_the_linear_row() {
+    let (mesh, fixed, lower, upper) = two_blocks(3);
+    let a = near(&mesh, &lower, 0.3 * L, 0.6 * L);
+    let b = near(&mesh, &upper, 0.4 * L, 0.5 * L);
+    let rest = (mesh.nodes[b as usize] - mesh.nodes[a as usize]).norm();
+    // A 1 um pre-stretch: displacements of order 1e-7 m over 1 cm blocks,
+    // where the geometric nonlinearity is of relative order 1e-5.
+    let (l0, k) = (rest - 1e-6, 5.0);
+    let mut linear = solver(Strategy::Compliance, &mesh, &fixed);
+    linear
+        .solve_contact(
+            &[tie_row(&mesh, a, b, l0, k)],
+            &mut ContactAnswer::default(),
+        )
+        .unwrap();
+    let want = linear.last_solution().unwrap().displacements.clone();
+    assert!(max_norm(&want) > 1e-8);
+    for s in NONLINEAR {
+        let mut solver = spring_solver(s, &mesh, &fixed, &[[a, b]]);
+        solver.set_tie_springs(&one_spring(a, b, l0, k));
+        let got = &solver.solve(&[]).unwrap().displacements;
+        let err = got
+            .iter()
+            .zip(&want)
+            .map(|(g, w)| (g - w).norm())
+            .fold(0.0, f64::max);
+        assert!(
+            err <= 1e-4 * max_norm(&want),
+            "{}: error {err:e} m of {:e} m",
+            s.name(),
+            max_norm(&want)
+        );
+    }
+}
+
+#[test]
+fn a_slack_tie_spring_moves_nothing() {
+    let (mesh, fixed, lower, upper) = two_blocks(2);
+    let a = near(&mesh, &lower, 0.5 * L, 0.5 * L);
+    let b = near(&mesh, &upper, 0.5 * L, 0.5 * L);
+    for s in NONLINEAR {
+        let mut solver = spring_solver(s, &mesh, &fixed, &[[a, b]]);
+        solver.set_tie_springs(&one_spring(a, b, GAP + 0.001, 50.0));
+        let u = &solver.solve(&[]).unwrap().displacements;
+        assert_eq!(max_norm(u), 0.0, "{}", s.name());
+    }
+}
+
+/// The force loop's local model of a nonlinear strategy is the tangent
+/// compliance, the spring's stiffness included: along the tie, the
+/// compliance between its nodes `c = n . (C_aa + C_bb - C_ab - C_ba) n`
+/// is the tissue's `c0` in series with the spring, `c0 / (1 + k c0)`
+/// (Sherman-Morrison for the rank-one `k (e_b - e_a) (e_b - e_a)^T n n^T`;
+/// the spring's geometric part `T / L`, of relative order 1e-4 here, and
+/// the tissue's change of tangent over 1e-7 m are below the tolerance).
+#[test]
+fn a_nonlinear_strategys_local_model_has_the_spring_in_series_with_the_tissue() {
+    let (mesh, fixed, lower, upper) = two_blocks(3);
+    let a = near(&mesh, &lower, 0.5 * L, 0.5 * L);
+    let b = near(&mesh, &upper, 0.5 * L, 0.5 * L);
+    let rest = mesh.nodes[b as usize] - mesh.nodes[a as usize];
+    let n = rest.normalize();
+    let along = |patch: &CompliancePatch| {
+        let c = patch.block(0, 0) + patch.block(1, 1) - patch.block(0, 1) - patch.block(1, 0);
+        n.dot(&(c * n))
+    };
+    let mut bare = solver(Strategy::Compliance, &mesh, &fixed);
+    let mut patch = CompliancePatch::default();
+    assert!(bare.compliance_patch(&[a, b], &mut patch));
+    let c0 = along(&patch);
+    let k = 40.0;
+    for s in NONLINEAR {
+        let mut solver = spring_solver(s, &mesh, &fixed, &[[a, b]]);
+        solver.set_tie_springs(&one_spring(a, b, rest.norm() - 1e-6, k));
+        solver.solve(&[]).unwrap();
+        let mut patch = CompliancePatch::default();
+        assert!(solver.compliance_patch(&[a, b], &mut patch), "{}", s.name());
+        let c = along(&patch);
+        let want = c0 / (1.0 + k * c0);
+        assert!(
+            (c - want).abs() <= 1e-3 * want,
+            "{}: {c:e} m/N, in series {want:e} m/N (tissue alone {c0:e})",
+            s.name()
+        );
     }
 }

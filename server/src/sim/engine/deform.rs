@@ -113,6 +113,14 @@ impl Deformer {
         options.iterative.max_outer = scene.solver.max_iterations;
         options.foundation = model.foundation.clone();
         options.element = scene.solver.element;
+        // Every pair a tie may join, for the strategies that hold ties as
+        // springs of their energy (they couple them in their pattern).
+        let all = vec![crate::fem::ties::TieState::Intact; model.ties.len()];
+        options.tie_pairs = crate::fem::ties::TieRows::group(&model.ties, &all)
+            .pairs
+            .iter()
+            .map(|p| [p.a, p.b])
+            .collect();
         let mut solver = fem::build_solver(strategy, &model.mesh, material, &model.fixed, &options)
             .map_err(SimError::Solver)?;
         solver.set_column_policy(columns, hook);
@@ -122,6 +130,13 @@ impl Deformer {
             fem_rows: Vec::new(),
             patch: CompliancePatch::default(),
         })
+    }
+
+    /// Gives the intact ties to a strategy that holds them as springs of
+    /// its energy; `false` when it takes them as contact rows
+    /// ([`fem::DeformationSolver::set_tie_springs`]).
+    pub fn set_tie_springs(&mut self, springs: &crate::fem::ties::TieSprings) -> bool {
+        self.solver.set_tie_springs(springs)
     }
 
     /// The strategy's name.

@@ -86,6 +86,9 @@ pub struct StepEngine {
     rule: RowRule,
     skull: Option<SkullRows>,
     ties: TieStage,
+    /// Whether the strategy holds the ties as springs of its energy (the
+    /// nonlinear ones) rather than as contact rows.
+    tie_springs: bool,
     injury: InjuryStage,
     next_frame: u64,
     rows: Vec<Row>,
@@ -116,6 +119,18 @@ const CONTACT_SEARCHES: u32 = 8;
 const GEOMETRY_TOLERANCE: f64 = 1e-6;
 
 impl StepEngine {
+    /// The intact ties into the step's problem: springs of the strategy's
+    /// energy (the nonlinear strategies, at their true length and
+    /// direction) or rows of the contact problem (the linear ones, at
+    /// rest; [`crate::fem::ties`]).
+    fn ties_into_problem(&mut self, model: &Model) {
+        if self.tie_springs {
+            self.deformer.set_tie_springs(&self.ties.springs());
+        } else {
+            self.ties.push_rows(model, &mut self.rows);
+        }
+    }
+
     /// The step of `scene` over `model` (factorizes the solver). `columns`
     /// and `hook` as in [`Deformer::new`]; `query` casts on the scene's
     /// backend unless the caller gives one.
@@ -127,6 +142,7 @@ impl StepEngine {
         backend: Option<Box<dyn RayBackend>>,
     ) -> Result<Self, SimError> {
         let mut deformer = Deformer::new(scene, &model, columns, hook)?;
+        let tie_springs = !model.ties.is_empty() && deformer.set_tie_springs(&Default::default());
         // The ties' rows are in every step's problem and their nodes in
         // every patch: their blocks among themselves are computed once.
         let tie_nodes: Vec<u32> = model.ties.iter().flat_map(|t| [t.a, t.b]).collect();
@@ -168,6 +184,7 @@ impl StepEngine {
             rule: RowRule::of(scene),
             skull: SkullRows::of(scene),
             ties: TieStage::new(&model),
+            tie_springs,
             injury: InjuryStage::new(
                 Arc::new(InjuryGeometry::new(
                     &model.mesh,
@@ -300,7 +317,7 @@ impl StepEngine {
         // The intact ties' rows, less those the blades cut since the last
         // step.
         self.ties.take_cuts(&model, sim_time_s);
-        self.ties.push_rows(&model, &mut self.rows);
+        self.ties_into_problem(&model);
         // Warm start from the last step's multipliers, by key.
         self.warm.clear();
         self.warm.extend(
@@ -378,7 +395,7 @@ impl StepEngine {
             tear_rounds += 1;
             let old = self.multipliers_by_key();
             self.rows.retain(|r| r.owner != rows::TIE_OWNER);
-            self.ties.push_rows(&model, &mut self.rows);
+            self.ties_into_problem(&model);
             self.warm_from(&old);
         };
         let solve_us = t1.elapsed().as_secs_f64() * 1e6;

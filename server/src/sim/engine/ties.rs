@@ -178,6 +178,9 @@ pub struct TieStage {
     /// Whether ties tear here; `false` for a mirror of another engine's
     /// ties ([`Self::mirror`]).
     mirror: bool,
+    /// Each node pair's index among the pairs of every tie intact (the
+    /// strategy's [`crate::fem::SolverOptions::tie_pairs`]).
+    declared: std::collections::HashMap<(u32, u32), usize>,
 }
 
 impl TieStage {
@@ -185,7 +188,14 @@ impl TieStage {
     pub fn new(model: &Model) -> Self {
         let states = vec![TieState::Intact; model.ties.len()];
         let rows = TieRows::group(&model.ties, &states);
+        let declared = rows
+            .pairs
+            .iter()
+            .enumerate()
+            .map(|(i, p)| ((p.a.min(p.b), p.a.max(p.b)), i))
+            .collect();
         Self {
+            declared,
             cuts: Arc::new(TieCuts::new(states.len())),
             tore_vessel: vec![false; model.instruments.len()],
             states,
@@ -260,6 +270,22 @@ impl TieStage {
         }
         if changed {
             self.rows = TieRows::group(&model.ties, &self.states);
+        }
+    }
+
+    /// The intact ties' pairs as springs of a nonlinear strategy's energy
+    /// ([`crate::fem::ties::TieSprings`]), each with its declared index.
+    pub fn springs(&self) -> crate::fem::ties::TieSprings {
+        crate::fem::ties::TieSprings {
+            pairs: self
+                .rows
+                .pairs
+                .iter()
+                .filter_map(|p| {
+                    let i = *self.declared.get(&(p.a.min(p.b), p.a.max(p.b)))?;
+                    Some((i, *p))
+                })
+                .collect(),
         }
     }
 
