@@ -399,6 +399,15 @@ impl StepEngine {
             self.warm_from(&old);
         };
         let solve_us = t1.elapsed().as_secs_f64() * 1e6;
+        tracing::debug!(
+            frame,
+            solves = rounds,
+            searches,
+            tear_rounds,
+            rows = self.rows.len(),
+            solve_us,
+            "step solved"
+        );
         let timings = |total: f64| StepTimings {
             collision_us,
             solve_us,
