@@ -131,6 +131,14 @@ fn max_norm(u: &[Vector3<f64>]) -> f64 {
     u.iter().map(|v| v.norm()).fold(0.0, f64::max)
 }
 
+/// The largest distance between two displacement fields, m.
+fn max_diff(u: &[Vector3<f64>], v: &[Vector3<f64>]) -> f64 {
+    u.iter()
+        .zip(v)
+        .map(|(p, q)| (p - q).norm())
+        .fold(0.0, f64::max)
+}
+
 /// The node of `nodes` nearest `(x, y)` in the plane.
 fn near(mesh: &TetMesh, nodes: &[u32], x: f64, y: f64) -> u32 {
     *nodes
@@ -174,11 +182,7 @@ fn a_stretched_tie_pulls_with_k_times_its_stretch_as_a_fresh_factorization_with_
                 k * stretch
             );
             let want = dense_reference(&mesh, &fixed, &[(a, b, l0, k)]);
-            let err = u
-                .iter()
-                .zip(&want)
-                .map(|(p, q)| (p - q).norm())
-                .fold(0.0, f64::max);
+            let err = max_diff(&u, &want);
             assert!(
                 err <= 1e-8 * max_norm(&want),
                 "{} k {k}: displacement error {err} m against {} m",
@@ -257,12 +261,7 @@ fn after_cuts_the_solution_equals_a_fresh_factorization_with_the_remaining_ties(
             );
             let want: Vec<_> = kept.iter().map(|&i| ties[i]).collect();
             let want = dense_reference(&mesh, &fixed, &want);
-            let u = &solver.last_solution().unwrap().displacements;
-            let err = u
-                .iter()
-                .zip(&want)
-                .map(|(p, q)| (p - q).norm())
-                .fold(0.0, f64::max);
+            let err = max_diff(&solver.last_solution().unwrap().displacements, &want);
             assert!(
                 err <= 1e-8 * max_norm(&want),
                 "{} cut {cut:?}: error {err} m of {} m",
@@ -367,11 +366,7 @@ fn a_contact_solve_after_others_equals_a_fresh_solvers_answer_on_the_same_rows()
                 "step {step} row {i}: {l} N against a fresh solver's {m} N"
             );
         }
-        let err = u
-            .iter()
-            .zip(v)
-            .map(|(p, q)| (p - q).norm())
-            .fold(0.0, f64::max);
+        let err = max_diff(&u, v);
         assert!(
             err <= 1e-8 * max_norm(v),
             "step {step}: displacement error {err} m of {} m",
@@ -649,12 +644,7 @@ fn at_a_small_stretch_a_nonlinear_strategys_tie_agrees_with_the_linear_row() {
     for s in NONLINEAR {
         let mut solver = spring_solver(s, &mesh, &fixed, &[[a, b]]);
         solver.set_tie_springs(&one_spring(a, b, l0, k));
-        let got = &solver.solve(&[]).unwrap().displacements;
-        let err = got
-            .iter()
-            .zip(&want)
-            .map(|(g, w)| (g - w).norm())
-            .fold(0.0, f64::max);
+        let err = max_diff(&solver.solve(&[]).unwrap().displacements, &want);
         assert!(
             err <= 1e-4 * max_norm(&want),
             "{}: error {err:e} m of {:e} m",
