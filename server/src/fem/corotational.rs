@@ -602,7 +602,6 @@ impl Corotational {
         }
         let m = self.lin.model();
         let rot = &self.rot;
-        let springs: Vec<_> = self.springs.elements(&m.rest, &self.u).collect();
         let refactored = self.tangent.refactor(
             m,
             |e| {
@@ -617,7 +616,8 @@ impl Corotational {
                 }
                 Some(k)
             },
-            &springs,
+            &self.springs,
+            &self.u,
         );
         if refactored.is_err() {
             return false;

@@ -398,16 +398,10 @@ impl NeoHookean {
     /// state ([`super::tangent`]); `false` when its factorization fails.
     fn tangent_patch(&mut self, nodes: &[u32], patch: &mut CompliancePatch) -> bool {
         let (m, u, f) = (&self.model, &self.good, &mut self.f_good);
-        let fresh = self.tangent.is_fresh();
-        if !fresh {
+        if !self.tangent.is_fresh() {
             f.fill(0.0);
             self.springs.add_forces(&m.rest, u, f);
         }
-        let springs: Vec<_> = if fresh {
-            Vec::new()
-        } else {
-            self.springs.elements(&m.rest, u).collect()
-        };
         let refactored = self.tangent.refactor(
             m,
             |e| {
@@ -421,7 +415,8 @@ impl NeoHookean {
                 scatter_add(t, &fe, f);
                 Some(k)
             },
-            &springs,
+            &self.springs,
+            u,
         );
         if refactored.is_err() {
             return false;

@@ -27,6 +27,7 @@ use super::contact::CompliancePatch;
 use super::element::ElementMatrix;
 use super::factor::SparseLlt;
 use super::model::Model;
+use super::ties::TieSprings;
 use super::{SolveError, assembly::node_vec};
 use nalgebra::{Matrix3, Point3, Vector3};
 
@@ -73,8 +74,8 @@ impl TangentPatch {
     }
 
     /// Assembles `sum_e k(e)` (the element tangents, global basis, N/m)
-    /// and the tie springs' tangents `springs` (pseudo-element index among
-    /// the model's pairs, nodes, matrix)
+    /// and the tangents of the tie springs `springs` at displacement `u`
+    /// (DOF vector, m; [`TieSprings::elements`])
     /// with the supports eliminated and factors it, unless the factor is of
     /// the current state already. When `k` gives a matrix that is not
     /// positive definite, `model.kel` (the rest stiffness) is used instead.
@@ -82,7 +83,8 @@ impl TangentPatch {
         &mut self,
         model: &Model,
         mut k: impl FnMut(usize) -> Option<ElementMatrix>,
-        springs: &[(usize, [u32; 4], ElementMatrix)],
+        springs: &TieSprings,
+        u: &[f64],
     ) -> Result<(), SolveError> {
         if self.fresh {
             return Ok(());
@@ -106,12 +108,12 @@ impl TangentPatch {
             // The ties' springs (pseudo-elements after the tetrahedra,
             // [`super::ties::TieSprings::elements`]), positive
             // semi-definite, in the rest fallback too.
-            for (i, t, ke) in springs {
+            for (i, t, ke) in springs.elements(&model.rest, u) {
                 this.frame.scatter(
                     &model.pattern,
                     model.tets.len() + i,
-                    t,
-                    ke,
+                    &t,
+                    &ke,
                     &this.zeros,
                     &mut this.values,
                     &mut this.rhs,

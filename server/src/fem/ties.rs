@@ -204,6 +204,13 @@ impl TieRows {
         Self { pairs, row_of }
     }
 
+    /// The rows of every tie intact: the pairs a strategy declares at
+    /// construction ([`super::SolverOptions::tie_pairs`]), whose order
+    /// indexes [`TieSprings`]'s pairs.
+    pub fn all(ties: &[Tie]) -> Self {
+        Self::group(ties, &vec![TieState::Intact; ties.len()])
+    }
+
     /// The contact row of pair `p`, written at rest (module
     /// documentation).
     pub fn row(&self, p: usize, rest: &[Point3<f64>]) -> ContactRow {

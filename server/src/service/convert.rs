@@ -73,7 +73,6 @@ pub fn scene_description(scene: &Scene, model: &Model) -> pb::SceneDescription {
             .iter()
             .enumerate()
             .map(|(i, ins)| {
-                let plate = ins.shape.plate(ins.thickness_m, ins.width_m, ins.length_m);
                 let edge = ins.shape.cutting_edge(ins.width_m, ins.length_m);
                 pb::InstrumentDescription {
                     name: ins.name.clone(),
@@ -100,7 +99,8 @@ pub fn scene_description(scene: &Scene, model: &Model) -> pb::SceneDescription {
                     },
                     cutting_edge_from_m: edge.map(|e| vec3(&e[0].coords)),
                     cutting_edge_to_m: edge.map(|e| vec3(&e[1].coords)),
-                    outline: Some(plate_outline(&plate)),
+                    // The plate the server collides with.
+                    outline: Some(plate_outline(&model.instruments[i].plate)),
                 }
             })
             .collect(),
@@ -448,9 +448,9 @@ mod tests {
             },
             PlateShape::Blade,
         ];
-        let model = Model::build(&scene).unwrap();
         for shape in shapes {
             scene.instruments[0].shape = shape;
+            let model = Model::build(&scene).unwrap();
             let d = scene_description(&scene, &model);
             let ins = &d.instruments[0];
             let spec = &scene.instruments[0];

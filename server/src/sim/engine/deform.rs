@@ -115,8 +115,7 @@ impl Deformer {
         options.element = scene.solver.element;
         // Every pair a tie may join, for the strategies that hold ties as
         // springs of their energy (they couple them in their pattern).
-        let all = vec![crate::fem::ties::TieState::Intact; model.ties.len()];
-        options.tie_pairs = crate::fem::ties::TieRows::group(&model.ties, &all)
+        options.tie_pairs = crate::fem::ties::TieRows::all(&model.ties)
             .pairs
             .iter()
             .map(|p| [p.a, p.b])

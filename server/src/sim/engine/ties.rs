@@ -187,7 +187,7 @@ impl TieStage {
     /// Every tie of `model` intact.
     pub fn new(model: &Model) -> Self {
         let states = vec![TieState::Intact; model.ties.len()];
-        let rows = TieRows::group(&model.ties, &states);
+        let rows = TieRows::all(&model.ties);
         let declared = rows
             .pairs
             .iter()
