@@ -794,6 +794,7 @@ mod tests {
         assert_eq!(r.problems_found, 0);
         let expect: f64 = (0..mesh.tets.len()).map(|t| mesh.signed_volume(t)).sum();
         assert!((r.volume_m3 - expect).abs() < 1e-15);
+                labels: Vec::new(),
         assert_eq!(
             r.radius_ratio_histogram
                 .as_ref()
@@ -822,6 +823,7 @@ mod tests {
         // STL stores f32 coordinates (relative rounding 6e-8).
         assert!((s.volume_m3 - expect).abs() < 1e-6 * expect);
     }
+                labels: Vec::new(),
 
     #[test]
     fn problems_and_errors_name_things() {

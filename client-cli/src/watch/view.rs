@@ -18,6 +18,8 @@ pub struct SessionView {
     pub rest: Vec<Point3<f64>>,
     /// Surface triangles.
     pub triangles: Vec<[u32; 3]>,
+    /// Tissue label of each triangle (empty for a model of one tissue).
+    pub triangle_labels: Vec<u32>,
     /// The scene's instruments.
     pub instruments: Vec<pb::InstrumentDescription>,
     /// Camera.
@@ -166,6 +168,11 @@ impl SessionView {
             .collect();
         let mut v = Self {
             scene: scene.name.clone(),
+            triangle_labels: if surface.triangle_labels.len() == triangles.len() {
+                surface.triangle_labels.clone()
+            } else {
+                Vec::new()
+            },
             rest,
             triangles,
             instruments: scene.instruments.clone(),
@@ -401,6 +408,7 @@ mod tests {
             outline: Some(pb::SurfaceMesh {
                 rest_positions_m: points,
                 triangles,
+                triangle_labels: Vec::new(),
             }),
             cutting_edge_from_m: Some(pb::Vec3 {
                 x: 0.0,

@@ -1,5 +1,6 @@
 //! The VTU time series of the boundary surface (`surface-NNNNNN.vtu`, point
-//! data `displacement` in m) and its ParaView index (`.pvd`, `timestep` = the
+//! data `displacement` in m; for a labelled model, cell data `label`, the
+//! tissue of each triangle) and its ParaView index (`.pvd`, `timestep` = the
 //! frame's simulation time, s); for scenes with ties, beside it the series of
 //! the ties that hold (`<stem>-ties-NNNNNN.vtu`, line cells with cell data
 //! `strain` and `vessel` (1 for a vessel, 0 for a trabecula), so that
@@ -52,12 +53,18 @@ impl VtuSeries {
         let file =
             std::fs::File::create(&path).with_context(|| format!("creating {}", path.display()))?;
         let mut w = std::io::BufWriter::new(file);
+        let labels: Vec<f64> = view.triangle_labels.iter().map(|&l| f64::from(l)).collect();
+        let cell_data: &[(&str, &[f64])] = if labels.is_empty() {
+            &[]
+        } else {
+            &[("label", &labels)]
+        };
         fissure_proto::vtu::write_vtu_surface(
             &mut w,
             &self.positions,
             &view.triangles,
             &[("displacement", &self.displacement)],
-            &[],
+            cell_data,
         )
         .and_then(|_| w.flush())
         .with_context(|| format!("writing {}", path.display()))?;
@@ -150,5 +157,50 @@ mod tests {
             "<DataSet timestep=\"0.020000\" group=\"\" part=\"0\" file=\"a-000001.vtu\"/>"
         ));
         assert!(s.starts_with("<?xml"));
+    }
+
+    #[test]
+    fn a_labelled_surface_writes_its_tissue_labels_as_cell_data() {
+        let surface = pb::SurfaceMesh {
+            rest_positions_m: vec![
+                0.0, 0.0, 0.0, 0.01, 0.0, 0.0, 0.0, 0.01, 0.0, 0.0, 0.0, 0.01,
+            ],
+            triangles: vec![0, 2, 1, 0, 1, 3, 0, 3, 2, 1, 2, 3],
+            triangle_labels: vec![3, 3, 42, 42],
+        };
+        let scene = pb::SceneDescription {
+            name: "labelled".into(),
+            ..Default::default()
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let frame = pb::DeformationFrame {
+            frame: 1,
+            ..Default::default()
+        };
+        let labelled = SessionView::new(&scene, &surface);
+        let path = VtuSeries::new(dir.path(), "s")
+            .write(&labelled, &frame)
+            .unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert!(text.contains("NumberOfCells=\"4\""), "{text}");
+        assert!(text.contains("Name=\"label\""), "{text}");
+        // Without labels (or with a count that does not match) no label
+        // array is written.
+        let plain = SessionView::new(
+            &scene,
+            &pb::SurfaceMesh {
+                triangle_labels: vec![1],
+                ..surface
+            },
+        );
+        assert!(plain.triangle_labels.is_empty());
+        let path = VtuSeries::new(dir.path(), "p")
+            .write(&plain, &frame)
+            .unwrap();
+        assert!(
+            !std::fs::read_to_string(&path)
+                .unwrap()
+                .contains("Name=\"label\"")
+        );
     }
 }

@@ -288,6 +288,7 @@ impl Compliance {
                 let mesh = crate::mesh::TetMesh {
                     nodes: model.rest.clone(),
                     tets: model.tets.clone(),
+                    labels: Vec::new(),
                 };
                 let mut v = mesh.boundary().to_volume;
                 v.sort_unstable();

@@ -314,7 +314,8 @@ impl Corotational {
                     *rot = r;
                     let rt = r.transpose();
                     let strain = (rt - Matrix3::identity()) + rt * h;
-                    write_forces(g, &(r * stress(&strain, m.lambda, m.mu)), o);
+                    let [lambda, mu] = m.lame_pa[e];
+                    write_forces(g, &(r * stress(&strain, lambda, mu)), o);
                 }
                 None
             },
@@ -342,7 +343,8 @@ impl Corotational {
                 let e = e0 + k;
                 let (g, r) = (&m.geoms[e], &rot[e]);
                 let grad = g.displacement_gradient(&m.tets[e].map(|n| node_vec(x, n as usize)));
-                write_forces(g, &(r * stress(&(r.transpose() * grad), m.lambda, m.mu)), o);
+                let [lambda, mu] = m.lame_pa[e];
+                write_forces(g, &(r * stress(&(r.transpose() * grad), lambda, mu)), o);
             }
         });
         self.gather_map.gather(self.par, &self.elem, &mut self.q);

@@ -102,6 +102,16 @@ impl Material {
     }
 }
 
+/// The material of one tissue: the elements whose mesh label is `label`
+/// take it ([`model::Model::set_tissues`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Tissue {
+    /// The tissue's label in the mesh (`TetMesh::labels`).
+    pub label: u32,
+    /// Its material.
+    pub material: Material,
+}
+
 /// An enforced displacement of one node (a Dirichlet condition on its 3 DOFs).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Prescribed {
@@ -457,6 +467,10 @@ pub struct SolverOptions {
     /// ([`DeformationSolver::set_tie_springs`]); the linear strategies take
     /// ties as contact rows and ignore it.
     pub tie_pairs: Vec<[u32; 2]>,
+    /// A material per tissue label (elements of other labels, and every
+    /// element of an unlabelled mesh, take the `material` argument of
+    /// [`build_solver`]). Every strategy and element honours it.
+    pub tissues: Vec<Tissue>,
 }
 
 impl Default for SolverOptions {
@@ -471,6 +485,7 @@ impl Default for SolverOptions {
             cache_nodes: None,
             element: Element::default(),
             tie_pairs: Vec::new(),
+            tissues: Vec::new(),
         }
     }
 }
@@ -486,6 +501,7 @@ pub fn build_solver(
     options: &SolverOptions,
 ) -> Result<Box<dyn DeformationSolver>, SolveError> {
     let mut model = model::Model::new(mesh, material, fixed, &options.axis_supports)?;
+    model.set_tissues(&mesh.labels, material, &options.tissues)?;
     if options.element == Element::Tet4NodalPressure {
         if !strategy.is_linear() {
             return Err(SolveError::InvalidModel(format!(

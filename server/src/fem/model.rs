@@ -4,7 +4,7 @@
 use super::assembly::Pattern;
 use super::element::{ElementMatrix, TetGeometry};
 use super::nodal_pressure::NodalPressure;
-use super::{Material, SolveError};
+use super::{Material, SolveError, Tissue};
 use crate::mesh::TetMesh;
 use nalgebra::Point3;
 
@@ -31,17 +31,17 @@ pub struct Model {
     /// elastic foundation on its outer faces, once
     /// [`super::foundation::fold_into`] has added them).
     pub kel: Vec<ElementMatrix>,
-    /// Lamé parameters, Pa.
-    pub lambda: f64,
-    /// Shear modulus, Pa.
-    pub mu: f64,
+    /// Lamé parameters `[lambda, mu]` per element, Pa (one material, or
+    /// each element its tissue's, [`Model::set_tissues`]).
+    pub lame_pa: Vec<[f64; 2]>,
     /// Sparsity pattern of the global stiffness.
     pub pattern: Pattern,
     /// Held DOFs (supports), per DOF.
     pub support: Vec<bool>,
     /// Fully fixed nodes in the order given (support reactions use it).
     pub fixed: Vec<u32>,
-    /// Young's modulus, Pa.
+    /// The largest Young's modulus of the elements, Pa (scales the
+    /// convergence floor, [`Model::force_floor`]).
     pub youngs_modulus_pa: f64,
     /// Characteristic length: the diagonal of the rest bounding box, m.
     pub length_m: f64,
@@ -62,17 +62,8 @@ impl Model {
         fixed: &[u32],
         axis: &[AxisSupport],
     ) -> Result<Self, SolveError> {
-        let (e, nu) = (material.youngs_modulus_pa, material.poisson_ratio);
-        if !(e.is_finite() && e > 0.0) {
-            return Err(SolveError::InvalidModel(format!(
-                "Young's modulus {e} Pa is not positive"
-            )));
-        }
-        if !(nu.is_finite() && (0.0..0.5).contains(&nu)) {
-            return Err(SolveError::InvalidModel(format!(
-                "Poisson ratio {nu} is not in [0, 0.5)"
-            )));
-        }
+        check_material(&material, "")?;
+        let e = material.youngs_modulus_pa;
         let (lambda, mu) = material.lame();
         let n_nodes = mesh.nodes.len();
         let mut geoms = Vec::with_capacity(mesh.tets.len());
@@ -126,10 +117,9 @@ impl Model {
         Ok(Self {
             tets: mesh.tets.clone(),
             rest: mesh.nodes.clone(),
+            lame_pa: vec![[lambda, mu]; geoms.len()],
             geoms,
             kel,
-            lambda,
-            mu,
             pattern,
             support,
             fixed: fixed.to_vec(),
@@ -139,18 +129,75 @@ impl Model {
         })
     }
 
+    /// Gives each element its tissue's material: element `i` with label
+    /// `labels[i]` takes the [`Tissue`] of that label, or `default` when no
+    /// tissue names it (`labels` parallel to the elements). Call right after
+    /// [`Model::new`], before [`Model::use_nodal_pressure`] and a
+    /// foundation. Fails on a bad material (named by label), a label given
+    /// twice, a tissue whose label is on no element, or tissues for a model
+    /// without labels.
+    pub fn set_tissues(
+        &mut self,
+        labels: &[u32],
+        default: Material,
+        tissues: &[Tissue],
+    ) -> Result<(), SolveError> {
+        if tissues.is_empty() {
+            return Ok(());
+        }
+        if labels.len() != self.tets.len() {
+            return Err(SolveError::InvalidModel(format!(
+                "materials per tissue need a label per element: the model has {} labels \
+                 for {} elements",
+                labels.len(),
+                self.tets.len()
+            )));
+        }
+        let mut by_label = std::collections::HashMap::new();
+        for t in tissues {
+            check_material(&t.material, &format!("tissue label {}: ", t.label))?;
+            if by_label.insert(t.label, t.material).is_some() {
+                return Err(SolveError::InvalidModel(format!(
+                    "tissue label {} is given twice",
+                    t.label
+                )));
+            }
+        }
+        let mut used = std::collections::HashSet::new();
+        let mut e_max: f64 = 0.0;
+        for (i, &l) in labels.iter().enumerate() {
+            let m = by_label.get(&l).copied().unwrap_or(default);
+            used.insert(l);
+            let (lambda, mu) = m.lame();
+            self.lame_pa[i] = [lambda, mu];
+            self.kel[i] = self.geoms[i].stiffness(lambda, mu);
+            e_max = e_max.max(m.youngs_modulus_pa);
+        }
+        if let Some(t) = tissues.iter().find(|t| !used.contains(&t.label)) {
+            return Err(SolveError::InvalidModel(format!(
+                "tissue label {} is on no element of the model",
+                t.label
+            )));
+        }
+        self.youngs_modulus_pa = e_max;
+        Ok(())
+    }
+
     /// Switches to the average-nodal-pressure element
     /// ([`super::nodal_pressure`]): the element matrices keep the deviatoric
     /// part (`lambda = -2 mu / 3`), the volumetric part `kappa = lambda +
     /// 2 mu / 3` moves to the nodes, and the pattern widens to the nodes'
     /// stars. Call before folding a foundation into `kel`.
     pub fn use_nodal_pressure(&mut self) {
-        let mu = self.mu;
-        let kappa = self.lambda + 2.0 * mu / 3.0;
-        for (k, g) in self.kel.iter_mut().zip(&self.geoms) {
+        let kappa: Vec<f64> = self
+            .lame_pa
+            .iter()
+            .map(|&[lambda, mu]| lambda + 2.0 * mu / 3.0)
+            .collect();
+        for ((k, g), &[_, mu]) in self.kel.iter_mut().zip(&self.geoms).zip(&self.lame_pa) {
             *k = g.stiffness(-2.0 * mu / 3.0, mu);
         }
-        let p = NodalPressure::new(self.n_nodes(), &self.tets, &self.geoms, kappa);
+        let p = NodalPressure::new(self.n_nodes(), &self.tets, &self.geoms, &kappa);
         self.pattern = Pattern::with_groups(self.n_nodes(), &self.tets, p.stars());
         self.pressure = Some(p);
     }
@@ -200,4 +247,20 @@ impl Model {
     pub fn n_nodes(&self) -> usize {
         self.rest.len()
     }
+}
+
+/// Checks `E > 0` and `nu` in `[0, 0.5)`; `what` prefixes the message.
+fn check_material(m: &Material, what: &str) -> Result<(), SolveError> {
+    let (e, nu) = (m.youngs_modulus_pa, m.poisson_ratio);
+    if !(e.is_finite() && e > 0.0) {
+        return Err(SolveError::InvalidModel(format!(
+            "{what}Young's modulus {e} Pa is not positive"
+        )));
+    }
+    if !(nu.is_finite() && (0.0..0.5).contains(&nu)) {
+        return Err(SolveError::InvalidModel(format!(
+            "{what}Poisson ratio {nu} is not in [0, 0.5)"
+        )));
+    }
+    Ok(())
 }

@@ -129,7 +129,7 @@ impl NeoHookean {
         let (mut w, mut mag) = (ws, ws);
         for (e, t) in m.tets.iter().enumerate() {
             let h = m.geoms[e].displacement_gradient(&corner_u(t, u));
-            match neo_hookean_energy(&h, m.lambda, m.mu) {
+            match neo_hookean_energy(&h, m.lame_pa[e][0], m.lame_pa[e][1]) {
                 Some(psi) => {
                     w += m.geoms[e].volume * psi.value;
                     mag += m.geoms[e].volume * psi.magnitude;
@@ -147,7 +147,7 @@ impl NeoHookean {
         self.ftrial.fill(0.0);
         for (e, t) in m.tets.iter().enumerate() {
             let h = m.geoms[e].displacement_gradient(&corner_u(t, u));
-            let forces = neo_hookean_forces(&m.geoms[e], &h, m.lambda, m.mu)
+            let forces = neo_hookean_forces(&m.geoms[e], &h, m.lame_pa[e][0], m.lame_pa[e][1])
                 .ok_or_else(|| inverted(e, &h))?;
             for a in 0..4 {
                 let n = 3 * t[a] as usize;
@@ -180,8 +180,9 @@ impl NeoHookean {
         self.f.fill(0.0);
         for (e, t) in m.tets.iter().enumerate() {
             let h = m.geoms[e].displacement_gradient(&corner_u(t, &self.u));
-            let (forces, mut k) = neo_hookean_element_h(&m.geoms[e], &h, m.lambda, m.mu)
-                .ok_or_else(|| inverted(e, &h))?;
+            let (forces, mut k) =
+                neo_hookean_element_h(&m.geoms[e], &h, m.lame_pa[e][0], m.lame_pa[e][1])
+                    .ok_or_else(|| inverted(e, &h))?;
             let mut fe = SVector::<f64, 12>::zeros();
             for a in 0..4 {
                 fe.fixed_rows_mut::<3>(3 * a).copy_from(&forces[a]);
@@ -407,7 +408,8 @@ impl NeoHookean {
             |e| {
                 let t = &m.tets[e];
                 let h = m.geoms[e].displacement_gradient(&corner_u(t, u));
-                let (forces, k) = neo_hookean_element_h(&m.geoms[e], &h, m.lambda, m.mu)?;
+                let (forces, k) =
+                    neo_hookean_element_h(&m.geoms[e], &h, m.lame_pa[e][0], m.lame_pa[e][1])?;
                 let mut fe = SVector::<f64, 12>::zeros();
                 for a in 0..4 {
                     fe.fixed_rows_mut::<3>(3 * a).copy_from(&forces[a]);

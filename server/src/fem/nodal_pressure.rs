@@ -40,8 +40,11 @@ use nalgebra::Vector3;
 /// its star, the weights `w_ab` and the nodal volume `V_a`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct NodalPressure {
-    /// Bulk modulus `kappa = lambda + 2 mu / 3`, Pa.
-    pub bulk_modulus_pa: f64,
+    /// Bulk modulus per node, Pa: `kappa_a = (1 / V_a) sum_{e ∋ a}
+    /// (V_e / 4) kappa_e`, the volume-weighted mean of its elements'
+    /// `kappa_e = lambda_e + 2 mu_e / 3` (one value on a mesh of one
+    /// material).
+    pub bulk_modulus_pa: Vec<f64>,
     /// Per node, the range of its star in `nodes` / `weights`.
     start: Vec<usize>,
     /// Star nodes, sorted within each star.
@@ -54,8 +57,9 @@ pub struct NodalPressure {
 
 impl NodalPressure {
     /// The operator of a mesh of `n_nodes` nodes, tetrahedra `tets` with rest
-    /// geometry `geoms` (indices already validated), bulk modulus `kappa` Pa.
-    pub fn new(n_nodes: usize, tets: &[[u32; 4]], geoms: &[TetGeometry], kappa: f64) -> Self {
+    /// geometry `geoms` (indices already validated), bulk modulus `kappa`
+    /// per element, Pa.
+    pub fn new(n_nodes: usize, tets: &[[u32; 4]], geoms: &[TetGeometry], kappa: &[f64]) -> Self {
         // Elements around each node (compressed rows).
         let mut count = vec![0usize; n_nodes + 1];
         for t in tets {
@@ -78,15 +82,17 @@ impl NodalPressure {
         let mut nodes = Vec::new();
         let mut weights = Vec::new();
         let mut volume_m3 = vec![0.0; n_nodes];
+        let mut bulk_modulus_pa = vec![0.0; n_nodes];
         let mut scratch: Vec<(u32, Vector3<f64>)> = Vec::new();
         start.push(0);
         for a in 0..n_nodes {
             scratch.clear();
-            let mut va = 0.0;
+            let (mut va, mut ka) = (0.0, 0.0);
             for &e in &around[count[a]..count[a + 1]] {
                 let (t, g) = (&tets[e as usize], &geoms[e as usize]);
                 let quarter = g.volume / 4.0;
                 va += quarter;
+                ka += quarter * kappa[e as usize];
                 for k in 0..4 {
                     scratch.push((t[k], quarter * g.grads[k]));
                 }
@@ -106,10 +112,13 @@ impl NodalPressure {
                 }
             }
             volume_m3[a] = va;
+            if va > 0.0 {
+                bulk_modulus_pa[a] = ka / va;
+            }
             start.push(nodes.len());
         }
         Self {
-            bulk_modulus_pa: kappa,
+            bulk_modulus_pa,
             start,
             nodes,
             weights,
@@ -154,7 +163,7 @@ impl NodalPressure {
         (0..self.n_nodes())
             .map(|a| {
                 let th = self.volumetric_strain(a, u);
-                0.5 * self.bulk_modulus_pa * self.volume_m3[a] * th * th
+                0.5 * self.bulk_modulus_pa[a] * self.volume_m3[a] * th * th
             })
             .sum()
     }
@@ -169,7 +178,7 @@ impl NodalPressure {
     ) {
         for a in owners {
             let a = a as usize;
-            let s = self.bulk_modulus_pa * self.volume_m3[a] * self.volumetric_strain(a, u);
+            let s = self.bulk_modulus_pa[a] * self.volume_m3[a] * self.volumetric_strain(a, u);
             let (nodes, w) = self.star(a);
             for (&b, w) in nodes.iter().zip(w) {
                 f(b, s * w);
@@ -186,7 +195,7 @@ impl NodalPressure {
                 .zip(w)
                 .map(|(&b, w)| w.dot(&super::assembly::node_vec(x, b as usize)))
                 .sum();
-            let s = self.bulk_modulus_pa * self.volume_m3[a] * th;
+            let s = self.bulk_modulus_pa[a] * self.volume_m3[a] * th;
             for (&b, w) in nodes.iter().zip(w) {
                 let n = 3 * b as usize;
                 for i in 0..3 {
@@ -213,7 +222,7 @@ impl NodalPressure {
     ) {
         for a in 0..self.n_nodes() {
             let (nodes, w) = self.star(a);
-            let c = self.bulk_modulus_pa * self.volume_m3[a];
+            let c = self.bulk_modulus_pa[a] * self.volume_m3[a];
             scratch.clear();
             scratch.extend(nodes.iter().zip(w).map(|(&b, w)| {
                 if frame.rotated[b as usize] {
@@ -261,7 +270,12 @@ mod tests {
             .iter()
             .map(|t| TetGeometry::new(t.map(|i| mesh.nodes[i as usize])).unwrap())
             .collect();
-        let p = NodalPressure::new(mesh.nodes.len(), &mesh.tets, &geoms, 2e5);
+        let p = NodalPressure::new(
+            mesh.nodes.len(),
+            &mesh.tets,
+            &geoms,
+            &vec![2e5; mesh.tets.len()],
+        );
         (mesh, p)
     }
 

@@ -127,7 +127,13 @@ pub fn crop(
     all_fixed.sort_unstable();
     all_fixed.dedup();
     let nodes = to_full.iter().map(|&n| mesh.nodes[n as usize]).collect();
+    let labels = if mesh.labels.is_empty() {
+        Vec::new()
+    } else {
+        kept.iter().map(|&e| mesh.labels[e as usize]).collect()
+    };
     let cropped = TetMesh::new(nodes, tets)
+        .and_then(|m| m.with_labels(labels))
         .map_err(|e| SolveError::InvalidModel(format!("cropped mesh: {e}")))?;
     Ok(Roi {
         mesh: cropped,

@@ -241,7 +241,11 @@ pub fn repair_boundary(mesh: TetMesh) -> Result<(TetMesh, BoundaryRepair), Bound
         volume_m3: (0..mesh.tets.len()).map(|t| mesh.signed_volume(t)).sum(),
         ..Default::default()
     };
-    let TetMesh { nodes, mut tets } = mesh;
+    let TetMesh {
+        nodes,
+        mut tets,
+        mut labels,
+    } = mesh;
     let mut left = 0;
     for pass in 0..=MAX_REPAIR_PASSES {
         let (edges, pinched_nodes) = pinches(&tets);
@@ -288,6 +292,13 @@ pub fn repair_boundary(mesh: TetMesh) -> Result<(TetMesh, BoundaryRepair), Bound
             .iter()
             .map(|&t| volume(&nodes, &tets[t as usize]))
             .sum::<f64>();
+        if !labels.is_empty() {
+            let mut k = 0u32;
+            labels.retain(|_| {
+                k += 1;
+                !remove.contains(&(k - 1))
+            });
+        }
         let mut k = 0u32;
         tets.retain(|_| {
             k += 1;
@@ -302,7 +313,7 @@ pub fn repair_boundary(mesh: TetMesh) -> Result<(TetMesh, BoundaryRepair), Bound
         });
     }
     if report.removed_tets == 0 {
-        return Ok((TetMesh::new(nodes, tets)?, report));
+        return Ok((TetMesh::new(nodes, tets)?.with_labels(labels)?, report));
     }
     let mut index = vec![u32::MAX; nodes.len()];
     let mut kept = Vec::new();
@@ -324,7 +335,7 @@ pub fn repair_boundary(mesh: TetMesh) -> Result<(TetMesh, BoundaryRepair), Bound
             *n = index[*n as usize];
         }
     }
-    Ok((TetMesh::new(kept, tets)?, report))
+    Ok((TetMesh::new(kept, tets)?.with_labels(labels)?, report))
 }
 
 #[cfg(test)]
@@ -353,7 +364,11 @@ mod tests {
             }
         }
         let tets = tets.iter().map(|t| t.map(|v| map[v as usize])).collect();
-        let mut m = TetMesh { nodes, tets };
+        let mut m = TetMesh {
+            nodes,
+            tets,
+            labels: Vec::new(),
+        };
         // Drop the merged duplicates (unused now).
         let used: HashSet<u32> = m.tets.iter().flatten().copied().collect();
         let mut index = vec![u32::MAX; m.nodes.len()];

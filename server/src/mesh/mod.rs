@@ -29,6 +29,9 @@ pub enum MeshError {
     /// A tetrahedron has zero or negative volume.
     #[error("tetrahedron {tet} is inverted or degenerate (signed volume {volume:e} m^3)")]
     Inverted { tet: usize, volume: f64 },
+    /// The labels do not match the tetrahedra one to one.
+    #[error("{labels} tissue labels for {tets} tetrahedra (one per tetrahedron, or none)")]
+    LabelCount { labels: usize, tets: usize },
     /// A node coordinate is NaN or infinite.
     #[error("node {node} has a non-finite coordinate")]
     NonFinite { node: usize },
@@ -44,6 +47,11 @@ pub struct TetMesh {
     pub nodes: Vec<Point3<f64>>,
     /// Tetrahedra as node indices, positively oriented.
     pub tets: Vec<[u32; 4]>,
+    /// Tissue label of each tetrahedron (parallel to `tets`), or empty when
+    /// the mesh is one tissue. Labels name materials in a scene's
+    /// `[[material.tissue]]`; meshes made from a label image carry the
+    /// image's labels.
+    pub labels: Vec<u32>,
 }
 
 impl TetMesh {
@@ -67,7 +75,11 @@ impl TetMesh {
                 });
             }
         }
-        let mesh = Self { nodes, tets };
+        let mesh = Self {
+            nodes,
+            tets,
+            labels: Vec::new(),
+        };
         for tet in 0..mesh.tets.len() {
             let volume = mesh.signed_volume(tet);
             if volume <= 0.0 {
@@ -75,6 +87,24 @@ impl TetMesh {
             }
         }
         Ok(mesh)
+    }
+
+    /// Sets the tissue label of each tetrahedron (`labels` parallel to
+    /// `tets`; empty for one tissue).
+    pub fn with_labels(mut self, labels: Vec<u32>) -> Result<Self, MeshError> {
+        if !labels.is_empty() && labels.len() != self.tets.len() {
+            return Err(MeshError::LabelCount {
+                labels: labels.len(),
+                tets: self.tets.len(),
+            });
+        }
+        self.labels = labels;
+        Ok(self)
+    }
+
+    /// Tissue label of tetrahedron `tet` (0 when the mesh is one tissue).
+    pub fn label(&self, tet: usize) -> u32 {
+        self.labels.get(tet).copied().unwrap_or(0)
     }
 
     /// Signed volume of tetrahedron `tet`, m^3 (positive when well oriented).
@@ -100,29 +130,30 @@ impl TetMesh {
         // Faces of a positively oriented tet [a,b,c,d], each listed so that its
         // right-hand normal points away from the opposite vertex.
         const FACES: [[usize; 3]; 4] = [[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]];
-        let mut count: HashMap<[u32; 3], (u32, [u32; 3])> = HashMap::new();
-        for t in &self.tets {
+        let mut count: HashMap<[u32; 3], (u32, [u32; 3], u32)> = HashMap::new();
+        for (e, t) in self.tets.iter().enumerate() {
             for f in FACES {
                 let tri = [t[f[0]], t[f[1]], t[f[2]]];
                 let mut key = tri;
                 key.sort_unstable();
                 count
                     .entry(key)
-                    .and_modify(|e| e.0 += 1)
-                    .or_insert((1, tri));
+                    .and_modify(|c| c.0 += 1)
+                    .or_insert((1, tri, e as u32));
             }
         }
-        let mut faces: Vec<[u32; 3]> = count
+        let mut faces: Vec<([u32; 3], u32)> = count
             .into_values()
-            .filter(|(n, _)| *n == 1)
-            .map(|(_, tri)| tri)
+            .filter(|(n, _, _)| *n == 1)
+            .map(|(_, tri, e)| (tri, e))
             .collect();
         faces.sort_unstable();
+        let face_tets = faces.iter().map(|&(_, e)| e).collect();
         let mut local = HashMap::new();
         let mut to_volume = Vec::new();
         let triangles = faces
             .iter()
-            .map(|tri| {
+            .map(|(tri, _)| {
                 tri.map(|v| {
                     *local.entry(v).or_insert_with(|| {
                         to_volume.push(v);
@@ -134,6 +165,7 @@ impl TetMesh {
         BoundarySurface {
             triangles,
             to_volume,
+            face_tets,
         }
     }
 }
@@ -159,6 +191,8 @@ pub struct BoundarySurface {
     pub triangles: Vec<[u32; 3]>,
     /// Surface vertex -> volume node index.
     pub to_volume: Vec<u32>,
+    /// Triangle -> the tetrahedron whose face it is.
+    pub face_tets: Vec<u32>,
 }
 
 impl BoundarySurface {
@@ -166,5 +200,21 @@ impl BoundarySurface {
     pub fn gather(&self, nodes: &[Point3<f64>], out: &mut Vec<Point3<f64>>) {
         out.clear();
         out.extend(self.to_volume.iter().map(|&v| nodes[v as usize]));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn each_boundary_triangle_names_the_tetrahedron_it_bounds() {
+        let mesh = blocks::cube(0.02, 3);
+        let b = mesh.boundary();
+        assert_eq!(b.face_tets.len(), b.triangles.len());
+        for (t, &e) in b.triangles.iter().zip(&b.face_tets) {
+            let tet = mesh.tets[e as usize];
+            assert!(t.iter().all(|&v| tet.contains(&b.to_volume[v as usize])));
+        }
     }
 }

@@ -204,7 +204,9 @@ fn unit_scale() -> f64 {
     1.0
 }
 
-/// Tissue material.
+/// Tissue material: one for the whole brain, or one per tissue label of a
+/// labelled model (`[[material.tissue]]`, for a mesh made from a label
+/// image); elements whose label no tissue names take the top-level values.
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct MaterialSpec {
@@ -212,6 +214,44 @@ pub struct MaterialSpec {
     pub youngs_modulus_pa: f64,
     /// Poisson's ratio, in [0, 0.5).
     pub poisson_ratio: f64,
+    /// A material per tissue label of the model (`[[material.tissue]]`).
+    #[serde(default, rename = "tissue")]
+    pub tissues: Vec<TissueSpec>,
+}
+
+/// The material of one tissue of a labelled model.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct TissueSpec {
+    /// The tissue's label in the model file (the `.vtu` cell data `label`).
+    pub label: u32,
+    /// A name for reports ("grey matter").
+    #[serde(default)]
+    pub name: String,
+    /// Young's modulus, Pa.
+    pub youngs_modulus_pa: f64,
+    /// Poisson's ratio, in [0, 0.5).
+    pub poisson_ratio: f64,
+}
+
+impl MaterialSpec {
+    /// The solver's materials: the default and one per tissue.
+    pub fn to_fem(&self) -> (crate::fem::Material, Vec<crate::fem::Tissue>) {
+        let m = |e, nu| crate::fem::Material {
+            youngs_modulus_pa: e,
+            poisson_ratio: nu,
+        };
+        (
+            m(self.youngs_modulus_pa, self.poisson_ratio),
+            self.tissues
+                .iter()
+                .map(|t| crate::fem::Tissue {
+                    label: t.label,
+                    material: m(t.youngs_modulus_pa, t.poisson_ratio),
+                })
+                .collect(),
+        )
+    }
 }
 
 /// A region of nodes.
@@ -841,16 +881,37 @@ impl Scene {
                 ));
             }
         }
-        positive(
-            "material.youngs_modulus_pa",
-            self.material.youngs_modulus_pa,
-        )?;
-        let nu = self.material.poisson_ratio;
-        if !(nu.is_finite() && (0.0..0.5).contains(&nu)) {
-            return Err(bad(
-                "material.poisson_ratio".into(),
-                format!("must be in [0, 0.5), got {nu}"),
-            ));
+        let materials = std::iter::once((
+            "material".to_string(),
+            &self.material.youngs_modulus_pa,
+            &self.material.poisson_ratio,
+        ))
+        .chain(self.material.tissues.iter().enumerate().map(|(i, t)| {
+            (
+                format!("material.tissue[{i}]"),
+                &t.youngs_modulus_pa,
+                &t.poisson_ratio,
+            )
+        }));
+        for (at, &e, &nu) in materials {
+            positive(&format!("{at}.youngs_modulus_pa"), e)?;
+            if !(nu.is_finite() && (0.0..0.5).contains(&nu)) {
+                return Err(bad(
+                    format!("{at}.poisson_ratio"),
+                    format!("must be in [0, 0.5), got {nu}"),
+                ));
+            }
+        }
+        for (i, t) in self.material.tissues.iter().enumerate() {
+            if let Some(j) = self.material.tissues[..i]
+                .iter()
+                .position(|u| u.label == t.label)
+            {
+                return Err(bad(
+                    format!("material.tissue[{i}].label"),
+                    format!("label {} is already given by material.tissue[{j}]", t.label),
+                ));
+            }
         }
         let check_region = |at: String, r: &Region| -> Result<(), SceneError> {
             match r {
@@ -1302,6 +1363,51 @@ mod tests {
             );
             assert!(e.to_string().contains("`gpu` feature"), "{e}");
         }
+    }
+
+    #[test]
+    fn tissue_materials_parse_and_bad_ones_name_their_entry() {
+        let text = include_str!("../../scenes/cube.toml");
+        let with = |tissues: &str| {
+            text.replace(
+                "poisson_ratio = 0.45\n",
+                &format!("poisson_ratio = 0.45\n{tissues}"),
+            )
+        };
+        let two = "\n[[material.tissue]]\nlabel = 1\nname = \"grey matter\"\n\
+                   youngs_modulus_pa = 1390.0\npoisson_ratio = 0.45\n\
+                   \n[[material.tissue]]\nlabel = 2\nname = \"white matter\"\n\
+                   youngs_modulus_pa = 1895.0\npoisson_ratio = 0.45\n";
+        let good = with(two);
+        assert_ne!(good, text);
+        let scene = Scene::parse(&good, "t.toml").unwrap();
+        let (default, tissues) = scene.material.to_fem();
+        assert_eq!(default.youngs_modulus_pa, 3000.0);
+        assert_eq!(tissues.len(), 2);
+        assert_eq!(
+            (tissues[1].label, tissues[1].material.youngs_modulus_pa),
+            (2, 1895.0)
+        );
+        assert_eq!(scene.material.tissues[0].name, "grey matter");
+        let err = Scene::parse(&with(&two.replace("label = 2", "label = 1")), "t.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("material.tissue[1].label") && err.contains("material.tissue[0]"),
+            "{err}"
+        );
+        let err = Scene::parse(&with(&two.replace("1895.0", "-1.0")), "t.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("material.tissue[1].youngs_modulus_pa"),
+            "{err}"
+        );
+        let bad_nu = two.replacen("poisson_ratio = 0.45", "poisson_ratio = 0.5", 1);
+        let err = Scene::parse(&with(&bad_nu), "t.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("material.tissue[0].poisson_ratio"), "{err}");
     }
 
     #[test]

@@ -25,6 +25,7 @@ fn plate_outline(plate: &Plate) -> pb::SurfaceMesh {
     pb::SurfaceMesh {
         rest_positions_m: points.iter().flat_map(|p| [p.x, p.y, p.z]).collect(),
         triangles: triangles.into_iter().flatten().collect(),
+        triangle_labels: Vec::new(),
     }
 }
 
@@ -150,6 +151,16 @@ pub fn surface(model: &Model) -> pb::SurfaceMesh {
             .flat_map(|p| [p.x, p.y, p.z])
             .collect(),
         triangles: model.surface.triangles.iter().flat_map(|t| *t).collect(),
+        triangle_labels: if model.mesh.labels.is_empty() {
+            Vec::new()
+        } else {
+            model
+                .surface
+                .face_tets
+                .iter()
+                .map(|&e| model.mesh.labels[e as usize])
+                .collect()
+        },
     }
 }
 

@@ -648,6 +648,7 @@ mod tests {
         let surface = BoundarySurface {
             triangles: vec![],
             to_volume: vec![],
+            face_tets: vec![],
         };
         let g = InjuryGeometry::new(&mesh, &surface, &[u32::MAX; 4]);
         let rot = Rotation3::from_euler_angles(0.7, -0.3, 1.9);
@@ -682,6 +683,7 @@ mod tests {
         let surface = BoundarySurface {
             triangles: vec![],
             to_volume: vec![],
+            face_tets: vec![],
         };
         let from_volume = vec![u32::MAX; mesh.nodes.len()];
         let g = InjuryGeometry::new(&mesh, &surface, &from_volume);

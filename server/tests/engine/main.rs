@@ -30,6 +30,7 @@ mod fem_nodal_pressure;
 mod fem_solvers;
 mod fem_tangent;
 mod fem_ties;
+mod fem_tissues;
 mod fem_validation;
 mod mesh_generation;
 mod mesh_io;

@@ -144,6 +144,9 @@ pub struct RawVolume {
     pub ignored_cells: usize,
     /// Higher-order tetrahedra reduced to their four corners.
     pub higher_order_tets: usize,
+    /// Tissue label per tetrahedron (parallel to `tets`; empty when the file
+    /// has none): a `.vtu`'s cell data `label`.
+    pub labels: Vec<u32>,
 }
 
 /// A volume file turned into a [`TetMesh`], with what was changed on the way.
@@ -368,6 +371,7 @@ pub fn finish_volume(raw: RawVolume) -> Result<VolumeRead, MeshError> {
         mut tets,
         ignored_cells,
         higher_order_tets,
+        labels,
     } = raw;
     let mut flipped_tets = 0;
     for t in &mut tets {
@@ -400,7 +404,7 @@ pub fn finish_volume(raw: RawVolume) -> Result<VolumeRead, MeshError> {
             *i = new_index.get(*i as usize).copied().unwrap_or(u32::MAX);
         }
     }
-    let mesh = TetMesh::new(kept, tets)?;
+    let mesh = TetMesh::new(kept, tets)?.with_labels(labels)?;
     Ok(VolumeRead {
         mesh,
         file_nodes,
@@ -459,7 +463,8 @@ fn flush(
 }
 
 /// Writes a volume mesh, the format chosen by the extension: `.vtu` (binary
-/// inline, with the quality as cell data), `.msh` (4.1 ASCII), `.vtk`
+/// inline, with the quality and any tissue labels as cell data; only this
+/// format keeps the labels), `.msh` (4.1 ASCII), `.vtk`
 /// (legacy ASCII) or `.node`/`.ele` (both files, 1-based).
 pub fn write_volume(path: impl AsRef<Path>, mesh: &TetMesh) -> Result<(), IoError> {
     let path = path.as_ref();
@@ -472,14 +477,14 @@ pub fn write_volume(path: impl AsRef<Path>, mesh: &TetMesh) -> Result<(), IoErro
             let q = super::quality::mesh_quality(mesh);
             let rr: Vec<f64> = q.iter().map(|q| q.radius_ratio).collect();
             let dmin: Vec<f64> = q.iter().map(|q| q.min_dihedral_deg).collect();
+            let labels: Vec<f64> = mesh.labels.iter().map(|&l| f64::from(l)).collect();
+            let mut cell_data: Vec<(&str, &[f64])> =
+                vec![("radius_ratio", &rr), ("min_dihedral_deg", &dmin)];
+            if !labels.is_empty() {
+                cell_data.push(("label", &labels));
+            }
             let mut w = create(path)?;
-            let r = vtu::write_vtu(
-                &mut w,
-                &mesh.nodes,
-                &mesh.tets,
-                &[],
-                &[("radius_ratio", &rr), ("min_dihedral_deg", &dmin)],
-            );
+            let r = vtu::write_vtu(&mut w, &mesh.nodes, &mesh.tets, &[], &cell_data);
             flush(path, w, r)
         }
         VolumeFormat::Msh => {

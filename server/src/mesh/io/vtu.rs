@@ -351,6 +351,8 @@ struct Grid {
     /// Cell `c` is `conn[ends[c - 1]..ends[c]]` (from 0 for the first).
     ends: Vec<usize>,
     conn: Vec<i64>,
+    /// Cell data `label` per cell, when every piece has it.
+    labels: Option<Vec<f64>>,
 }
 
 impl Grid {
@@ -373,7 +375,18 @@ pub fn parse(bytes: &[u8]) -> Result<RawVolume, ParseError> {
     };
     out.nodes.clone_from(&grid.points);
     for (c, ty, ids) in grid.cells() {
+        let before = out.tets.len();
         add_cell(&mut out, c, ty, ids)?;
+        if let (Some(labels), true) = (&grid.labels, out.tets.len() > before) {
+            let l = labels[c];
+            if !(l >= 0.0 && l <= f64::from(u32::MAX) && l.fract() == 0.0) {
+                return Err(perr(
+                    "label",
+                    format!("cell {c}: label {l} is not a non-negative integer"),
+                ));
+            }
+            out.labels.push(l as u32);
+        }
     }
     Ok(out)
 }
@@ -489,8 +502,10 @@ fn parse_grid(bytes: &[u8]) -> Result<Grid, ParseError> {
         types: Vec::new(),
         ends: Vec::new(),
         conn: Vec::new(),
+        labels: Some(Vec::new()),
     };
     let mut pieces = 0;
+    let mut labelled_pieces = 0;
     for piece in grid.children().filter(|c| c.has_tag_name("Piece")) {
         pieces += 1;
         let np = count_attr(piece, "NumberOfPoints", limit)?;
@@ -541,9 +556,26 @@ fn parse_grid(bytes: &[u8]) -> Result<Grid, ParseError> {
             out.types.push(types[c] as i64);
             prev = end as usize;
         }
+        let label = child(piece, "CellData").and_then(|d| {
+            d.children()
+                .find(|c| c.has_tag_name("DataArray") && c.attribute("Name") == Some("label"))
+        });
+        match (label, &mut out.labels) {
+            (Some(a), Some(labels)) => {
+                labelled_pieces += 1;
+                labels.extend(read_array(&ctx, a, nc, "label")?);
+            }
+            _ => out.labels = None,
+        }
     }
     if pieces == 0 {
         return Err(perr("Piece", "no Piece in UnstructuredGrid"));
+    }
+    if labelled_pieces > 0 && out.labels.is_none() {
+        return Err(perr(
+            "label",
+            format!("cell data 'label' in {labelled_pieces} of {pieces} pieces (all or none)"),
+        ));
     }
     Ok(out)
 }
@@ -575,6 +607,30 @@ mod tests {
         // Mismatched data lengths are refused.
         let mut buf = Vec::new();
         assert!(write_vtu(&mut buf, &mesh.nodes, &mesh.tets, &[("u", &u[1..])], &[]).is_err());
+    }
+
+    #[test]
+    fn tissue_labels_round_trip_as_cell_data() {
+        let cube = crate::mesh::blocks::cube(0.03, 2);
+        let labels: Vec<u32> = (0..cube.tets.len() as u32).map(|k| 2 + k % 3).collect();
+        let mesh = cube.with_labels(labels.clone()).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("labelled.vtu");
+        crate::mesh::io::write_volume(&path, &mesh).unwrap();
+        let back = crate::mesh::io::read_volume(&path).unwrap();
+        assert_eq!(back.labels, labels);
+        // A label that is not a non-negative integer is refused, by cell.
+        let text = std::fs::read_to_string(&path).unwrap();
+        let mut buf = Vec::new();
+        let bad: Vec<f64> = (0..mesh.tets.len()).map(|k| k as f64 - 0.5).collect();
+        write_vtu(&mut buf, &mesh.nodes, &mesh.tets, &[], &[("label", &bad)]).unwrap();
+        let e = parse(&buf).unwrap_err().to_string();
+        assert!(e.contains("cell 0") && e.contains("label"), "{e}");
+        // Unlabelled files give unlabelled meshes.
+        assert!(text.contains("Name=\"label\""));
+        let mut buf = Vec::new();
+        write_vtu(&mut buf, &mesh.nodes, &mesh.tets, &[], &[]).unwrap();
+        assert!(parse(&buf).unwrap().labels.is_empty());
     }
 
     #[test]

@@ -104,11 +104,11 @@ impl Deformer {
         hook: Option<Arc<dyn Fn() + Send + Sync>>,
     ) -> Result<Self, SimError> {
         let strategy = scene.solver.strategy;
-        let material = fem::Material {
-            youngs_modulus_pa: scene.material.youngs_modulus_pa,
-            poisson_ratio: scene.material.poisson_ratio,
+        let (material, tissues) = scene.material.to_fem();
+        let mut options = fem::SolverOptions {
+            tissues,
+            ..Default::default()
         };
-        let mut options = fem::SolverOptions::default();
         options.iterative.tolerance = scene.solver.tolerance;
         options.iterative.max_outer = scene.solver.max_iterations;
         options.foundation = model.foundation.clone();
