@@ -35,7 +35,9 @@ use std::sync::{Arc, Mutex};
 /// Options of the demo.
 #[derive(Debug, Clone, clap::Args)]
 pub struct DemoArgs {
-    /// Scene to run (an embedded name); it must have bundled trajectories.
+    /// Scene to run: an embedded name (it must have bundled trajectories),
+    /// or a scene file (such as `fissure scene from-image` writes) with
+    /// `--trajectory` files.
     #[arg(long, default_value = fissure_server::scene::DEFAULT_SCENE)]
     pub scene: String,
     /// Output folder (created; existing files in it are overwritten).
@@ -48,7 +50,9 @@ pub struct DemoArgs {
     pub pacing: Pacing,
     /// Bundled trajectory to use (repeatable; one per instrument). By
     /// default the first bundled trajectory of each of the scene's
-    /// instruments (see `fissure demo --list`).
+    /// instruments (see `fissure demo --list`). Or trajectory files: one
+    /// file of several instruments (`instrument,t_s,...` CSV or JSON), or
+    /// `NAME=FILE` per instrument.
     #[arg(long)]
     pub trajectory: Vec<String>,
     /// List the scenes with bundled trajectories and exit.
@@ -172,10 +176,35 @@ pub async fn run(args: &DemoArgs) -> anyhow::Result<DemoReport> {
     }
     let (scene, _) =
         Scene::load(&args.scene).with_context(|| format!("loading scene {:?}", args.scene))?;
-    let plans: Vec<(String, Trajectory)> = pick_trajectories(&scene.name, &args.trajectory)?
-        .into_iter()
-        .map(|(instrument, name)| Ok((instrument, Trajectory::load(&name)?)))
-        .collect::<anyhow::Result<_>>()?;
+    let files = !args.trajectory.is_empty()
+        && args
+            .trajectory
+            .iter()
+            .all(|t| !BUNDLED.iter().any(|b| b.0 == t));
+    let plans: Vec<(String, Trajectory)> = if files {
+        let set = crate::trajectory::resolve(None, &args.trajectory)?;
+        if let Some((name, _)) = set
+            .iter()
+            .find(|(name, _)| !scene.instruments.iter().any(|i| &i.name == name))
+        {
+            bail!(
+                "--trajectory: instrument {name:?} is not in scene {:?} (it has {})",
+                scene.name,
+                scene
+                    .instruments
+                    .iter()
+                    .map(|i| i.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
+        }
+        set
+    } else {
+        pick_trajectories(&scene.name, &args.trajectory)?
+            .into_iter()
+            .map(|(instrument, name)| Ok((instrument, Trajectory::load(&name)?)))
+            .collect::<anyhow::Result<_>>()?
+    };
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
     let recording = args.out.join("session.fsrec");

@@ -34,4 +34,6 @@ pub mod mesh_cmd;
 #[cfg(feature = "lab")]
 pub mod progress;
 #[cfg(feature = "lab")]
+pub mod scene_cmd;
+#[cfg(feature = "lab")]
 pub mod study;

@@ -39,6 +39,13 @@ enum Command {
         #[command(subcommand)]
         command: fissure_cli::mesh_cmd::MeshCommand,
     },
+    /// Make scenes: a patient's brain from an image, with the fissure to
+    /// open found near a point.
+    #[cfg(feature = "lab")]
+    Scene {
+        #[command(subcommand)]
+        command: fissure_cli::scene_cmd::SceneCommand,
+    },
     /// Benchmarks (print a table, or JSON with --json).
     #[cfg(feature = "lab")]
     Bench {
@@ -321,6 +328,8 @@ fn main() -> anyhow::Result<()> {
         }
         #[cfg(feature = "lab")]
         Command::Mesh { command } => fissure_cli::mesh_cmd::run(command)?,
+        #[cfg(feature = "lab")]
+        Command::Scene { command } => fissure_cli::scene_cmd::run(command)?,
         #[cfg(feature = "lab")]
         Command::Bench { which } => match which {
             Bench::Fem {

@@ -270,6 +270,66 @@ def polydata_body(points, polys, strips=(), attrs=b"", nattr=0):
     return head + pts + struct.pack(">%dI" % len(pc), *pc) + struct.pack(">%dI" % len(sc), *sc) + attrs
 
 
+def nifti(version, dims, affine, code_field="sform", datatype=2, big=False, gz=False):
+    """A NIfTI-1 (348-byte header) or NIfTI-2 (540) image of uint8 or
+    float32 voxels, the voxel values a ball; sform or qform (identity
+    rotation) gives the affine."""
+    import gzip
+    e = ">" if big else "<"
+    nx, ny, nz = dims
+    size = {2: 1, 16: 4}[datatype]
+    voxels = bytearray()
+    for k in range(nz):
+        for j in range(ny):
+            for i in range(nx):
+                inside = (i - nx / 2) ** 2 + (j - ny / 2) ** 2 + (k - nz / 2) ** 2 < (nx / 3) ** 2
+                voxels += struct.pack(e + ("B" if datatype == 2 else "f"), 1 if inside else 0)
+    if version == 1:
+        h = bytearray(352)
+        struct.pack_into(e + "i", h, 0, 348)
+        struct.pack_into(e + "8h", h, 40, 3, nx, ny, nz, 1, 1, 1, 1)
+        struct.pack_into(e + "hh", h, 70, datatype, 8 * size)
+        struct.pack_into(e + "8f", h, 76, 1.0, 1.0, 1.0, 1.0, 0, 0, 0, 0)
+        struct.pack_into(e + "fff", h, 108, 352.0, 1.0, 0.0)
+        h[123] = 2
+        if code_field == "sform":
+            struct.pack_into(e + "hh", h, 252, 0, 1)
+            for r in range(3):
+                struct.pack_into(e + "4f", h, 280 + 16 * r, *affine[r])
+        else:
+            struct.pack_into(e + "hh", h, 252, 1, 0)
+            struct.pack_into(e + "6f", h, 256, 0, 0, 0, *[affine[r][3] for r in range(3)])
+        h[344:348] = b"n+1\0"
+    else:
+        h = bytearray(544)
+        struct.pack_into(e + "i", h, 0, 540)
+        h[4:12] = b"n+2\0\r\n\x1a\n"
+        struct.pack_into(e + "hh", h, 12, datatype, 8 * size)
+        struct.pack_into(e + "8q", h, 16, 3, nx, ny, nz, 1, 1, 1, 1)
+        struct.pack_into(e + "8d", h, 104, 1.0, 1.0, 1.0, 1.0, 0, 0, 0, 0)
+        struct.pack_into(e + "qdd", h, 168, 544, 1.0, 0.0)
+        if code_field == "sform":
+            struct.pack_into(e + "ii", h, 344, 0, 1)
+            for r in range(3):
+                struct.pack_into(e + "4d", h, 400 + 32 * r, *affine[r])
+        else:
+            struct.pack_into(e + "ii", h, 344, 1, 0)
+            struct.pack_into(e + "6d", h, 352, 0, 0, 0, *[affine[r][3] for r in range(3)])
+        struct.pack_into(e + "i", h, 500, 2)
+    data = bytes(h) + bytes(voxels)
+    return gzip.compress(data) if gz else data
+
+
+def nifti_seeds():
+    a = [[1.0, 0, 0, -4.0], [0, 1.0, 0, -4.0], [0, 0, 1.0, -4.0]]
+    oblique = [[0.866, -0.5, 0, -3.0], [0.5, 0.866, 0, -5.0], [0, 0, -1.0, 4.0]]
+    put("nifti", "ball-1.nii", nifti(1, (8, 8, 8), a))
+    put("nifti", "ball-1-qform-f32-big.nii", nifti(1, (6, 7, 5), a, "qform", 16, big=True))
+    put("nifti", "ball-1-oblique.nii.gz", nifti(1, (8, 8, 8), oblique, gz=True))
+    put("nifti", "ball-2.nii", nifti(2, (8, 8, 8), a))
+    put("nifti", "ball-2-qform-f32.nii.gz", nifti(2, (5, 6, 7), a, "qform", 16, gz=True))
+
+
 def igtl_seeds():
     eye = ((1, 0, 0), (0, 1, 0), (0, 0, 1))
     rz = ((0, -1, 0), (1, 0, 0), (0, 0, 1))
@@ -366,6 +426,7 @@ def main():
     ]))
     bridge_seeds()
     igtl_seeds()
+    nifti_seeds()
 
 
 if __name__ == "__main__":

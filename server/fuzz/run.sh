@@ -18,7 +18,7 @@ cd "$(dirname "$0")"
 if [ "$#" -gt 0 ]; then
     targets=("$@")
 else
-    targets=(msh vtk vtu tetgen obj ply stl scene pose bridge igtl)
+    targets=(msh vtk vtu tetgen obj ply stl scene pose bridge igtl nifti)
 fi
 toolchain="${FUZZ_TOOLCHAIN:-nightly}"
 sanitizer="${FUZZ_SANITIZER:-address}"

@@ -20,6 +20,8 @@ mod igtl_peers;
 #[cfg(feature = "lab")]
 mod render_examples;
 #[cfg(feature = "lab")]
+mod scene_from_image;
+#[cfg(feature = "lab")]
 mod study_quick;
 #[cfg(feature = "lab")]
 mod study_slurm;

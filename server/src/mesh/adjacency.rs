@@ -108,6 +108,82 @@ pub fn tet_neighbours(mesh: &TetMesh) -> Vec<[Option<u32>; 4]> {
     out
 }
 
+/// The largest piece of a mesh: the face-connected component of the most
+/// tetrahedra (ties: the one holding the lowest tetrahedron index), with
+/// unused nodes dropped (the others keep their order) and the labels kept.
+/// Returns the mesh, the number of other components and their
+/// tetrahedra. A piece that touches the rest only at an edge or a vertex is
+/// its own component (as the boundary repair leaves none of those, an
+/// image mesh's pieces are what the image's brain voxels are).
+pub fn largest_component(mesh: TetMesh) -> Result<(TetMesh, usize, usize), super::MeshError> {
+    let nb = tet_neighbours(&mesh);
+    let mut comp = vec![u32::MAX; mesh.tets.len()];
+    let mut sizes: Vec<usize> = Vec::new();
+    let mut stack = Vec::new();
+    for start in 0..mesh.tets.len() {
+        if comp[start] != u32::MAX {
+            continue;
+        }
+        let id = sizes.len() as u32;
+        let mut size = 0;
+        comp[start] = id;
+        stack.push(start as u32);
+        while let Some(t) = stack.pop() {
+            size += 1;
+            for n in nb[t as usize].iter().flatten() {
+                if comp[*n as usize] == u32::MAX {
+                    comp[*n as usize] = id;
+                    stack.push(*n);
+                }
+            }
+        }
+        sizes.push(size);
+    }
+    let Some(keep) = (0..sizes.len()).max_by(|&a, &b| sizes[a].cmp(&sizes[b]).then(b.cmp(&a)))
+    else {
+        return Ok((mesh, 0, 0));
+    };
+    if sizes.len() == 1 {
+        return Ok((mesh, 0, 0));
+    }
+    let removed_tets = mesh.tets.len() - sizes[keep];
+    let keep = keep as u32;
+    let labelled = !mesh.labels.is_empty();
+    let mut tets = Vec::with_capacity(sizes[keep as usize]);
+    let mut labels = Vec::new();
+    for (t, tet) in mesh.tets.iter().enumerate() {
+        if comp[t] == keep {
+            tets.push(*tet);
+            if labelled {
+                labels.push(mesh.labels[t]);
+            }
+        }
+    }
+    let mut index = vec![u32::MAX; mesh.nodes.len()];
+    for tet in &tets {
+        for &n in tet {
+            index[n as usize] = 0;
+        }
+    }
+    let mut nodes = Vec::new();
+    for (n, slot) in index.iter_mut().enumerate() {
+        if *slot == 0 {
+            *slot = nodes.len() as u32;
+            nodes.push(mesh.nodes[n]);
+        }
+    }
+    for tet in &mut tets {
+        for n in tet.iter_mut() {
+            *n = index[*n as usize];
+        }
+    }
+    Ok((
+        TetMesh::new(nodes, tets)?.with_labels(labels)?,
+        sizes.len() - 1,
+        removed_tets,
+    ))
+}
+
 /// Neighbours of each surface vertex along surface edges: row `v` lists the
 /// surface vertices sharing a triangle edge with `v`, sorted, without repeats.
 /// `vertices` is the number of surface vertices.
@@ -153,6 +229,40 @@ impl BoundarySurface {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_largest_component_is_kept_with_its_labels() {
+        // Two cubes apart: 48 and 6 tetrahedra.
+        let big = crate::mesh::blocks::cube(0.02, 2);
+        let small = crate::mesh::blocks::cube(0.01, 1);
+        let n = big.nodes.len() as u32;
+        let mut nodes = big.nodes.clone();
+        nodes.extend(
+            small
+                .nodes
+                .iter()
+                .map(|p| p + nalgebra::Vector3::new(0.05, 0.0, 0.0)),
+        );
+        let mut tets = small
+            .tets
+            .iter()
+            .map(|t| t.map(|v| v + n))
+            .collect::<Vec<_>>();
+        tets.extend(big.tets.iter().copied());
+        let labels: Vec<u32> = (0..tets.len() as u32).collect();
+        let mesh = TetMesh::new(nodes, tets)
+            .unwrap()
+            .with_labels(labels)
+            .unwrap();
+        let (kept, others, removed) = largest_component(mesh).unwrap();
+        assert_eq!((others, removed), (1, 6));
+        assert_eq!(kept.tets.len(), 48);
+        assert_eq!(kept.nodes, big.nodes);
+        assert_eq!(kept.labels, (6..54).collect::<Vec<u32>>());
+        // One piece: unchanged.
+        let one = crate::mesh::blocks::cube(0.02, 2);
+        assert_eq!(largest_component(one.clone()).unwrap(), (one, 0, 0));
+    }
     use crate::mesh::blocks::cube;
 
     #[test]

@@ -6,7 +6,9 @@
 
 pub mod adjacency;
 pub mod blocks;
+pub mod fissure;
 pub mod from_surface;
+pub mod image;
 pub mod io;
 pub mod manifold;
 pub mod phantom;

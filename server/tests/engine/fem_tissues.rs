@@ -268,5 +268,8 @@ fn tissue_labels_survive_the_model_file_and_keep_the_series_law() {
     };
     let mut s = build_solver(Strategy::Compliance, &read, UNUSED, &face(0.0), &options).unwrap();
     let (force_err, field_err) = series_errors(s.as_mut(), &read, &face(L), 1e-4);
-    assert!(force_err < 1e-9 && field_err < 1e-9, "{force_err:e} {field_err:e}");
+    assert!(
+        force_err < 1e-9 && field_err < 1e-9,
+        "{force_err:e} {field_err:e}"
+    );
 }
