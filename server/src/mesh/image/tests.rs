@@ -884,7 +884,8 @@ fn malformed_files_are_typed_errors_naming_the_field() {
 #[test]
 fn the_fuzz_seeds_read_as_nibabel_reads_them() {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/seeds/nifti");
-    let expect: [(&str, [usize; 3], f64, [[f64; 4]; 3]); 5] = [
+    type Seed = (&'static str, [usize; 3], f64, [[f64; 4]; 3]);
+    let expect: [Seed; 5] = [
         (
             "ball-1.nii",
             [8, 8, 8],
