@@ -415,7 +415,7 @@ impl ImageReport {
 /// [`fissure_server::mesh::image`]); returns the mesh and the report.
 pub fn from_image(images: &[PathBuf], opts: &FromImageOptions) -> anyhow::Result<ImageReport> {
     use fissure_server::mesh::image::{
-        self, ImageMeshing, NiftiVersion, Selection, mesh_image, read_nifti,
+        self, NiftiVersion, Selection, SurfaceMeshing, mesh_image, read_nifti,
     };
     if images.is_empty() {
         bail!("give at least one image");
@@ -436,7 +436,7 @@ pub fn from_image(images: &[PathBuf], opts: &FromImageOptions) -> anyhow::Result
             threshold: opts.threshold,
         },
     };
-    let params = ImageMeshing {
+    let params = SurfaceMeshing {
         spacing: h * 1e-3,
         levels: opts.levels,
         rate: 0.5,

@@ -521,22 +521,27 @@ pub struct SceneFromImage {
 const BUDDAY: &str = "Budday et al., J. Mech. Behav. Biomed. Mater. 46 (2015) 318-330: \
                       indentation, mean modulus";
 
-fn grey(label: u32) -> SceneTissue {
+/// A tissue of Budday et al. 2015 (`name`, modulus `e_pa`) on `label`.
+fn budday(label: u32, name: &str, e_pa: f64) -> SceneTissue {
     SceneTissue {
         label,
-        name: "grey matter".into(),
-        youngs_modulus_pa: GREY_MATTER_PA,
-        source: format!("Grey matter: {BUDDAY} 1.389 kPa."),
+        name: name.into(),
+        youngs_modulus_pa: e_pa,
+        source: format!(
+            "{}{}: {BUDDAY} {:.3} kPa.",
+            name[..1].to_uppercase(),
+            &name[1..],
+            e_pa * 1e-3
+        ),
     }
 }
 
+fn grey(label: u32) -> SceneTissue {
+    budday(label, "grey matter", GREY_MATTER_PA)
+}
+
 fn white(label: u32) -> SceneTissue {
-    SceneTissue {
-        label,
-        name: "white matter".into(),
-        youngs_modulus_pa: WHITE_MATTER_PA,
-        source: format!("White matter: {BUDDAY} 1.895 kPa."),
-    }
+    budday(label, "white matter", WHITE_MATTER_PA)
 }
 
 /// Parses `LABEL=NAME:E_PA`.

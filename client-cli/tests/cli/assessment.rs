@@ -30,9 +30,13 @@ fn demo(out: &Path, who: &str) -> anyhow::Result<PathBuf> {
     )
 }
 
-/// The demo of `scene` with `trajectory` (none: the scene's first ones),
-/// without pictures: its recording.
-fn demo_of(out: &Path, scene: &str, trajectory: &[String]) -> anyhow::Result<PathBuf> {
+/// The demo of `scene` with `trajectory` (none: the scene's first ones;
+/// bundled names or files), without pictures, run in a runtime of its own.
+pub(crate) fn run_demo(
+    out: &Path,
+    scene: &str,
+    trajectory: &[String],
+) -> anyhow::Result<fissure_cli::demo::DemoReport> {
     let args = DemoArgs {
         scene: scene.into(),
         out: out.into(),
@@ -52,7 +56,13 @@ fn demo_of(out: &Path, scene: &str, trajectory: &[String]) -> anyhow::Result<Pat
         .worker_threads(2)
         .enable_all()
         .build()?;
-    rt.block_on(run(&args))?;
+    rt.block_on(run(&args))
+}
+
+/// The demo of `scene` with `trajectory` (none: the scene's first ones),
+/// without pictures: its recording.
+fn demo_of(out: &Path, scene: &str, trajectory: &[String]) -> anyhow::Result<PathBuf> {
+    run_demo(out, scene, trajectory)?;
     Ok(out.join("session.fsrec"))
 }
 

@@ -6,8 +6,6 @@
 //! and never pulls (frictionless contact is unilateral), and a plate out of
 //! the tissue feels nothing.
 
-use fissure_cli::demo::{DemoArgs, run};
-use fissure_cli::replay::Pacing;
 use fissure_cli::scene_cmd::{FromImageArgs, from_image};
 use std::path::Path;
 
@@ -112,25 +110,11 @@ fn a_scene_made_from_an_image_finds_the_slot_and_runs_both_spatulas() -> anyhow:
     assert_eq!(scene.instruments.len(), 2);
 
     let demo = dir.path().join("demo");
-    let report = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()?
-        .block_on(run(&DemoArgs {
-            scene: made.files.scene.display().to_string(),
-            out: demo.clone(),
-            pacing: Pacing::Fast,
-            trajectory: vec![made.files.trajectory.display().to_string()],
-            list: false,
-            azimuth_deg: None,
-            elevation_deg: None,
-            width: 400,
-            height: 300,
-            gif_frames: 2,
-            colour_by: fissure_cli::watch::ColourBy::NonRigid,
-            no_pictures: true,
-            quiet: true,
-        }))?;
+    let report = crate::assessment::run_demo(
+        &demo,
+        &made.files.scene.display().to_string(),
+        &[made.files.trajectory.display().to_string()],
+    )?;
     assert_eq!(report.forces.len(), 2);
     let n = f.normal.into_inner();
     for (name, rows) in &report.forces {

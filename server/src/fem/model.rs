@@ -168,10 +168,14 @@ impl Model {
         for (i, &l) in labels.iter().enumerate() {
             let m = by_label.get(&l).copied().unwrap_or(default);
             used.insert(l);
+            e_max = e_max.max(m.youngs_modulus_pa);
             let (lambda, mu) = m.lame();
+            if self.lame_pa[i] == [lambda, mu] {
+                // Built with this material already (`Model::new`'s).
+                continue;
+            }
             self.lame_pa[i] = [lambda, mu];
             self.kel[i] = self.geoms[i].stiffness(lambda, mu);
-            e_max = e_max.max(m.youngs_modulus_pa);
         }
         if let Some(t) = tissues.iter().find(|t| !used.contains(&t.label)) {
             return Err(SolveError::InvalidModel(format!(

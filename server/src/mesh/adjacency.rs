@@ -159,24 +159,10 @@ pub fn largest_component(mesh: TetMesh) -> Result<(TetMesh, usize, usize), super
             }
         }
     }
-    let mut index = vec![u32::MAX; mesh.nodes.len()];
-    for tet in &tets {
-        for &n in tet {
-            index[n as usize] = 0;
-        }
-    }
-    let mut nodes = Vec::new();
-    for (n, slot) in index.iter_mut().enumerate() {
-        if *slot == 0 {
-            *slot = nodes.len() as u32;
-            nodes.push(mesh.nodes[n]);
-        }
-    }
-    for tet in &mut tets {
-        for n in tet.iter_mut() {
-            *n = index[*n as usize];
-        }
-    }
+    let nodes = super::drop_unused_nodes(mesh.nodes.len(), &mut tets)
+        .into_iter()
+        .map(|n| mesh.nodes[n as usize])
+        .collect();
     Ok((
         TetMesh::new(nodes, tets)?.with_labels(labels)?,
         sizes.len() - 1,

@@ -124,22 +124,30 @@ impl Walls {
         Self { tris }
     }
 
-    /// The nearest hit in front of `o` along the unit `d` within `reach`,
-    /// and the number of crossings of the whole half-line (for parity).
-    fn cast(&self, o: &Point3<f64>, d: &Vector3<f64>, reach: f64) -> (Option<f64>, usize) {
-        let mut best: Option<f64> = None;
+    /// The nearest hit in front of `o` along the unit `d` within `reach`
+    /// (its distance, and whether the wall there faces along `d`: is left
+    /// from inside), and the number of crossings of the whole half-line
+    /// (for parity).
+    fn cast(&self, o: &Point3<f64>, d: &Vector3<f64>, reach: f64) -> (Option<(f64, bool)>, usize) {
+        let mut best: Option<(f64, bool)> = None;
         let mut crossings = 0;
         for [a, b, c] in &self.tris {
             if let Some(h) = moller_trumbore(o, d, a, b, c)
                 && h.t > 0.0
             {
                 crossings += 1;
-                if h.t <= reach && best.is_none_or(|t| h.t < t) {
-                    best = Some(h.t);
+                if h.t <= reach && best.is_none_or(|(t, _)| h.t < t) {
+                    best = Some((h.t, (b - a).cross(&(c - a)).dot(d) > 0.0));
                 }
             }
         }
         (best, crossings)
+    }
+
+    /// The distance to the nearest wall in front of `o` along `d` within
+    /// `reach`.
+    fn hit(&self, o: &Point3<f64>, d: &Vector3<f64>, reach: f64) -> Option<f64> {
+        self.cast(o, d, reach).0.map(|(t, _)| t)
     }
 }
 
@@ -174,28 +182,12 @@ impl Probe {
         dirs.iter()
             .filter(|d| {
                 self.walls
-                    .nearest_from_inside(p, &d.normalize(), self.reach_m)
+                    .cast(p, &d.normalize(), self.reach_m)
+                    .0
+                    .is_some_and(|(_, from_inside)| from_inside)
             })
             .count()
             >= 2
-    }
-}
-
-impl Walls {
-    /// Whether the nearest wall in front of `o` along `d` within `reach`
-    /// faces along `d` (is left, so `o` is inside).
-    fn nearest_from_inside(&self, o: &Point3<f64>, d: &Vector3<f64>, reach: f64) -> bool {
-        let mut best: Option<(f64, bool)> = None;
-        for [a, b, c] in &self.tris {
-            if let Some(h) = moller_trumbore(o, d, a, b, c)
-                && h.t > 0.0
-                && h.t <= reach
-                && best.is_none_or(|(t, _)| h.t < t)
-            {
-                best = Some((h.t, (b - a).cross(&(c - a)).dot(d) > 0.0));
-            }
-        }
-        best.is_some_and(|(_, out)| out)
     }
 }
 
@@ -228,7 +220,7 @@ pub fn locate(
     for d in &dirs {
         let (t, crossings) = walls.cast(&p, d, reach);
         odd += crossings % 2;
-        hit_t.push(t);
+        hit_t.push(t.map(|(t, _)| t));
     }
     let nearest = hit_t
         .iter()
@@ -295,9 +287,7 @@ pub fn locate(
     }
     let out = Unit::new_normalize(out - n.into_inner() * out.dot(&n));
     let gap_at = |q: &Point3<f64>| -> Option<f64> {
-        let (a, _) = walls.cast(q, &n, reach);
-        let (b, _) = walls.cast(q, &(-n.into_inner()), reach);
-        Some(a? + b?)
+        Some(walls.hit(q, &n, reach)? + walls.hit(q, &(-n.into_inner()), reach)?)
     };
     let width = gap_at(&p).unwrap_or(2.0 * nearest);
     // Walk out until the walls are gone.
@@ -311,8 +301,8 @@ pub fn locate(
         }
     }
     // Centre the entry between the walls.
-    let (a, _) = walls.cast(&entry, &n, reach);
-    let (b, _) = walls.cast(&entry, &(-n.into_inner()), reach);
+    let a = walls.hit(&entry, &n, reach);
+    let b = walls.hit(&entry, &(-n.into_inner()), reach);
     if let (Some(a), Some(b)) = (a, b) {
         entry += n.into_inner() * (0.5 * (a - b));
     }

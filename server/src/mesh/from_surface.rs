@@ -82,7 +82,9 @@ pub struct Meshed {
     pub inside_out: bool,
 }
 
-/// Meshing parameters.
+/// Parameters of the proven mesher with a graded inside: the tetrahedron
+/// size at the surface and how it grows inward (meshing a closed surface
+/// here, an image's brain in [`super::image`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SurfaceMeshing {
     /// Lattice spacing at the surface, m.
@@ -92,6 +94,32 @@ pub struct SurfaceMeshing {
     /// Growth of the tetrahedron size per metre of depth (used when
     /// `levels > 0`).
     pub rate: f64,
+}
+
+impl SurfaceMeshing {
+    /// Meshes `field` by [`stuffing::stuff_proven`] on a lattice through
+    /// `anchor` covering `bounds`, `spacing` at the surface (within a band
+    /// of one spacing) and growing by `rate` inward, up to `levels`
+    /// halvings coarser.
+    pub fn stuff(
+        &self,
+        field: &dyn super::sdf::Sdf,
+        anchor: Point3<f64>,
+        bounds: Aabb,
+    ) -> Result<TetMesh, StuffingError> {
+        let lattice = Lattice {
+            spacing: self.spacing,
+            levels: self.levels,
+            anchor,
+            bounds,
+        };
+        let grading = SurfaceGrading {
+            fine: self.spacing,
+            band: self.spacing,
+            rate: self.rate,
+        };
+        stuffing::stuff_proven(field, &lattice, &grading)
+    }
 }
 
 /// Checks that the surface is a closed, consistently oriented 2-manifold
@@ -361,18 +389,7 @@ pub fn mesh_surface(
     ));
     let field = SurfaceField::new(vertices, triangles);
     let (lo, hi) = field.bounds();
-    let lattice = Lattice {
-        spacing: params.spacing,
-        levels: params.levels,
-        anchor: lo,
-        bounds: Aabb { lo, hi },
-    };
-    let grading = SurfaceGrading {
-        fine: params.spacing,
-        band: params.spacing,
-        rate: params.rate,
-    };
-    let mesh = stuffing::stuff_proven(&field, &lattice, &grading)?;
+    let mesh = params.stuff(&field, lo, Aabb { lo, hi })?;
     crate::progress::stage(format_args!(
         "checking the boundary of {} tetrahedra",
         mesh.tets.len()

@@ -315,26 +315,10 @@ pub fn repair_boundary(mesh: TetMesh) -> Result<(TetMesh, BoundaryRepair), Bound
     if report.removed_tets == 0 {
         return Ok((TetMesh::new(nodes, tets)?.with_labels(labels)?, report));
     }
-    let mut index = vec![u32::MAX; nodes.len()];
-    let mut kept = Vec::new();
-    for t in &tets {
-        for &n in t {
-            if index[n as usize] == u32::MAX {
-                index[n as usize] = 0;
-            }
-        }
-    }
-    for (n, slot) in index.iter_mut().enumerate() {
-        if *slot == 0 {
-            *slot = kept.len() as u32;
-            kept.push(nodes[n]);
-        }
-    }
-    for t in &mut tets {
-        for n in t.iter_mut() {
-            *n = index[*n as usize];
-        }
-    }
+    let kept: Vec<_> = super::drop_unused_nodes(nodes.len(), &mut tets)
+        .into_iter()
+        .map(|n| nodes[n as usize])
+        .collect();
     Ok((TetMesh::new(kept, tets)?.with_labels(labels)?, report))
 }
 

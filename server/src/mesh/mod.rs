@@ -172,6 +172,34 @@ impl TetMesh {
     }
 }
 
+/// Drops the nodes no tetrahedron uses: renumbers `tets` in place (the
+/// kept nodes keep their order) and returns, for each kept node, its index
+/// among the old ones. An index out of range becomes `u32::MAX`, which
+/// [`TetMesh::new`] then reports.
+pub fn drop_unused_nodes(n_nodes: usize, tets: &mut [[u32; 4]]) -> Vec<u32> {
+    let mut index = vec![u32::MAX; n_nodes];
+    for t in tets.iter() {
+        for &i in t {
+            if let Some(n) = index.get_mut(i as usize) {
+                *n = 0;
+            }
+        }
+    }
+    let mut kept = Vec::new();
+    for (i, n) in index.iter_mut().enumerate() {
+        if *n == 0 {
+            *n = kept.len() as u32;
+            kept.push(i as u32);
+        }
+    }
+    for t in tets.iter_mut() {
+        for i in t.iter_mut() {
+            *i = index.get(*i as usize).copied().unwrap_or(u32::MAX);
+        }
+    }
+    kept
+}
+
 /// The volume a closed triangle surface encloses, m^3 (vertices in m), by the
 /// divergence theorem: the sum over triangles `(a, b, c)` of
 /// `a . (b x c) / 6`. Positive for an outward (counter-clockwise seen from

@@ -52,9 +52,9 @@ pub use self::nifti::{
 };
 
 use super::TetMesh;
+pub use super::from_surface::SurfaceMeshing;
 use super::manifold::{self, BoundaryRepair};
 use super::sdf::Aabb;
-use super::stuffing::{self, Lattice, SurfaceGrading};
 use field::VoxelField;
 use nalgebra::{Matrix4, Point3, Vector4};
 use rayon::prelude::*;
@@ -71,17 +71,6 @@ pub enum Selection {
     Threshold { threshold: f64 },
     /// One label map: voxels whose rounded value is one of `labels`.
     Labels { labels: Vec<u32> },
-}
-
-/// Meshing parameters.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ImageMeshing {
-    /// Lattice spacing at the surface, m.
-    pub spacing: f64,
-    /// Grading levels (0: uniform).
-    pub levels: u32,
-    /// Growth of the tetrahedron size per metre of depth (when `levels > 0`).
-    pub rate: f64,
 }
 
 /// A meshed image and what was noticed on the way.
@@ -203,7 +192,7 @@ fn check_same_grid(images: &[Image]) -> Result<(), ImageError> {
 pub fn mesh_image(
     images: &[Image],
     selection: &Selection,
-    params: &ImageMeshing,
+    params: &SurfaceMeshing,
 ) -> Result<ImageMeshed, ImageError> {
     let labels = brain_labels(images, selection)?;
     let first = &images[0];
@@ -236,18 +225,7 @@ pub fn mesh_image(
         "meshing the brain: isosurface stuffing at {} m",
         params.spacing
     ));
-    let lattice = Lattice {
-        spacing: params.spacing,
-        levels: params.levels,
-        anchor: Point3::origin(),
-        bounds,
-    };
-    let grading = SurfaceGrading {
-        fine: params.spacing,
-        band: params.spacing,
-        rate: params.rate,
-    };
-    let mesh = stuffing::stuff_proven(&field, &lattice, &grading)?;
+    let mesh = params.stuff(&field, Point3::origin(), bounds)?;
     crate::progress::stage(format_args!(
         "labelling and checking the boundary of {} tetrahedra",
         mesh.tets.len()

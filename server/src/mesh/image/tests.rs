@@ -197,7 +197,7 @@ fn sample(dims: [usize; 3], a: &Matrix4<f64>, f: impl Fn(Vector3<f64>) -> f64) -
     v
 }
 
-const PARAMS: ImageMeshing = ImageMeshing {
+const PARAMS: SurfaceMeshing = SurfaceMeshing {
     spacing: 0.002,
     levels: 1,
     rate: 0.5,

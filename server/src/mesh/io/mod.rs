@@ -381,29 +381,9 @@ pub fn finish_volume(raw: RawVolume) -> Result<VolumeRead, MeshError> {
             flipped_tets += 1;
         }
     }
-    let mut new_index = vec![u32::MAX; nodes.len()];
-    for t in &tets {
-        for &i in t {
-            if let Some(n) = new_index.get_mut(i as usize) {
-                *n = 0;
-            }
-        }
-    }
-    let mut file_nodes = Vec::new();
-    let mut kept = Vec::new();
-    for (i, n) in new_index.iter_mut().enumerate() {
-        if *n == 0 {
-            *n = kept.len() as u32;
-            kept.push(nodes[i]);
-            file_nodes.push(i as u32);
-        }
-    }
+    let file_nodes = super::drop_unused_nodes(nodes.len(), &mut tets);
+    let kept: Vec<_> = file_nodes.iter().map(|&i| nodes[i as usize]).collect();
     let dropped_nodes = nodes.len() - kept.len();
-    for t in &mut tets {
-        for i in t.iter_mut() {
-            *i = new_index.get(*i as usize).copied().unwrap_or(u32::MAX);
-        }
-    }
     let mesh = TetMesh::new(kept, tets)?.with_labels(labels)?;
     Ok(VolumeRead {
         mesh,
