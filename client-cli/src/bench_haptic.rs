@@ -127,12 +127,16 @@ use std::time::Instant;
 #[derive(Debug, Clone, clap::Args)]
 pub struct HapticArgs {
     /// Scenes to run (repeatable or comma-separated): embedded scenes with
-    /// bundled trajectories. All of them by default.
+    /// bundled trajectories. All of them by default. Or one scene file (a
+    /// `.toml`, such as `fissure scene from-image` writes) with its
+    /// trajectory files in --trajectory.
     #[arg(long, value_delimiter = ',')]
     pub scene: Vec<String>,
     /// Only the runs that use one of these bundled trajectories
     /// (repeatable or comma-separated; a run keeps its other instruments'
-    /// trajectories). All runs by default.
+    /// trajectories). All runs by default. With a scene file: its
+    /// trajectories, as `fissure demo --trajectory` takes them (one file of
+    /// several instruments, or NAME=FILE each).
     #[arg(long, value_delimiter = ',')]
     pub trajectory: Vec<String>,
     /// Cut every run after this long, s (whole trajectories by default).
@@ -224,6 +228,15 @@ pub const TARGETS: &[Target] = &[
         bound: 0.01,
     },
 ];
+
+/// A run to measure: the scene (embedded name or file), `(instrument,
+/// trajectory name)` per driven instrument, and for a scene file the
+/// trajectories read from its files.
+type PreparedRun = (
+    String,
+    Vec<(String, String)>,
+    Option<crate::trajectory::TrajectorySet>,
+);
 
 /// One run: a scene and the bundled trajectory of each instrument it
 /// drives, `(instrument, trajectory)`.
@@ -973,7 +986,32 @@ pub fn run(args: &HapticArgs) -> anyhow::Result<HapticReport> {
     if !(args.hysteresis_min_depth_m >= 0.0) {
         bail!("--hysteresis-min-depth-m must be at least 0");
     }
-    let runs = plan(&args.scene, &args.trajectory)?;
+    // A scene file runs once with its trajectory files; embedded scenes
+    // run their bundled trajectories.
+    let file_scene = args
+        .scene
+        .iter()
+        .find(|s| s.ends_with(".toml") || std::path::Path::new(s.as_str()).is_file());
+    let runs: Vec<PreparedRun> = match file_scene {
+        Some(file) => {
+            if args.scene.len() != 1 {
+                bail!("--scene {file:?}: a scene file runs alone (give no other --scene)");
+            }
+            if args.trajectory.is_empty() {
+                bail!("--scene {file:?}: a scene file needs its --trajectory files");
+            }
+            let set = crate::trajectory::resolve(None, &args.trajectory)?;
+            let names = set
+                .iter()
+                .map(|(i, _)| (i.clone(), format!("{i}: {}", args.trajectory.join(","))))
+                .collect();
+            vec![(file.clone(), names, Some(set))]
+        }
+        None => plan(&args.scene, &args.trajectory)?
+            .into_iter()
+            .map(|p| (p.scene, p.tracks, None))
+            .collect(),
+    };
     let opts = SummaryOptions {
         onset_window_s: args.onset_window_ms * 1e-3,
         hold_window_s: args.hold_window_ms * 1e-3,
@@ -995,41 +1033,48 @@ pub fn run(args: &HapticArgs) -> anyhow::Result<HapticReport> {
         .as_deref()
         .map(|s| s.parse().map_err(|e| anyhow::anyhow!("--strategy: {e}")))
         .transpose()?;
-    for (r, plan) in runs.iter().enumerate() {
+    for (r, (scene_name, plan_tracks, files)) in runs.iter().enumerate() {
         let (mut scene, _) =
-            Scene::load(&plan.scene).with_context(|| format!("loading scene {:?}", plan.scene))?;
+            Scene::load(scene_name).with_context(|| format!("loading scene {scene_name:?}"))?;
         if let Some(s) = strategy {
             scene.solver.strategy = s;
             scene
-                .validate(&plan.scene)
-                .with_context(|| format!("scene {:?} with --strategy {}", plan.scene, s.name()))?;
+                .validate(scene_name)
+                .with_context(|| format!("scene {scene_name:?} with --strategy {}", s.name()))?;
         }
-        let names: Vec<String> = plan.tracks.iter().map(|t| t.1.clone()).collect();
-        let label = format!("{} ({})", plan.scene, names.join(", "));
+        let names: Vec<String> = plan_tracks.iter().map(|t| t.1.clone()).collect();
+        let label = match files {
+            Some(_) => format!("{} ({})", scene.name, args.trajectory.join(", ")),
+            None => format!("{} ({})", scene_name, names.join(", ")),
+        };
         if !args.quiet {
             eprintln!("bench haptic [{}/{}]: {label}", r + 1, runs.len());
         }
-        let model = match models.get(&plan.scene) {
+        let model = match models.get(scene_name) {
             Some(m) => m.clone(),
             None => {
                 let m = Arc::new(
                     Model::build(&scene)
-                        .with_context(|| format!("building the model of {:?}", plan.scene))?,
+                        .with_context(|| format!("building the model of {scene_name:?}"))?,
                 );
-                models.insert(plan.scene.clone(), m.clone());
+                models.insert(scene_name.clone(), m.clone());
                 m
             }
         };
         let mut tracks = Vec::new();
-        for (instrument, name) in &plan.tracks {
+        for (k, (instrument, name)) in plan_tracks.iter().enumerate() {
             let i = scene
                 .instruments
                 .iter()
                 .position(|s| &s.name == instrument)
                 .with_context(|| {
-                    format!("scene {:?} has no instrument {instrument:?}", plan.scene)
+                    format!("scene {scene_name:?} has no instrument {instrument:?}")
                 })?;
-            tracks.push((i, Trajectory::load(name)?));
+            let trajectory = match files {
+                Some(set) => set[k].1.clone(),
+                None => Trajectory::load(name)?,
+            };
+            tracks.push((i, trajectory));
         }
         let started = Instant::now();
         let pb = progress_bar(&label, 0, args.quiet);

@@ -16,7 +16,7 @@ use fissure_server::collide::FissurePlacement;
 use fissure_server::mesh::TetMesh;
 use fissure_server::mesh::fissure::{FoundFissure, Probe};
 use fissure_server::mesh::phantom::FissureLandmark;
-use nalgebra::{Point3, UnitQuaternion};
+use nalgebra::{Point3, Unit, UnitQuaternion};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -34,7 +34,10 @@ pub const BRAIN_POISSON: f64 = 0.45;
 
 /// The spatula of the generated scene: the bundled scenes' flat plate.
 const PLATE_THICKNESS_M: f64 = 0.001;
-const PLATE_WIDTH_M: f64 = 0.008;
+/// Widths tried, widest first: the bundled plate, then narrower spatulas
+/// (micro-dissection spatulas are 2 to 10 mm wide) where a patient's
+/// fissure has no room for it.
+const PLATE_WIDTHS_M: [f64; 4] = [0.008, 0.006, 0.004, 0.003];
 const PLATE_LENGTH_M: f64 = 0.030;
 
 /// Where the brain is held.
@@ -108,6 +111,14 @@ pub struct SceneFiles {
     /// (0: both lie in the gap; a curved or narrow fissure makes them graze
     /// its walls from the start).
     pub grazing: f64,
+    /// The plates' plane's turn from the fissure's mid-plane about its depth
+    /// direction and about the across axis, degrees.
+    pub turn_deg: [f64; 2],
+    /// The spatulas' width, m (the widest of [`PLATE_WIDTHS_M`] that fits).
+    pub width_m: f64,
+    /// How far the left and right plate move from the plane to open
+    /// (to first touch of their wall plus the push), m.
+    pub open_m: [f64; 2],
 }
 
 /// The box of the fixed region and the number of nodes in it.
@@ -159,38 +170,91 @@ fn fixed_box(mesh: &TetMesh, fixed: FixedChoice) -> anyhow::Result<([f64; 3], [f
     Ok((lo.coords.into(), hi.coords.into(), count))
 }
 
-/// Where the two plates go: `(across_left, across_right, insertion,
-/// grazing)`, m. The plates lie side by side in the mid-plane at offsets
-/// along `d x n` (within 12 mm of the point, 1 mm apart at least, the left
-/// one at the larger offset); their bodies at full
-/// insertion (which cover every place a plate passes on its way in) are
-/// sampled every 2 mm on both faces. The placement with the fewest samples
-/// in the tissue wins, then the deeper, then the pair centred nearer the
-/// point (depths from `insertion_m` down to 2 mm);
-/// `grazing` is the fraction of samples in the tissue there (0 when both
-/// plates lie in the gap).
-fn fit_plates(mesh: &TetMesh, f: &FissureLandmark, insertion_m: f64) -> (f64, f64, f64, f64) {
-    let (d, n) = (f.direction.into_inner(), f.normal.into_inner());
-    let w = d.cross(&n);
-    let probe = Probe::new(mesh, f.entry + d * (0.5 * f.depth), 0.045);
-    let inside = |across: f64, insertion: f64| -> (usize, usize) {
-        let (mut bad, mut all) = (0, 0);
-        for i in 0..=15 {
+/// Where the two plates go, found by [`fit_plates`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct PlateFit {
+    /// The plates' frame: the fissure's landmark turned and shifted so that
+    /// the plates lie in the gap (entry, depth direction, mid-plane normal).
+    frame: FissureLandmark,
+    /// The plates' width, m.
+    width_m: f64,
+    /// Offsets of the left and right plate across (along `d x n`), m.
+    across_m: [f64; 2],
+    /// Depth the tips reach past the entry, m.
+    insertion_m: f64,
+    /// Fraction of the plates' body samples in the tissue at full insertion.
+    grazing: f64,
+    /// The frame's turn from the landmark's: about the depth direction and
+    /// about the across axis, rad.
+    turn_rad: [f64; 2],
+    /// Distance from the left plate's `+n` face to its wall and from the
+    /// right plate's `-n` face to its wall (the least over the face), m.
+    clearance_m: [f64; 2],
+}
+
+/// The landmark turned by `roll` about its depth direction and `pitch`
+/// about `d x n`, about the point `pivot_m` past the entry, and shifted
+/// `shift_m` along the new normal.
+fn turned(
+    f: &FissureLandmark,
+    roll: f64,
+    pitch: f64,
+    pivot_m: f64,
+    shift_m: f64,
+) -> FissureLandmark {
+    let (d, n) = (f.direction, f.normal);
+    let w = Unit::new_normalize(d.cross(&n));
+    let r = UnitQuaternion::from_axis_angle(&w, pitch) * UnitQuaternion::from_axis_angle(&d, roll);
+    let (d2, n2) = (r * d, r * n);
+    let pivot = f.entry + d.into_inner() * pivot_m;
+    FissureLandmark {
+        entry: pivot - d2.into_inner() * pivot_m + n2.into_inner() * shift_m,
+        direction: d2,
+        normal: n2,
+        ..*f
+    }
+}
+
+/// Where the two plates go. The plates lie side by side in a plane through
+/// the fissure at offsets along `d x n` (within 12 mm, 1 mm apart at least,
+/// the left one at the larger offset); their bodies at full insertion
+/// (which cover every place a plate passes on its way in) are sampled every
+/// a quarter of their width across and 2 mm along, on both faces. Tried in
+/// turn: the tips' depth, from `insertion_m` (capped at the fissure's depth)
+/// down to 2 mm; at each depth the widths of [`PLATE_WIDTHS_M`], widest
+/// first; and for each the plane turned by up to 15 degrees about the depth direction and about the
+/// across axis (5-degree steps) and shifted up to 1.5 mm along its normal
+/// (a fissure curves and its gap is not centred on one plane). The first
+/// depth and width at which some placement has no sample in the tissue
+/// take the least turned of those, then the pair centred nearer the point; failing
+/// that everywhere, the placement with the fewest samples in the tissue
+/// ([`PlateFit::grazing`] says how many).
+fn fit_plates(mesh: &TetMesh, f: &FissureLandmark, insertion_m: f64) -> PlateFit {
+    let probe = Probe::new(
+        mesh,
+        f.entry + f.direction.into_inner() * (0.5 * f.depth),
+        0.045,
+    );
+    let face_points = |g: &FissureLandmark, width: f64, across: f64, insertion: f64, side: f64| {
+        let (d, n) = (g.direction.into_inner(), g.normal.into_inner());
+        let (w, e) = (d.cross(&n), g.entry);
+        (0..=15).flat_map(move |i| {
             let s = insertion - PLATE_LENGTH_M + i as f64 * 0.002;
-            for j in 0..=4 {
-                let y = across - 0.5 * PLATE_WIDTH_M + j as f64 * 0.002;
-                for side in [-0.5, 0.5] {
-                    let p = f.entry + d * s + w * y + n * (side * PLATE_THICKNESS_M);
-                    all += 1;
-                    bad += usize::from(probe.inside(&p));
-                }
-            }
-        }
-        (bad, all)
+            (0..=4).map(move |j| {
+                let y = across + width * (0.25 * j as f64 - 0.5);
+                e + d * s + w * y + n * (side * 0.5 * PLATE_THICKNESS_M)
+            })
+        })
     };
-    // Offsets across, 1 mm apart; the pair must not overlap (1 mm apart).
+    let inside = |g: &FissureLandmark, width: f64, across: f64, insertion: f64| -> usize {
+        [-1.0, 1.0]
+            .iter()
+            .flat_map(|&side| face_points(g, width, across, insertion, side))
+            .filter(|p| probe.inside(p))
+            .count()
+    };
+    let samples = 2 * 16 * 5;
     let offsets: Vec<f64> = (-12..=12).map(|k| k as f64 * 0.001).collect();
-    let apart = PLATE_WIDTH_M + 0.001 - 1e-9;
     let top = insertion_m.min(f.depth).max(0.002);
     let depths = [
         top,
@@ -198,34 +262,83 @@ fn fit_plates(mesh: &TetMesh, f: &FissureLandmark, insertion_m: f64) -> (f64, f6
         0.002 + 0.33 * (top - 0.002),
         0.002,
     ];
-    let mut best: Option<(usize, f64, f64, f64, usize)> = None;
-    for &depth in &depths {
-        let counts: Vec<(usize, usize)> = offsets.iter().map(|&a| inside(a, depth)).collect();
-        let all = counts[0].1;
-        for (i, &r) in offsets.iter().enumerate() {
-            for (j, &l) in offsets.iter().enumerate().skip(i) {
-                if l - r < apart {
-                    continue;
-                }
-                let bad = counts[i].0 + counts[j].0;
-                let better = match best {
-                    None => true,
-                    Some((b, bl, br, bd, _)) => {
-                        (bad, -(depth * 1e6) as i64, ((l + r).abs() * 1e6) as i64)
-                            < (b, -(bd * 1e6) as i64, ((bl + br).abs() * 1e6) as i64)
+    let angles: Vec<f64> = (-3..=3).map(|k| (5.0 * k as f64).to_radians()).collect();
+    let mut frames: Vec<(f64, f64, f64)> = Vec::new();
+    for &roll in &angles {
+        for &pitch in &angles {
+            for k in -3..=3 {
+                frames.push((roll, pitch, k as f64 * 0.0005));
+            }
+        }
+    }
+    // Least turned (then least shifted) first.
+    frames.sort_by(|a, b| {
+        (a.0.abs() + a.1.abs(), a.2.abs())
+            .partial_cmp(&(b.0.abs() + b.1.abs(), b.2.abs()))
+            .unwrap()
+    });
+    // (samples in the tissue, turn + shift rank, centring, fit)
+    let mut best: Option<(usize, usize, f64, PlateFit)> = None;
+    'search: for &depth in &depths {
+        for &width in &PLATE_WIDTHS_M {
+            let apart = width + 0.001 - 1e-9;
+            for (rank, &(roll, pitch, shift)) in frames.iter().enumerate() {
+                let g = turned(f, roll, pitch, 0.5 * depth, shift);
+                let counts: Vec<usize> = offsets
+                    .iter()
+                    .map(|&a| inside(&g, width, a, depth))
+                    .collect();
+                for (i, &r) in offsets.iter().enumerate() {
+                    for (j, &l) in offsets.iter().enumerate().skip(i) {
+                        if l - r < apart {
+                            continue;
+                        }
+                        let key = (counts[i] + counts[j], rank, (l + r).abs());
+                        if best.as_ref().is_none_or(|b| key < (b.0, b.1, b.2)) {
+                            best = Some((
+                                key.0,
+                                key.1,
+                                key.2,
+                                PlateFit {
+                                    frame: g,
+                                    width_m: width,
+                                    across_m: [l, r],
+                                    insertion_m: depth,
+                                    grazing: key.0 as f64 / (2 * samples) as f64,
+                                    turn_rad: [roll, pitch],
+                                    clearance_m: [0.0; 2],
+                                },
+                            ));
+                        }
                     }
-                };
-                if better {
-                    best = Some((bad, l, r, depth, 2 * all));
+                }
+                if best.as_ref().is_some_and(|b| b.0 == 0) {
+                    break 'search;
                 }
             }
         }
-        if best.is_some_and(|b| b.0 == 0) {
-            break;
-        }
     }
-    let (bad, l, r, depth, all) = best.expect("four depths");
-    (l, r, depth, bad as f64 / all as f64)
+    let mut fit = best.expect("four depths").3;
+    // How far each plate's pushing face is from its wall: marched in
+    // 0.1 mm steps (up to 10 mm) from every sample of the face.
+    for (k, side) in [(0, 1.0), (1, -1.0)] {
+        let n = fit.frame.normal.into_inner() * side;
+        fit.clearance_m[k] = face_points(
+            &fit.frame,
+            fit.width_m,
+            fit.across_m[k],
+            fit.insertion_m,
+            side,
+        )
+        .map(|p| {
+            (0..=100)
+                .map(|s| s as f64 * 1e-4)
+                .find(|&t| probe.inside(&(p + n * t)))
+                .unwrap_or(0.01)
+        })
+        .fold(f64::INFINITY, f64::min);
+    }
+    fit
 }
 
 /// Smooth step from 0 to 1 over `[0, 1]` (zero velocity at both ends).
@@ -239,7 +352,7 @@ fn smooth(s: f64) -> f64 {
 fn open_plan(
     insertion_m: f64,
     across_m: [f64; 2],
-    open_offset_m: f64,
+    open_offset_m: [f64; 2],
 ) -> Vec<(&'static str, f64, FissurePlacement)> {
     // Phases, s: insert, settle, open, hold, close, retract.
     const PHASES: [f64; 6] = [0.6, 0.1, 1.0, 0.3, 0.5, 0.6];
@@ -247,7 +360,10 @@ fn open_plan(
     let total: f64 = PHASES.iter().sum();
     let steps = (total * 1000.0).round() as usize;
     let mut rows = Vec::with_capacity(2 * (steps + 1));
-    for (name, sign, across) in [("left", 1.0, across_m[0]), ("right", -1.0, across_m[1])] {
+    for (name, sign, across, open_offset_m) in [
+        ("left", 1.0, across_m[0], open_offset_m[0]),
+        ("right", -1.0, across_m[1], open_offset_m[1]),
+    ] {
         for i in 0..=steps {
             let t = i as f64 * 1e-3;
             let mut edge = 0.0;
@@ -295,15 +411,18 @@ pub fn write_scene(dir: &Path, req: &SceneRequest<'_>) -> anyhow::Result<SceneFi
     let model = dir.join("model.vtu");
     fissure_server::mesh::io::write_volume(&model, req.mesh)
         .with_context(|| format!("writing {}", model.display()))?;
-    let (left_m, right_m, insertion_m, grazing) = fit_plates(req.mesh, &f, req.insertion_m);
-    let offset_m = FissurePlacement::into_wall(&f, PLATE_THICKNESS_M, req.push_m);
+    let fit = fit_plates(req.mesh, &f, req.insertion_m);
+    let [left_m, right_m] = fit.across_m;
+    // Each plate pushes its wall `push_m` beyond first touch.
+    let offset_m = fit.clearance_m.map(|c| c + req.push_m);
+    let frame = fit.frame;
     let home = |across: f64| {
         FissurePlacement {
             insertion: -0.005,
             across,
             offset: 0.0,
         }
-        .pose(&f, PLATE_LENGTH_M)
+        .pose(&frame, PLATE_LENGTH_M)
     };
     let v3 = |v: [f64; 3]| format!("[{:.7}, {:.7}, {:.7}]", v[0], v[1], v[2]);
     let q4 = |q: [f64; 4]| format!("[{}, {}, {}, {}]", q[0], q[1], q[2], q[3]);
@@ -380,13 +499,24 @@ pub fn write_scene(dir: &Path, req: &SceneRequest<'_>) -> anyhow::Result<SceneFi
         f.depth * 1e3,
         req.fissure.sheetness
     )?;
+    writeln!(
+        s,
+        "# The spatulas' plane: that mid-plane turned {:.0} deg about the depth direction\n\
+         # and {:.0} deg about the across axis, entry {} m, so that both lie in the gap\n\
+         # ({:.0} % of their body in the tissue at full insertion).",
+        fit.turn_rad[0].to_degrees(),
+        fit.turn_rad[1].to_degrees(),
+        v3(frame.entry.coords.into()),
+        fit.grazing * 100.0
+    )?;
     for (name, across) in [("left", left_m), ("right", right_m)] {
         let pose = home(across);
         writeln!(
             s,
             "\n[[instrument]]\nname = {name:?}\nshape = \"flat\"\nthickness_m = {PLATE_THICKNESS_M}\n\
-             width_m = {PLATE_WIDTH_M}\nlength_m = {PLATE_LENGTH_M}\nnodes_per_face = 150\nrim = true\n\
+             width_m = {}\nlength_m = {PLATE_LENGTH_M}\nnodes_per_face = 150\nrim = true\n\
              home_position_m = {}\nhome_orientation = {}",
+            fit.width_m,
             v3(pose.translation.vector.into()),
             q4(quat_wxyz(&pose.rotation))
         )?;
@@ -397,8 +527,8 @@ pub fn write_scene(dir: &Path, req: &SceneRequest<'_>) -> anyhow::Result<SceneFi
     fissure_server::scene::Scene::parse(&s, &scene.display().to_string())
         .with_context(|| format!("the scene written to {} does not parse", scene.display()))?;
     let mut csv = String::from("instrument,t_s,x_m,y_m,z_m,qw,qx,qy,qz\n");
-    for (name, t, placement) in open_plan(insertion_m, [left_m, right_m], offset_m) {
-        let pose = placement.pose(&f, PLATE_LENGTH_M);
+    for (name, t, placement) in open_plan(fit.insertion_m, [left_m, right_m], offset_m) {
+        let pose = placement.pose(&frame, PLATE_LENGTH_M);
         let x = pose.translation.vector;
         let [qw, qx, qy, qz] = quat_wxyz(&pose.rotation);
         writeln!(
@@ -416,9 +546,12 @@ pub fn write_scene(dir: &Path, req: &SceneRequest<'_>) -> anyhow::Result<SceneFi
         trajectory,
         fixed_box_m: (box_min, box_max),
         fixed_nodes,
-        insertion_m,
+        insertion_m: fit.insertion_m,
         across_m: [left_m, right_m],
-        grazing,
+        grazing: fit.grazing,
+        turn_deg: fit.turn_rad.map(f64::to_degrees),
+        width_m: fit.width_m,
+        open_m: offset_m,
     })
 }
 
@@ -440,8 +573,15 @@ pub struct FromImageArgs {
     /// NIfTI-1 or NIfTI-2 images (.nii or .nii.gz): one label map (with
     /// --labels), one mask, or probability maps summed and thresholded
     /// (grey matter first, then white matter: their labels are 1 and 2).
-    #[arg(value_name = "IMAGE", required = true, num_args = 1..)]
+    #[arg(value_name = "IMAGE", required_unless_present = "mesh", num_args = 1..)]
     pub images: Vec<PathBuf>,
+    /// Use this labelled mesh (`model.vtu` of an earlier scene, or the output
+    /// of `fissure mesh from-image`) instead of meshing images: to try
+    /// another fissure point without meshing again. Its labels are taken
+    /// as grey (1) and white (2) matter unless --labels or --tissue say
+    /// otherwise.
+    #[arg(long, value_name = "MODEL.vtu", conflicts_with = "images")]
+    pub mesh: Option<PathBuf>,
     /// The labels of a label map that are brain (comma-separated).
     #[arg(long, value_name = "L,L,...", value_delimiter = ',', num_args = 1..)]
     pub labels: Option<Vec<u32>>,
@@ -494,7 +634,7 @@ pub struct FromImageArgs {
     /// the depth found).
     #[arg(long, value_name = "MM", default_value_t = 20.0)]
     pub insertion_mm: f64,
-    /// How far each spatula pushes its wall beyond the gap, mm.
+    /// How far each spatula pushes its wall beyond first touch, mm.
     #[arg(long, value_name = "MM", default_value_t = 2.0)]
     pub push_mm: f64,
     /// Simulate only the tissue within this distance of the fissure's point
@@ -508,8 +648,10 @@ pub struct FromImageArgs {
 /// What `fissure scene from-image` made.
 #[derive(Debug, Clone)]
 pub struct SceneFromImage {
-    /// The mesh and its figures.
-    pub meshed: crate::mesh_cmd::ImageReport,
+    /// The image's figures (none when the mesh was read from a file).
+    pub meshed: Option<crate::mesh_cmd::ImageReport>,
+    /// The mesh, m, with a tissue label per tetrahedron.
+    pub mesh: TetMesh,
     /// The fissure found.
     pub fissure: FoundFissure,
     /// The files written.
@@ -590,16 +732,34 @@ pub fn from_image(args: &FromImageArgs) -> anyhow::Result<SceneFromImage> {
             args.push_mm
         );
     }
-    let meshed = crate::mesh_cmd::from_image(
-        &args.images,
-        &crate::mesh_cmd::FromImageOptions {
-            labels: args.labels.clone(),
-            threshold: args.threshold,
-            spacing_mm: args.spacing_mm,
-            levels: args.levels,
-        },
-    )?;
-    let mesh = &meshed.mesh;
+    let (meshed, mesh) = match &args.mesh {
+        Some(path) => {
+            fissure_server::progress::stage(format_args!("reading {}", path.display()));
+            let mesh = fissure_server::mesh::io::read_volume(path)
+                .with_context(|| format!("reading the mesh {}", path.display()))?;
+            (None, mesh)
+        }
+        None => {
+            let mut report = crate::mesh_cmd::from_image(
+                &args.images,
+                &crate::mesh_cmd::FromImageOptions {
+                    labels: args.labels.clone(),
+                    threshold: args.threshold,
+                    spacing_mm: args.spacing_mm,
+                    levels: args.levels,
+                },
+            )?;
+            let empty = TetMesh {
+                nodes: Vec::new(),
+                tets: Vec::new(),
+                labels: Vec::new(),
+            };
+            let mesh = std::mem::replace(&mut report.mesh, empty);
+            (Some(report), mesh)
+        }
+    };
+    let owned = mesh;
+    let mesh = &owned;
     let present = |l: u32| mesh.labels.contains(&l);
     let tissues: Vec<SceneTissue> = if !args.tissue.is_empty() {
         args.tissue
@@ -618,7 +778,7 @@ pub fn from_image(args: &FromImageArgs) -> anyhow::Result<SceneFromImage> {
                     .map(white),
             )
             .collect()
-    } else if args.images.len() == 2 {
+    } else if args.images.len() == 2 || args.mesh.is_some() {
         [grey(1), white(2)]
             .into_iter()
             .filter(|t| present(t.label))
@@ -671,6 +831,7 @@ pub fn from_image(args: &FromImageArgs) -> anyhow::Result<SceneFromImage> {
     )?;
     Ok(SceneFromImage {
         meshed,
+        mesh: owned,
         fissure,
         files,
         tissues,
@@ -682,7 +843,14 @@ pub fn run(cmd: SceneCommand) -> anyhow::Result<()> {
     match cmd {
         SceneCommand::FromImage(args) => {
             let made = from_image(&args)?;
-            print!("{}", made.meshed.table());
+            match &made.meshed {
+                Some(m) => print!("{}", m.table()),
+                None => println!(
+                    "mesh: {} nodes, {} tetrahedra",
+                    made.mesh.nodes.len(),
+                    made.mesh.tets.len()
+                ),
+            }
             let f = made.fissure.landmark;
             let mm = |p: [f64; 3]| {
                 format!(
@@ -717,10 +885,17 @@ pub fn run(cmd: SceneCommand) -> anyhow::Result<()> {
                 );
             }
             println!(
-                "spatulas: side by side {:.1} and {:.1} mm across the fissure's point, tips {:.1} mm past the entry",
+                "spatulas ({:.0} mm wide): side by side {:.1} and {:.1} mm across the fissure's point, tips {:.1} mm past the entry, \
+                 in the mid-plane turned {:.0} and {:.0} deg (about the depth direction, about the across axis); \
+                 they open {:.2} and {:.2} mm",
+                made.files.width_m * 1e3,
                 made.files.across_m[0] * 1e3,
                 made.files.across_m[1] * 1e3,
-                made.files.insertion_m * 1e3
+                made.files.insertion_m * 1e3,
+                made.files.turn_deg[0],
+                made.files.turn_deg[1],
+                made.files.open_m[0] * 1e3,
+                made.files.open_m[1] * 1e3,
             );
             if made.files.grazing > 0.0 {
                 println!(

@@ -5,8 +5,9 @@ and white matter probability maps that nilearn's wheel ships.
 The maps (nilearn/datasets/data/mni_icbm152_{gm,wm}_tal_nlin_sym_09a_converted
 .nii.gz, uint8 0..255, 1 mm, sform) go through `fissure scene from-image`
 with their sum thresholded at half its range (127.5) and the point
-(-48, 15, -5) mm in the left Sylvian fissure; then `fissure demo` runs the
-scene it wrote with both spatulas. This checks that
+(-54, 15, -6) mm in the left Sylvian fissure; then `fissure demo` runs the
+scene it wrote with both spatulas, and `fissure bench haptic` drives the
+same trajectory with a full solve at every force sample. This checks that
 
 * the mesh's volume is within 5 % of the thresholded voxels' volume that
   nibabel counts independently, and its grey and white tissue volumes are
@@ -16,11 +17,18 @@ scene it wrote with both spatulas. This checks that
   the left hemisphere, within 45 degrees) and its plane is closer to
   horizontal than vertical (the Sylvian fissure's stem), with a gap of at
   most 8 mm;
-* the scene runs: the demo finishes and both spatulas feel the tissue.
+* both spatulas fit in the gap: no part of them is in the tissue at full
+  insertion (the command turns the plane and narrows the plates until they
+  fit), with the tips at least 5 mm past the entry;
+* the scene runs: the demo finishes, both spatulas feel the tissue, and no
+  point of the brain moves farther than twice the 2 mm push (a rigid plate
+  pushes a wall about as far as it goes; before the plates were fitted in
+  the gap they started in the tissue and the brain moved 1.2 m);
+* every `fissure bench haptic` target is met on the scene (force samples
+  against a full solve at every sample).
 
-The walls of this fissure curve within a spatula's width, so the plates
-graze the tissue from the start (the command says how much); the force laws
-of a clean opening are checked on a synthetic slotted block instead
+The force laws of a clean opening (the wall pushes back, never pulls, and
+lets go after retraction) are checked on a synthetic slotted block
 (client-cli/tests/cli/scene_from_image.rs).
 
 Usage: mni_scene.py --fissure PATH_TO_fissure --wheel NILEARN_WHEEL [--keep DIR]
@@ -40,7 +48,8 @@ import zipfile
 import nibabel
 import numpy as np
 
-NEAR_MM = (-48.0, 15.0, -5.0)
+NEAR_MM = (-54.0, 15.0, -6.0)
+PUSH_MM = 2.0
 
 
 def fail(message):
@@ -114,6 +123,11 @@ def main():
         fail(f"the fissure's plane normal {normal} is not closer to vertical than horizontal")
     if gap_mm > 8.0:
         fail(f"gap {gap_mm} mm")
+    if "lies in the tissue at full insertion" in text:
+        fail("the spatulas do not fit in the gap")
+    m = re.search(r"tips ([0-9.]+) mm past the entry", text)
+    if not m or float(m.group(1)) < 5.0:
+        fail(f"the tips reach {m and m.group(1)} mm past the entry (5 mm wanted)")
 
     demo_dir = os.path.join(out, "demo")
     run(
@@ -136,6 +150,22 @@ def main():
         if not peak > 0.0:
             fail(f"{name}: the spatula never met the tissue")
         print(f"{name}: peak force {peak:.4f} N")
+    m = re.search(r"largest surface displacement: ([0-9.]+) mm", summary)
+    if not m:
+        fail("no largest displacement in the summary")
+    if float(m.group(1)) > 2.0 * PUSH_MM:
+        fail(f"the brain moved {m.group(1)} mm under a {PUSH_MM} mm push")
+
+    import json
+    bench = json.loads(run(
+        [args.fissure, "bench", "haptic", "--scene", os.path.join(scene_dir, "scene.toml"),
+         "--trajectory", os.path.join(scene_dir, "open.csv"), "--json", "--quiet"]
+    ))
+    for row in bench["runs"]:
+        if row["targets_failed"]:
+            fail(f"bench haptic misses {row['targets_failed']}: {json.dumps(row)[:2000]}")
+        print(f"bench haptic: {row['samples']} samples, max error {row['max_error_rel']} of the peak, "
+              f"ripple ratio {row['ripple_ratio']}: every target met")
     print("MNI scene: ok")
 
 

@@ -71,6 +71,7 @@ fn a_scene_made_from_an_image_finds_the_slot_and_runs_both_spatulas() -> anyhow:
     let out = dir.path().join("slotted");
     let made = from_image(&FromImageArgs {
         images: vec![image],
+        mesh: None,
         labels: None,
         threshold: 0.5,
         spacing_mm: 2.5,
@@ -105,6 +106,17 @@ fn a_scene_made_from_an_image_finds_the_slot_and_runs_both_spatulas() -> anyhow:
     // Both plates fit in the slot, side by side.
     assert_eq!(made.files.grazing, 0.0);
     assert!(made.files.across_m[0] > 0.0 && made.files.across_m[1] < 0.0);
+    // A straight slot needs no turn; each plate opens to its wall (the
+    // half-gap less its half-thickness, within the 0.1 mm march) plus the
+    // push.
+    assert_eq!(made.files.turn_deg, [0.0, 0.0]);
+    for open in made.files.open_m {
+        let want = 0.5 * f.width - 0.0005 + 1.5e-3;
+        assert!(
+            (open - want).abs() < 0.25e-3,
+            "opens {open} m, want {want} m"
+        );
+    }
     let (scene, _) = fissure_server::scene::Scene::load(&made.files.scene.display().to_string())?;
     assert_eq!(scene.name, "slotted");
     assert_eq!(scene.instruments.len(), 2);
@@ -138,5 +150,13 @@ fn a_scene_made_from_an_image_finds_the_slot_and_runs_both_spatulas() -> anyhow:
         let last = rows.last().unwrap();
         assert_eq!(last.force_n, [0.0; 3], "{name}: force after retraction");
     }
+    // A wall pushed 1.5 mm by a rigid plate moves about that much: no node
+    // of the tissue goes farther than the push (with a margin for the
+    // bulge about the plate's edges).
+    assert!(
+        report.max_displacement_m < 1.5 * 1.5e-3,
+        "largest displacement {} mm under a 1.5 mm push",
+        report.max_displacement_m * 1e3
+    );
     Ok(())
 }
