@@ -367,18 +367,20 @@ impl ContactOutput {
     }
 
     /// Surface vertices the query's rule would push: the enforced ones
-    /// (paper) or the candidates (Signorini), counted once.
-    pub fn contact_vertices(&self) -> usize {
+    /// (paper) or the candidates (Signorini), counted once. `buf` is
+    /// scratch, reused so that a force sample allocates nothing.
+    pub fn contact_vertices(&self, buf: &mut Vec<u32>) -> usize {
         if self.enforced.is_empty() {
-            let mut v: Vec<u32> = self
-                .candidates
-                .iter()
-                .map(|c| c.volume_node)
-                .chain(self.edges.iter().flat_map(|e| e.nodes))
-                .collect();
-            v.sort_unstable();
-            v.dedup();
-            v.len()
+            buf.clear();
+            buf.extend(
+                self.candidates
+                    .iter()
+                    .map(|c| c.volume_node)
+                    .chain(self.edges.iter().flat_map(|e| e.nodes)),
+            );
+            buf.sort_unstable();
+            buf.dedup();
+            buf.len()
         } else {
             self.enforced.len()
         }

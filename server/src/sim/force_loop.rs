@@ -52,6 +52,8 @@ pub struct ForceLoop {
     answer: SampleAnswer,
     contact_count: u32,
     touching: Vec<u32>,
+    /// Scratch of the query's vertex count.
+    vertices: Vec<u32>,
     last_good: (Vector3<f64>, Vector3<f64>),
     /// A blade's pose at the last query, the surface its edge swept since,
     /// and the ties' workspace ([`crate::sim::engine::TiesAtStep::adjust`]).
@@ -94,6 +96,7 @@ impl ForceLoop {
             answer: SampleAnswer::default(),
             contact_count: 0,
             touching: Vec::new(),
+            vertices: Vec::new(),
             last_good: (Vector3::zeros(), Vector3::zeros()),
             last_pose: None,
             swept: Vec::new(),
@@ -152,7 +155,7 @@ impl ForceLoop {
             &self.poses,
             &mut self.rows,
         );
-        self.contact_count = out.contact_vertices() as u32;
+        self.contact_count = out.contact_vertices(&mut self.vertices) as u32;
         self.contact_count
     }
 
