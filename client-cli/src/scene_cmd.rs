@@ -277,8 +277,8 @@ fn fit_plates(mesh: &TetMesh, f: &FissureLandmark, insertion_m: f64) -> PlateFit
             .partial_cmp(&(b.0.abs() + b.1.abs(), b.2.abs()))
             .unwrap()
     });
-    // (samples in the tissue, turn + shift rank, centring, fit)
-    let mut best: Option<(usize, usize, f64, PlateFit)> = None;
+    // ((samples in the tissue, turn + shift rank, centring), fit)
+    let mut best: Option<((usize, usize, f64), PlateFit)> = None;
     'search: for &depth in &depths {
         for &width in &PLATE_WIDTHS_M {
             let apart = width + 0.001 - 1e-9;
@@ -294,11 +294,9 @@ fn fit_plates(mesh: &TetMesh, f: &FissureLandmark, insertion_m: f64) -> PlateFit
                             continue;
                         }
                         let key = (counts[i] + counts[j], rank, (l + r).abs());
-                        if best.as_ref().is_none_or(|b| key < (b.0, b.1, b.2)) {
+                        if best.as_ref().is_none_or(|b| key < b.0) {
                             best = Some((
-                                key.0,
-                                key.1,
-                                key.2,
+                                key,
                                 PlateFit {
                                     frame: g,
                                     width_m: width,
@@ -312,13 +310,13 @@ fn fit_plates(mesh: &TetMesh, f: &FissureLandmark, insertion_m: f64) -> PlateFit
                         }
                     }
                 }
-                if best.as_ref().is_some_and(|b| b.0 == 0) {
+                if best.as_ref().is_some_and(|b| b.0.0 == 0) {
                     break 'search;
                 }
             }
         }
     }
-    let mut fit = best.expect("four depths").3;
+    let mut fit = best.expect("four depths").1;
     // How far each plate's pushing face is from its wall: marched in
     // 0.1 mm steps (up to 10 mm) from every sample of the face.
     for (k, side) in [(0, 1.0), (1, -1.0)] {

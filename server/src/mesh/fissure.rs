@@ -125,20 +125,19 @@ impl Walls {
         Self { tris }
     }
 
-    /// The nearest hit in front of `o` along the unit `d` within `reach`
-    /// (its distance, and whether the wall there faces along `d`: is left
-    /// from inside), and the number of crossings of the whole half-line
+    /// The distance of the nearest hit in front of `o` along the unit `d`
+    /// within `reach`, and the number of crossings of the whole half-line
     /// (for parity).
-    fn cast(&self, o: &Point3<f64>, d: &Vector3<f64>, reach: f64) -> (Option<(f64, bool)>, usize) {
-        let mut best: Option<(f64, bool)> = None;
+    fn cast(&self, o: &Point3<f64>, d: &Vector3<f64>, reach: f64) -> (Option<f64>, usize) {
+        let mut best: Option<f64> = None;
         let mut crossings = 0;
         for [a, b, c] in &self.tris {
             if let Some(h) = moller_trumbore(o, d, a, b, c)
                 && h.t > 0.0
             {
                 crossings += 1;
-                if h.t <= reach && best.is_none_or(|(t, _)| h.t < t) {
-                    best = Some((h.t, (b - a).cross(&(c - a)).dot(d) > 0.0));
+                if h.t <= reach && best.is_none_or(|t| h.t < t) {
+                    best = Some(h.t);
                 }
             }
         }
@@ -148,7 +147,7 @@ impl Walls {
     /// The distance to the nearest wall in front of `o` along `d` within
     /// `reach`.
     fn hit(&self, o: &Point3<f64>, d: &Vector3<f64>, reach: f64) -> Option<f64> {
-        self.cast(o, d, reach).0.map(|(t, _)| t)
+        self.cast(o, d, reach).0
     }
 }
 
@@ -285,7 +284,7 @@ pub fn locate(
     for d in &dirs {
         let (t, crossings) = walls.cast(&p, d, reach);
         odd += crossings % 2;
-        hit_t.push(t.map(|(t, _)| t));
+        hit_t.push(t);
     }
     let nearest = hit_t
         .iter()
