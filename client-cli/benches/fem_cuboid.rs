@@ -4,7 +4,7 @@
 //! `cargo bench -p fissure-cli --bench fem_cuboid`.
 
 use fissure_cli::bench_fem::{FemBenchOptions, print, run_fem_bench};
-use fissure_server::mesh::blocks::cuboid;
+use fissure_engine::mesh::blocks::cuboid;
 
 fn main() {
     let mesh = cuboid([0.08, 0.08, 0.05], [20, 20, 20]);

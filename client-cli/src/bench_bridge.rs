@@ -28,11 +28,11 @@ use crate::bridge::igtl::{IgtlBridge, IgtlOptions};
 use crate::bridge::{Bridge, FORCE_LEN, decode_force, encode_pose};
 use crate::replay::{connect, haptic_request};
 use anyhow::Context;
+use fissure_engine::scene::Scene;
+use fissure_engine::sim::stats::percentile;
+use fissure_engine::sim::{SimOptions, Simulation};
 use fissure_proto::v1 as pb;
-use fissure_server::scene::Scene;
-use fissure_server::service::{ServeOptions, serve};
-use fissure_server::sim::stats::percentile;
-use fissure_server::sim::{SimOptions, Simulation};
+use fissure_server::{ServeOptions, serve};
 use std::time::{Duration, Instant};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 

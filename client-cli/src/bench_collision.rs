@@ -32,7 +32,7 @@
 //! ([`DetectOptions::bounded_rays`], the server's default); the CPU BVH is also
 //! timed casting whole lines (`line`, the paper's pass). Both give the same
 //! output (`same`). The CPU BVH rows (`bvh`) walk the tree once per run of
-//! at least [`fissure_server::collide::bvh::BUNDLE_MIN`] parallel rays (the
+//! at least [`fissure_engine::collide::bvh::BUNDLE_MIN`] parallel rays (the
 //! server's default, `Traversal::Bundled`); the `bvh-per-ray` rows beside
 //! them walk it once per ray, in the same run.
 //!
@@ -58,9 +58,9 @@
 //! `taskset -c 0`) for one core.
 
 use anyhow::Context;
-use fissure_server::collide::bvh::Traversal;
-use fissure_server::collide::gpu::{GpuBruteForce, GpuBvh};
-use fissure_server::collide::{
+use fissure_engine::collide::bvh::Traversal;
+use fissure_engine::collide::gpu::{GpuBruteForce, GpuBvh};
+use fissure_engine::collide::{
     BruteForce, Bvh, ContactOutput, ContactQuery, DetectOptions, FissurePlacement, History,
     HistoryMode, Instrument, NodeHits, NodeLayout, Plate, RayBackend, RayRange, Stage, Tool,
     Workspace, detect_many,
@@ -165,7 +165,7 @@ pub struct CollisionArgs {
     #[arg(long, default_value_t = 3)]
     pub min_repeats: usize,
     /// Reach of the source nodes, m (the scenes' `collision.max_depth_m`).
-    #[arg(long, default_value_t = fissure_server::scene::DEFAULT_MAX_DEPTH_M)]
+    #[arg(long, default_value_t = fissure_engine::scene::DEFAULT_MAX_DEPTH_M)]
     pub max_depth_m: f64,
     /// Spatulas on the lattice, shifted off it, or both (one report each).
     #[arg(long, value_enum, default_value_t = PlacementChoice::Both)]
@@ -205,7 +205,7 @@ impl Default for BenchOptions {
             gpu: true,
             min_time: Duration::from_millis(500),
             min_repeats: 3,
-            max_depth_m: fissure_server::scene::DEFAULT_MAX_DEPTH_M,
+            max_depth_m: fissure_engine::scene::DEFAULT_MAX_DEPTH_M,
         }
     }
 }
@@ -297,10 +297,10 @@ impl BenchSurface {
     /// The boundary of phantom preset `preset`, two spatulas in the left
     /// Sylvian fissure (module documentation), placed as `placement`.
     pub fn phantom(preset: &str, placement: Placement) -> anyhow::Result<Self> {
-        let spacing = fissure_server::mesh::phantom::preset_params(preset)
+        let spacing = fissure_engine::mesh::phantom::preset_params(preset)
             .with_context(|| format!("phantom preset {preset:?}"))?
             .spacing;
-        let phantom = fissure_server::mesh::phantom::preset(preset)
+        let phantom = fissure_engine::mesh::phantom::preset(preset)
             .with_context(|| format!("phantom preset {preset:?}"))?;
         let s = phantom.mesh.boundary();
         let mut pos = Vec::new();
@@ -905,7 +905,7 @@ pub const BOX_CELLS: [usize; 3] = [45, 36, 29];
 /// The benchmark's box: the boundary of a 150 x 120 x 100 mm box with
 /// 45 x 36 x 29 cells, 15,876 triangles (the paper's phantom has 15,865).
 pub fn paper_sized_box() -> (Vec<Point3<f64>>, Vec<[u32; 3]>) {
-    let mesh = fissure_server::mesh::blocks::cuboid(BOX_SIZE_M, BOX_CELLS);
+    let mesh = fissure_engine::mesh::blocks::cuboid(BOX_SIZE_M, BOX_CELLS);
     let s = mesh.boundary();
     let mut pos = Vec::new();
     s.gather(&mesh.nodes, &mut pos);
@@ -962,7 +962,7 @@ mod tests {
     /// comes out for every node count (GPU rows where an adapter exists).
     #[test]
     fn rows_side_by_side_and_methods_agree() {
-        let mesh = fissure_server::mesh::blocks::cuboid([0.06, 0.04, 0.03], [8, 6, 5]);
+        let mesh = fissure_engine::mesh::blocks::cuboid([0.06, 0.04, 0.03], [8, 6, 5]);
         let s = mesh.boundary();
         let mut pos = Vec::new();
         s.gather(&mesh.nodes, &mut pos);
@@ -992,7 +992,7 @@ mod tests {
     fn offset_placement_shifts_the_plates_within_their_plane() {
         let a = BenchSurface::phantom("coarse", Placement::Aligned).unwrap();
         let b = BenchSurface::phantom("coarse", Placement::Offset).unwrap();
-        let h = fissure_server::mesh::phantom::preset_params("coarse")
+        let h = fissure_engine::mesh::phantom::preset_params("coarse")
             .unwrap()
             .spacing;
         for (p, q) in a.poses.iter().zip(&b.poses) {

@@ -8,11 +8,11 @@
 //! The linear strategies run with each element formulation asked for
 //! (`tet4`, `tet4-nodal-pressure`), side by side in one run.
 
-use fissure_server::fem::compliance::Recover;
-use fissure_server::fem::{
+use fissure_engine::fem::compliance::Recover;
+use fissure_engine::fem::{
     Element, Material, Par, Prescribed, SolverOptions, Strategy, build_solver,
 };
-use fissure_server::mesh::TetMesh;
+use fissure_engine::mesh::TetMesh;
 use nalgebra::{Point3, Vector3};
 use serde::Serialize;
 use std::time::Instant;
@@ -258,7 +258,7 @@ pub fn print(rows: &[Row], json: bool) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use fissure_server::mesh::blocks::cuboid;
+    use fissure_engine::mesh::blocks::cuboid;
 
     #[test]
     fn small_bench_produces_rows_for_every_strategy_and_element() {

@@ -106,16 +106,16 @@
 
 use crate::trajectory::{BUNDLED, Trajectory, Waypoint};
 use anyhow::{Context, bail};
-use fissure_server::collide::FaceId;
-use fissure_server::fem::RowKind;
-use fissure_server::fem::compliance::ColumnPolicy;
-use fissure_server::scene::{EMBEDDED, ModelSpec, Scene};
-use fissure_server::sim::engine::{Model, StepEngine};
-use fissure_server::sim::flags;
-use fissure_server::sim::rows::face_of_key;
-use fissure_server::sim::snapshot::Snapshot;
-use fissure_server::sim::stats::percentile;
-use fissure_server::sim::stepped::{Answer, StepDone, SteppedRunner, home_pose};
+use fissure_engine::collide::FaceId;
+use fissure_engine::fem::RowKind;
+use fissure_engine::fem::compliance::ColumnPolicy;
+use fissure_engine::scene::{EMBEDDED, ModelSpec, Scene};
+use fissure_engine::sim::engine::{Model, StepEngine};
+use fissure_engine::sim::flags;
+use fissure_engine::sim::rows::face_of_key;
+use fissure_engine::sim::snapshot::Snapshot;
+use fissure_engine::sim::stats::percentile;
+use fissure_engine::sim::stepped::{Answer, StepDone, SteppedRunner, home_pose};
 use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use serde::Serialize;
@@ -1028,7 +1028,7 @@ pub fn run(args: &HapticArgs) -> anyhow::Result<HapticReport> {
             .collect(),
         ..HapticReport::default()
     };
-    let strategy: Option<fissure_server::fem::Strategy> = args
+    let strategy: Option<fissure_engine::fem::Strategy> = args
         .strategy
         .as_deref()
         .map(|s| s.parse().map_err(|e| anyhow::anyhow!("--strategy: {e}")))

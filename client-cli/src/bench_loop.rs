@@ -22,11 +22,11 @@
 use crate::replay::{connect, haptic_request};
 use crate::trajectory::{BUNDLED, Trajectory, Waypoint};
 use anyhow::{Context, bail};
+use fissure_engine::scene::{Scene, Traversal};
+use fissure_engine::sim::stats::percentile;
+use fissure_engine::sim::{SimOptions, Simulation, priority};
 use fissure_proto::v1 as pb;
-use fissure_server::scene::{Scene, Traversal};
-use fissure_server::service::{ServeOptions, Transport};
-use fissure_server::sim::stats::percentile;
-use fissure_server::sim::{SimOptions, Simulation, priority};
+use fissure_server::{ServeOptions, Transport};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
@@ -35,7 +35,7 @@ use std::time::{Duration, Instant};
 #[derive(Debug, Clone, clap::Args)]
 pub struct LoopBenchArgs {
     /// Scene (an embedded name with bundled trajectories).
-    #[arg(long, default_value = fissure_server::scene::DEFAULT_SCENE)]
+    #[arg(long, default_value = fissure_engine::scene::DEFAULT_SCENE)]
     pub scene: String,
     /// Length of the timed run, s.
     #[arg(long, default_value_t = 10.0)]
@@ -50,12 +50,12 @@ pub struct LoopBenchArgs {
     /// of the clients' pose threads (a haptic device's servo loop is
     /// real-time); 0 asks for none. Where it is not permitted, both run at
     /// normal priority and the report says so.
-    #[arg(long, default_value_t = fissure_server::sim::priority::DEFAULT_FORCE_LOOP_RT_PRIORITY,
+    #[arg(long, default_value_t = fissure_engine::sim::priority::DEFAULT_FORCE_LOOP_RT_PRIORITY,
           value_parser = clap::value_parser!(u8).range(0..=99))]
     pub rt_priority: u8,
     /// Real-time priority (SCHED_FIFO, 1-99) of the server's gRPC transport
     /// threads (`fissure-server --transport-rt-priority`); 0 asks for none.
-    #[arg(long, default_value_t = fissure_server::sim::priority::DEFAULT_TRANSPORT_RT_PRIORITY,
+    #[arg(long, default_value_t = fissure_engine::sim::priority::DEFAULT_TRANSPORT_RT_PRIORITY,
           value_parser = clap::value_parser!(u8).range(0..=99))]
     pub transport_rt_priority: u8,
     /// How the CPU BVH walks each face's parallel rays (the scene's
@@ -79,12 +79,12 @@ fn parse_traversal(s: &str) -> Result<Traversal, String> {
 impl Default for LoopBenchArgs {
     fn default() -> Self {
         Self {
-            scene: fissure_server::scene::DEFAULT_SCENE.to_owned(),
+            scene: fissure_engine::scene::DEFAULT_SCENE.to_owned(),
             duration_s: 10.0,
             watchers: 4,
             rate_hz: 1000.0,
-            rt_priority: fissure_server::sim::priority::DEFAULT_FORCE_LOOP_RT_PRIORITY,
-            transport_rt_priority: fissure_server::sim::priority::DEFAULT_TRANSPORT_RT_PRIORITY,
+            rt_priority: fissure_engine::sim::priority::DEFAULT_FORCE_LOOP_RT_PRIORITY,
+            transport_rt_priority: fissure_engine::sim::priority::DEFAULT_TRANSPORT_RT_PRIORITY,
             traversal: None,
             json: false,
         }

@@ -32,8 +32,8 @@
 
 use crate::bench_collision::time_refit;
 use anyhow::Context;
-use fissure_server::collide::bvh::Traversal;
-use fissure_server::collide::{Bvh, Hit, NodeHits, RayBackend, RayRange};
+use fissure_engine::collide::bvh::Traversal;
+use fissure_engine::collide::{Bvh, Hit, NodeHits, RayBackend, RayRange};
 use nalgebra::{Point3, Vector3};
 use serde::Serialize;
 use std::path::{Path, PathBuf};

@@ -22,12 +22,12 @@ use crate::replay::{ForceRow, Pacing, connect, forces_csv, replay};
 use crate::trajectory::{BUNDLED, Trajectory};
 use crate::watch::ColourBy;
 use anyhow::{Context, bail};
+use fissure_engine::scene::Scene;
+use fissure_engine::sim::stats::percentile;
+use fissure_engine::sim::{SimOptions, Simulation};
 use fissure_proto::v1 as pb;
-use fissure_server::scene::Scene;
-use fissure_server::service::recording::ToFile;
-use fissure_server::service::{ServeOptions, serve};
-use fissure_server::sim::stats::percentile;
-use fissure_server::sim::{SimOptions, Simulation};
+use fissure_server::recording::ToFile;
+use fissure_server::{ServeOptions, serve};
 use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
@@ -38,7 +38,7 @@ pub struct DemoArgs {
     /// Scene to run: an embedded name (it must have bundled trajectories),
     /// or a scene file (such as `fissure scene from-image` writes) with
     /// `--trajectory` files.
-    #[arg(long, default_value = fissure_server::scene::DEFAULT_SCENE)]
+    #[arg(long, default_value = fissure_engine::scene::DEFAULT_SCENE)]
     pub scene: String,
     /// Output folder (created; existing files in it are overwritten).
     #[arg(long, default_value = "fissure-out/demo")]

@@ -360,7 +360,7 @@ fn main() -> anyhow::Result<()> {
                 }
                 let mut rows = Vec::new();
                 for name in &preset {
-                    let phantom = fissure_server::mesh::phantom::preset(name)
+                    let phantom = fissure_engine::mesh::phantom::preset(name)
                         .with_context(|| format!("--preset {name}"))?;
                     rows.extend(run_fem_bench(&phantom.mesh, name, &opts));
                 }

@@ -5,12 +5,12 @@
 //! subprocess; [`run`] prints.
 
 use anyhow::{Context, bail};
-use fissure_server::mesh::TetMesh;
-use fissure_server::mesh::io::{self, SurfaceFormat, VolumeFormat};
-use fissure_server::mesh::manifold::BoundaryRepair;
-use fissure_server::mesh::quality::{Histogram, QualitySummary, tets_quality};
-use fissure_server::mesh::units;
-use fissure_server::mesh::validate::{
+use fissure_engine::mesh::TetMesh;
+use fissure_engine::mesh::io::{self, SurfaceFormat, VolumeFormat};
+use fissure_engine::mesh::manifold::BoundaryRepair;
+use fissure_engine::mesh::quality::{Histogram, QualitySummary, tets_quality};
+use fissure_engine::mesh::units;
+use fissure_engine::mesh::validate::{
     Findings, Problem, ValidateOptions, findings, surface_findings,
 };
 use std::path::{Path, PathBuf};
@@ -273,13 +273,13 @@ pub fn from_surface(
     resolution_m: f64,
     levels: u32,
     scale: f64,
-) -> anyhow::Result<fissure_server::mesh::from_surface::Meshed> {
-    use fissure_server::mesh::from_surface::{ClosedSurfaceError, SurfaceMeshing, mesh_surface};
+) -> anyhow::Result<fissure_engine::mesh::from_surface::Meshed> {
+    use fissure_engine::mesh::from_surface::{ClosedSurfaceError, SurfaceMeshing, mesh_surface};
     if !(resolution_m.is_finite() && resolution_m > 0.0) {
         bail!("--resolution must be a positive length in metres, got {resolution_m}");
     }
     units::check_scale(scale, "--scale").map_err(anyhow::Error::msg)?;
-    let mut surface = fissure_server::mesh::io::read_surface(file)?;
+    let mut surface = fissure_engine::mesh::io::read_surface(file)?;
     units::scale_points(&mut surface.vertices, scale);
     let params = SurfaceMeshing {
         spacing: resolution_m,
@@ -412,9 +412,9 @@ impl ImageReport {
 }
 
 /// Reads the images and meshes the brain they select (see
-/// [`fissure_server::mesh::image`]); returns the mesh and the report.
+/// [`fissure_engine::mesh::image`]); returns the mesh and the report.
 pub fn from_image(images: &[PathBuf], opts: &FromImageOptions) -> anyhow::Result<ImageReport> {
-    use fissure_server::mesh::image::{
+    use fissure_engine::mesh::image::{
         self, NiftiVersion, Selection, SurfaceMeshing, mesh_image, read_nifti,
     };
     if images.is_empty() {
@@ -458,7 +458,7 @@ pub fn from_image(images: &[PathBuf], opts: &FromImageOptions) -> anyhow::Result
             volume_ml: v * ml,
         })
         .collect();
-    let (lo, hi) = fissure_server::mesh::stuffing::dihedral_range(&mesh);
+    let (lo, hi) = fissure_engine::mesh::stuffing::dihedral_range(&mesh);
     let value_max = read
         .iter()
         .flat_map(|im| im.values.iter().copied())
@@ -542,12 +542,12 @@ pub fn preset_mesh_repaired(
     name: &str,
     cube: &PresetOptions,
 ) -> anyhow::Result<(TetMesh, BoundaryRepair)> {
-    use fissure_server::mesh::blocks;
+    use fissure_engine::mesh::blocks;
     // The single list of presets (keep PRESETS in step).
     let block = |mesh| (mesh, BoundaryRepair::default());
     Ok(match name {
         "coarse" | "paper-34k" | "paper-48k" => {
-            let p = fissure_server::mesh::phantom::preset_meshed(name, cube.proven)?;
+            let p = fissure_engine::mesh::phantom::preset_meshed(name, cube.proven)?;
             (p.mesh, p.repair)
         }
         "cube" => {
@@ -875,7 +875,7 @@ pub fn inspect(path: &Path, opts: &InspectOptions) -> anyhow::Result<Report> {
                 labels: Vec::new(),
             };
             let (lo, hi) = mesh.bounds();
-            let volume = fissure_server::mesh::enclosed_volume(&s.vertices, &s.triangles);
+            let volume = fissure_engine::mesh::enclosed_volume(&s.vertices, &s.triangles);
             Ok(Report {
                 file,
                 kind: "surface",
@@ -980,7 +980,7 @@ mod tests {
     /// surface is refused naming the open edge.
     #[test]
     fn from_surface_meshes_a_closed_sphere_and_refuses_an_open_one() {
-        use fissure_server::mesh::{io, winding::icosphere};
+        use fissure_engine::mesh::{io, winding::icosphere};
         let dir = tempfile::tempdir().unwrap();
         let (v, t) = icosphere(nalgebra::Point3::origin(), 0.02, 3);
         let obj = dir.path().join("sphere.obj");
@@ -1007,7 +1007,7 @@ mod tests {
 
     #[test]
     fn a_proven_phantom_has_its_angles_within_the_proven_bounds() {
-        use fissure_server::mesh::stuffing::{PROVEN_MAX_DIHEDRAL_DEG, PROVEN_MIN_DIHEDRAL_DEG};
+        use fissure_engine::mesh::stuffing::{PROVEN_MAX_DIHEDRAL_DEG, PROVEN_MIN_DIHEDRAL_DEG};
         let dir = tempfile::tempdir().unwrap();
         let vtu = dir.path().join("p.vtu");
         let opts = |proven| PresetOptions {
@@ -1111,7 +1111,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         // A cube with one tetrahedron reversed and one unused node, written
         // as TetGen files.
-        let mut mesh = fissure_server::mesh::blocks::cube(0.01, 1);
+        let mut mesh = fissure_engine::mesh::blocks::cube(0.01, 1);
         mesh.tets[3].swap(0, 1);
         mesh.nodes.push(nalgebra::Point3::new(0.05, 0.05, 0.05));
         let node = dir.path().join("m.node");
@@ -1155,7 +1155,7 @@ mod tests {
     /// volume), converted to STL, refused as a volume format.
     #[test]
     fn surface_vtus_are_inspected_and_converted_as_surfaces() {
-        use fissure_server::mesh::winding::icosphere;
+        use fissure_engine::mesh::winding::icosphere;
         let dir = tempfile::tempdir().unwrap();
         let (v, t) = icosphere(nalgebra::Point3::origin(), 0.02, 2);
         let vtu = dir.path().join("surface-000001.vtu");
@@ -1190,7 +1190,7 @@ mod tests {
     /// does).
     #[test]
     fn inspect_counts_every_problem_and_checks_orientation_and_intersections() {
-        use fissure_server::mesh::winding::{icosphere, join_surfaces};
+        use fissure_engine::mesh::winding::{icosphere, join_surfaces};
         let dir = tempfile::tempdir().unwrap();
         let (mut v, mut t) = icosphere(nalgebra::Point3::origin(), 0.02, 2);
         let n = v.len();
@@ -1239,7 +1239,7 @@ mod tests {
     /// --scale 0.001 writes it in metres.
     #[test]
     fn files_in_millimetres_are_named_and_scale_converts_them() {
-        use fissure_server::mesh::winding::icosphere;
+        use fissure_engine::mesh::winding::icosphere;
         let dir = tempfile::tempdir().unwrap();
         let (v, t) = icosphere(nalgebra::Point3::origin(), 20.0, 3);
         let obj = dir.path().join("sphere-mm.obj");

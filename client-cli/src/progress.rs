@@ -1,5 +1,5 @@
 //! A spinner on stderr for the progress events of long work
-//! ([`fissure_server::progress`]): while a command loads a scene (the demo,
+//! ([`fissure_engine::progress`]): while a command loads a scene (the demo,
 //! `bench loop`, `study`) or meshes a model (`mesh from-surface`,
 //! `mesh generate`), it shows the current stage and the time spent, and
 //! clears itself when the work is done. Nothing is drawn when stderr is not a
@@ -12,7 +12,7 @@ use tracing::field::{Field, Visit};
 use tracing_subscriber::layer::{Context, Layer};
 
 /// The `tracing` layer that drives the spinner (filter it to
-/// [`fissure_server::progress::TARGET`], see [`ProgressLayer::filter`]).
+/// [`fissure_engine::progress::TARGET`], see [`ProgressLayer::filter`]).
 #[derive(Clone)]
 pub struct ProgressLayer {
     bar: Arc<Mutex<Option<ProgressBar>>>,
@@ -42,7 +42,7 @@ impl ProgressLayer {
     /// The filter the layer is meant to run behind: progress events only.
     pub fn filter() -> tracing_subscriber::filter::Targets {
         tracing_subscriber::filter::Targets::new()
-            .with_target(fissure_server::progress::TARGET, tracing::Level::INFO)
+            .with_target(fissure_engine::progress::TARGET, tracing::Level::INFO)
     }
 
     /// The stage shown now, if the spinner is up.
@@ -77,7 +77,7 @@ impl Visit for Fields {
 
 impl<S: tracing::Subscriber> Layer<S> for ProgressLayer {
     fn on_event(&self, event: &tracing::Event<'_>, _: Context<'_, S>) {
-        if event.metadata().target() != fissure_server::progress::TARGET {
+        if event.metadata().target() != fissure_engine::progress::TARGET {
             return;
         }
         let mut fields = Fields::default();
@@ -119,20 +119,20 @@ mod tests {
         let subscriber = tracing_subscriber::registry().with(layer);
         tracing::subscriber::with_default(subscriber, || {
             assert_eq!(probe.current(), None);
-            fissure_server::progress::stage("scene cube: building the model");
+            fissure_engine::progress::stage("scene cube: building the model");
             assert_eq!(
                 probe.current().as_deref(),
                 Some("scene cube: building the model")
             );
             tracing::warn!("an unrelated warning");
-            fissure_server::progress::stage(format_args!("setting up the {} solver", "compliance"));
+            fissure_engine::progress::stage(format_args!("setting up the {} solver", "compliance"));
             assert_eq!(
                 probe.current().as_deref(),
                 Some("setting up the compliance solver")
             );
-            fissure_server::progress::done("scene cube loaded in 0.1 s");
+            fissure_engine::progress::done("scene cube loaded in 0.1 s");
             assert_eq!(probe.current(), None);
-            fissure_server::progress::stage("again");
+            fissure_engine::progress::stage("again");
             assert_eq!(probe.current().as_deref(), Some("again"));
         });
     }

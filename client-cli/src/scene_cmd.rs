@@ -1,6 +1,6 @@
 //! `fissure scene from-image`: a running scene from a patient's image: the
 //! brain meshed from the image (`fissure mesh from-image`), the fissure
-//! found near a point the user gives ([`fissure_server::mesh::fissure`]),
+//! found near a point the user gives ([`fissure_engine::mesh::fissure`]),
 //! and a scene folder a demo runs as it is.
 //!
 //! The folder holds `model.vtu` (the labelled mesh, scanner coordinates in
@@ -12,10 +12,10 @@
 //! --trajectory DIR/open.csv` runs it.
 
 use anyhow::{Context, bail};
-use fissure_server::collide::FissurePlacement;
-use fissure_server::mesh::TetMesh;
-use fissure_server::mesh::fissure::{FoundFissure, Probe};
-use fissure_server::mesh::phantom::FissureLandmark;
+use fissure_engine::collide::FissurePlacement;
+use fissure_engine::mesh::TetMesh;
+use fissure_engine::mesh::fissure::{FoundFissure, Probe};
+use fissure_engine::mesh::phantom::FissureLandmark;
 use nalgebra::{Point3, Unit, UnitQuaternion};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -407,7 +407,7 @@ pub fn write_scene(dir: &Path, req: &SceneRequest<'_>) -> anyhow::Result<SceneFi
     let f = req.fissure.landmark;
     let (box_min, box_max, fixed_nodes) = fixed_box(req.mesh, req.fixed)?;
     let model = dir.join("model.vtu");
-    fissure_server::mesh::io::write_volume(&model, req.mesh)
+    fissure_engine::mesh::io::write_volume(&model, req.mesh)
         .with_context(|| format!("writing {}", model.display()))?;
     let fit = fit_plates(req.mesh, &f, req.insertion_m);
     let [left_m, right_m] = fit.across_m;
@@ -522,7 +522,7 @@ pub fn write_scene(dir: &Path, req: &SceneRequest<'_>) -> anyhow::Result<SceneFi
     let scene = dir.join("scene.toml");
     std::fs::write(&scene, &s).with_context(|| format!("writing {}", scene.display()))?;
     // Check what was written as the server will read it.
-    fissure_server::scene::Scene::parse(&s, &scene.display().to_string())
+    fissure_engine::scene::Scene::parse(&s, &scene.display().to_string())
         .with_context(|| format!("the scene written to {} does not parse", scene.display()))?;
     let mut csv = String::from("instrument,t_s,x_m,y_m,z_m,qw,qx,qy,qz\n");
     for (name, t, placement) in open_plan(fit.insertion_m, [left_m, right_m], offset_m) {
@@ -732,8 +732,8 @@ pub fn from_image(args: &FromImageArgs) -> anyhow::Result<SceneFromImage> {
     }
     let (meshed, mesh) = match &args.mesh {
         Some(path) => {
-            fissure_server::progress::stage(format_args!("reading {}", path.display()));
-            let mesh = fissure_server::mesh::io::read_volume(path)
+            fissure_engine::progress::stage(format_args!("reading {}", path.display()));
+            let mesh = fissure_engine::mesh::io::read_volume(path)
                 .with_context(|| format!("reading the mesh {}", path.display()))?;
             (None, mesh)
         }
@@ -800,13 +800,13 @@ pub fn from_image(args: &FromImageArgs) -> anyhow::Result<SceneFromImage> {
         },
     };
     let near = Point3::new(x, y, z) * 1e-3;
-    fissure_server::progress::stage(format_args!(
+    fissure_engine::progress::stage(format_args!(
         "finding the fissure near ({x:.1}, {y:.1}, {z:.1}) mm"
     ));
-    let fissure = fissure_server::mesh::fissure::locate(
+    let fissure = fissure_engine::mesh::fissure::locate(
         mesh,
         near,
-        &fissure_server::mesh::fissure::FissureOptions::default(),
+        &fissure_engine::mesh::fissure::FissureOptions::default(),
     )?;
     let name = args.name.clone().unwrap_or_else(|| {
         args.out

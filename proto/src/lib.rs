@@ -5,17 +5,12 @@
 //! prost and tonic generate from it, plus the encoded file descriptor set used to
 //! serve gRPC reflection, and the reader of session recordings ([`recording`]).
 //!
-//! It also holds what the engine and its clients both compute on the data of
-//! the contract, so that a client reads, draws and writes what the server
-//! sends without linking the engine: the rigid part of a frame's motion
-//! ([`motion`]), the checks of a triangle surface ([`surface`]) and the VTU
-//! writer of frame series ([`vtu`]).
+//! What the engine and its clients both compute on the contract's data (the
+//! rigid part of a frame's motion, surface checks, the VTU writer, the
+//! assessment's levels) is `fissure-shared`'s: this crate is the contract
+//! alone.
 
-pub mod assessment;
-pub mod motion;
 pub mod recording;
-pub mod surface;
-pub mod vtu;
 
 /// Generated types of package `fissure.v1`.
 #[allow(missing_docs, clippy::all, clippy::pedantic, rust_2018_idioms)]

@@ -5,11 +5,11 @@
 //! query refits. The paper-size figures come from `fissure bench collision`.
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use fissure_server::collide::{
+use fissure_engine::collide::{
     BruteForce, Bvh, ContactOutput, ContactQuery, DetectOptions, History, HistoryMode, Instrument,
     NodeLayout, Plate, RayBackend, Stage, Tool, Workspace, detect_many,
 };
-use fissure_server::mesh::blocks::cuboid;
+use fissure_engine::mesh::blocks::cuboid;
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use std::hint::black_box;
 

@@ -3,8 +3,8 @@
 //! from `fissure_cli::bench_fem`.
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use fissure_server::fem::{Material, Prescribed, SolverOptions, Strategy, build_solver};
-use fissure_server::mesh::blocks::cube;
+use fissure_engine::fem::{Material, Prescribed, SolverOptions, Strategy, build_solver};
+use fissure_engine::mesh::blocks::cube;
 use nalgebra::{Point3, Vector3};
 use std::hint::black_box;
 

@@ -1,11 +1,11 @@
 //! Counts and generation times of the brain phantom presets (each also with
 //! `--proven`): nodes, tetrahedra, surface triangles, the dihedral range and
 //! the tetrahedra whose centroid lies inside a fissure gap. Run with
-//! `cargo bench -p fissure-server --bench mesh_generation`; `PHANTOM_SWEEP`
+//! `cargo bench -p fissure-engine --bench mesh_generation`; `PHANTOM_SWEEP`
 //! (`"h,surface,levels,band,rate[,proven];..."`) adds coarse-preset variants.
 
-use fissure_server::mesh::phantom::{self, PhantomParams};
-use fissure_server::mesh::stuffing;
+use fissure_engine::mesh::phantom::{self, PhantomParams};
+use fissure_engine::mesh::stuffing;
 use std::time::Instant;
 
 fn report(name: &str, params: &PhantomParams) {

@@ -1,7 +1,8 @@
-//! fissure-server: the simulation engine for opening a brain fissure, and its
-//! gRPC service.
+//! fissure-engine: the simulation engine for opening a brain fissure.
 //!
-//! The engine is network-free and data flows one way (DESIGN.md section 1):
+//! The engine is network-free (it links no gRPC, protobuf or HTTP/2 crate:
+//! its service is the `fissure-server` crate, which depends on it, never
+//! the reverse) and data flows one way (DESIGN.md section 1):
 //! pose -> instrument transform -> rays -> pairs -> culled pairs -> enforced
 //! displacements -> FEM solve -> positions and reaction forces -> frames and
 //! forces out.
@@ -15,7 +16,6 @@
 //!   displacements and reaction forces.
 //! * [`scene`]: scene files (TOML) that say what is modelled.
 //! * [`sim`]: the force loop and the deformation loop, shared state, recording.
-//! * [`service`]: the tonic adapter of `fissure.v1`.
 //! * [`progress`]: progress events of long work (scene loading).
 //!
 //! Units are SI throughout: m, Pa, N, s.
@@ -30,5 +30,4 @@ pub mod fem;
 pub mod mesh;
 pub mod progress;
 pub mod scene;
-pub mod service;
 pub mod sim;

@@ -5,8 +5,8 @@
 //! counting global allocator, `stats_alloc`; its own test binary with one
 //! test, so that no other test allocates while counting).
 
-use fissure_server::fem::{Material, Par, Prescribed, SolverOptions, Strategy, build_solver};
-use fissure_server::mesh::blocks::cube;
+use fissure_engine::fem::{Material, Par, Prescribed, SolverOptions, Strategy, build_solver};
+use fissure_engine::mesh::blocks::cube;
 use nalgebra::{Point3, Vector3};
 use stats_alloc::{INSTRUMENTED_SYSTEM, Region, StatsAlloc};
 use std::alloc::System;
@@ -26,11 +26,11 @@ fn count(f: impl FnOnce()) -> usize {
 /// samples of both, coupled, at poses moving 1 um a sample within one
 /// frame, once their workspaces have seen those contact sets.
 fn coupled_force_samples_do_not_allocate() {
-    use fissure_server::fem::compliance::ColumnPolicy;
-    use fissure_server::scene::Scene;
-    use fissure_server::sim::engine::{Model, StepEngine};
-    use fissure_server::sim::force_loop::ForceLoop;
-    use fissure_server::sim::stepped::home_pose;
+    use fissure_engine::fem::compliance::ColumnPolicy;
+    use fissure_engine::scene::Scene;
+    use fissure_engine::sim::engine::{Model, StepEngine};
+    use fissure_engine::sim::force_loop::ForceLoop;
+    use fissure_engine::sim::stepped::home_pose;
     use nalgebra::{Isometry3, Translation3};
     use std::sync::Arc;
 
@@ -133,7 +133,7 @@ fn steps_and_force_samples_with_the_same_contact_set_do_not_allocate() {
             for p in pres.iter_mut() {
                 p.displacement = Vector3::new(1e-6, 0.0, -depth);
             }
-            let s: &mut Box<dyn fissure_server::fem::DeformationSolver> = solver;
+            let s: &mut Box<dyn fissure_engine::fem::DeformationSolver> = solver;
             let sol = s.solve(pres).expect("step");
             assert!(sol.reactions.iter().all(|r| r.z < 0.0), "{strategy:?}");
             if strategy == Strategy::Compliance {
@@ -155,7 +155,7 @@ fn steps_and_force_samples_with_the_same_contact_set_do_not_allocate() {
         );
         // A smaller subset of the same nodes needs nothing new either.
         let n = count(|| {
-            let s: &mut Box<dyn fissure_server::fem::DeformationSolver> = &mut solver;
+            let s: &mut Box<dyn fissure_engine::fem::DeformationSolver> = &mut solver;
             s.solve(&pres[..5]).expect("subset step");
         });
         assert_eq!(

@@ -1,11 +1,11 @@
 //! Helpers shared by the integration tests in `tests/tests/`: an in-process
 //! server on `127.0.0.1:0` over a scene, and pose builders.
 
+use fissure_engine::scene::Scene;
+use fissure_engine::sim::{SimOptions, Simulation};
 use fissure_proto::v1 as pb;
 use fissure_proto::v1::fissure_client::FissureClient;
-use fissure_server::scene::Scene;
-use fissure_server::service::{RunningServer, ServeOptions, serve};
-use fissure_server::sim::{SimOptions, Simulation};
+use fissure_server::{RunningServer, ServeOptions, serve};
 use std::sync::Arc;
 use tonic::transport::Channel;
 

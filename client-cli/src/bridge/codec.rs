@@ -486,7 +486,7 @@ impl AlertDatagram {
     /// The datagram of `a`, its instrument at `instrument` of the bridged
     /// ones.
     pub fn of(a: &crate::report::assess::Alert, instrument: Option<usize>) -> Self {
-        use fissure_proto::assessment::Grade;
+        use fissure_shared::assessment::Grade;
         Self {
             grade: match a.grade {
                 Grade::Fail => 2,
@@ -967,7 +967,7 @@ mod tests {
     /// parses with the fields named.
     #[test]
     fn an_alert_round_trips_and_its_json_line_parses() {
-        use fissure_proto::assessment::Grade;
+        use fissure_shared::assessment::Grade;
         let alert = crate::report::assess::Alert {
             t_s: 1.25,
             measure: "mean retraction pressure",

@@ -37,7 +37,7 @@ pub enum RenderError {
     #[error("mesh {mesh}: {source}")]
     Surface {
         mesh: usize,
-        source: fissure_proto::surface::SurfaceError,
+        source: fissure_shared::surface::SurfaceError,
     },
     /// Per-vertex data does not match the number of vertices.
     #[error("mesh {mesh}: {what} has {got} entries for {vertices} vertices")]

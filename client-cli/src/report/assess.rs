@@ -9,8 +9,8 @@
 //! pressure-time product) are the engine's, read from the frames: a reset
 //! starts them again, so the session's sum adds each run's last value.
 
-use fissure_proto::assessment::{AssessmentSpec, Grade, Levels, PA_PER_MMHG};
 use fissure_proto::v1 as pb;
+use fissure_shared::assessment::{AssessmentSpec, Grade, Levels, PA_PER_MMHG};
 
 /// One measure against its levels.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]

@@ -20,7 +20,7 @@ use crate::render::frame::{Caption, FrameRenderer};
 use crate::render::plot::palette;
 use crate::watch::view::SessionView;
 use anyhow::Context;
-use fissure_proto::assessment::{Grade, PA_PER_MMHG};
+use fissure_shared::assessment::{Grade, PA_PER_MMHG};
 use plotters::prelude::*;
 use std::fmt::Write as _;
 use std::io::Write as _;

@@ -298,7 +298,7 @@ mod tests {
 
     #[test]
     fn grid_nearest_equals_brute_force() {
-        let cube = fissure_server::mesh::blocks::cube(0.04, 4);
+        let cube = fissure_engine::mesh::blocks::cube(0.04, 4);
         let surf = cube.boundary();
         let mut pos = Vec::new();
         surf.gather(&cube.nodes, &mut pos);

@@ -3,8 +3,8 @@
 //! interest, ray-casting backend, threads) and the material and speed knobs
 //! of the stability sweep.
 
-use fissure_server::fem::{Element, Strategy};
-use fissure_server::scene::{CollisionMethod, ContactLaw, Scene, SceneError};
+use fissure_engine::fem::{Element, Strategy};
+use fissure_engine::scene::{CollisionMethod, ContactLaw, Scene, SceneError};
 use serde::{Deserialize, Serialize};
 
 /// Where and how rays are cast.
@@ -181,7 +181,7 @@ impl Config {
         // foundation of fixed stiffness would make the force no longer
         // linear in E (one of the study's checks).
         scene.foundation = None;
-        scene.model = fissure_server::scene::ModelSpec::Phantom {
+        scene.model = fissure_engine::scene::ModelSpec::Phantom {
             preset: self.preset.clone(),
             proven: false,
         };

@@ -24,15 +24,15 @@
 
 use super::config::{Backend, Config, FISSURE_CENTRE_M};
 use super::scenario::Scenario;
-use fissure_server::collide::RayBackend;
-use fissure_server::collide::brute::BruteForce;
-use fissure_server::collide::bvh::Bvh;
-use fissure_server::fem::compliance::ColumnPolicy;
-use fissure_server::mesh::TetMesh;
-use fissure_server::scene::RoiSpec;
-use fissure_server::sim::engine::{Model, StepEngine};
-use fissure_server::sim::force_loop::ForceLoop;
-use fissure_server::sim::stepped::{Answer, StepDone, SteppedRunner};
+use fissure_engine::collide::RayBackend;
+use fissure_engine::collide::brute::BruteForce;
+use fissure_engine::collide::bvh::Bvh;
+use fissure_engine::fem::compliance::ColumnPolicy;
+use fissure_engine::mesh::TetMesh;
+use fissure_engine::scene::RoiSpec;
+use fissure_engine::sim::engine::{Model, StepEngine};
+use fissure_engine::sim::force_loop::ForceLoop;
+use fissure_engine::sim::stepped::{Answer, StepDone, SteppedRunner};
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 use std::time::Instant;
 
@@ -106,7 +106,7 @@ pub enum RunError {
     #[error("scene of {label}: {source}")]
     Scene {
         label: String,
-        source: fissure_server::scene::SceneError,
+        source: fissure_engine::scene::SceneError,
     },
     /// The model could not be built.
     #[error("model of {label}: {message}")]
@@ -130,7 +130,7 @@ fn make_backend(kind: Backend, model: &Model) -> (Option<Box<dyn RayBackend>>, S
             )),
             "cpu-brute".into(),
         ),
-        Backend::GpuBvh => match fissure_server::collide::gpu::GpuBvh::try_new(tris, pos) {
+        Backend::GpuBvh => match fissure_engine::collide::gpu::GpuBvh::try_new(tris, pos) {
             Ok(g) => {
                 let name = format!("gpu-bvh ({})", g.adapter_name());
                 (Some(Box::new(g)), name)
@@ -171,7 +171,7 @@ pub fn min_det_f(mesh: &TetMesh, u: &[Vector3<f64>]) -> f64 {
 /// own would build, bit for bit.
 #[derive(Default)]
 pub struct ModelCache {
-    models: Vec<(fissure_server::scene::Scene, std::sync::Arc<Model>)>,
+    models: Vec<(fissure_engine::scene::Scene, std::sync::Arc<Model>)>,
 }
 
 impl ModelCache {

@@ -179,7 +179,7 @@ impl StudyPlan {
         std::fs::create_dir_all(dir.join(super::record::RUNS_DIR)).map_err(|e| io_err(dir, e))?;
         std::fs::create_dir_all(dir.join(INPUTS_DIR)).map_err(|e| io_err(dir, e))?;
         let bundled = Inputs::bundled();
-        let scene = fissure_server::scene::EMBEDDED
+        let scene = fissure_engine::scene::EMBEDDED
             .iter()
             .find(|(n, _)| *n == SCENE)
             .map(|(_, text)| *text)
@@ -384,10 +384,10 @@ mod tests {
         assert_eq!(back.runs.len(), plan.runs.len());
         // The shared inputs are there and read as the bundled ones.
         let inputs = back.inputs_in(dir.path());
-        let (scene, _) = fissure_server::scene::Scene::load(&inputs.scene).expect("the scene");
+        let (scene, _) = fissure_engine::scene::Scene::load(&inputs.scene).expect("the scene");
         assert_eq!(
             scene,
-            fissure_server::scene::Scene::load("sylvian").unwrap().0
+            fissure_engine::scene::Scene::load("sylvian").unwrap().0
         );
         let spec = back.runs[0].scenario;
         let (a, b) = (

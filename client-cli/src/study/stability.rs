@@ -32,7 +32,7 @@ use super::Row;
 use super::config::Config;
 use super::scenario::ScenarioSpec;
 use crate::trajectory::TrajectoryError;
-use fissure_server::fem::{Element, Strategy};
+use fissure_engine::fem::{Element, Strategy};
 use serde::Serialize;
 
 /// Force error beyond which a run is listed as failing, %.

@@ -4,8 +4,8 @@
 
 use crate::render::frame::{CameraPreset, Caption, FrameRenderer, Outline, Plate, Scene, bounds};
 use crate::render::{Image, RenderError};
-use fissure_proto::motion::RigidFit;
 use fissure_proto::v1 as pb;
+use fissure_shared::motion::RigidFit;
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 
 /// What the pictures of one session need: the rest surface, the
@@ -54,7 +54,7 @@ pub fn intact_ties(
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
 pub enum ColourBy {
     /// The displacement left once the best-fit rigid motion of the surface
-    /// is taken away ([`fissure_proto::motion`]).
+    /// is taken away ([`fissure_shared::motion`]).
     #[default]
     NonRigid,
     /// The displacement from rest.

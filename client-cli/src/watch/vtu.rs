@@ -59,7 +59,7 @@ impl VtuSeries {
         } else {
             &[("label", &labels)]
         };
-        fissure_proto::vtu::write_vtu_surface(
+        fissure_shared::vtu::write_vtu_surface(
             &mut w,
             &self.positions,
             &view.triangles,
@@ -94,7 +94,7 @@ impl VtuSeries {
         let file =
             std::fs::File::create(&path).with_context(|| format!("creating {}", path.display()))?;
         let mut w = std::io::BufWriter::new(file);
-        fissure_proto::vtu::write_vtu_lines(
+        fissure_shared::vtu::write_vtu_lines(
             &mut w,
             &points,
             &segments,

@@ -4,8 +4,8 @@
 
 use fissure_cli::bench_haptic::{SummaryOptions, measure, plan, summarise};
 use fissure_cli::trajectory::Trajectory;
-use fissure_server::scene::Scene;
-use fissure_server::sim::engine::Model;
+use fissure_engine::scene::Scene;
+use fissure_engine::sim::engine::Model;
 use std::sync::Arc;
 
 /// The left plate pressed 3 mm into the cube, held and lifted, every

@@ -22,10 +22,10 @@ use fissure_cli::bridge::{
     ALERT_LEN, Bridge, FORCE_LEN, TIE_LEN, UdpOptions, decode_alert, decode_force, decode_tie,
     encode_pose,
 };
-use fissure_server::scene::Scene;
-use fissure_server::service::{RunningServer, ServeOptions, serve};
-use fissure_server::sim::stepped::home_pose;
-use fissure_server::sim::{SimOptions, Simulation};
+use fissure_engine::scene::Scene;
+use fissure_engine::sim::stepped::home_pose;
+use fissure_engine::sim::{SimOptions, Simulation};
+use fissure_server::{RunningServer, ServeOptions, serve};
 use nalgebra::{Isometry3, Translation3, Vector3};
 use std::sync::Arc;
 use std::time::Duration;

@@ -13,9 +13,9 @@ use fissure_cli::bridge::igtl::codec::{
     transform_content, type_field, write_message,
 };
 use fissure_cli::bridge::igtl::{IgtlBridge, IgtlOptions, IgtlStats, Registration};
-use fissure_server::scene::Scene;
-use fissure_server::service::{RunningServer, ServeOptions, serve};
-use fissure_server::sim::{SimOptions, Simulation};
+use fissure_engine::scene::Scene;
+use fissure_engine::sim::{SimOptions, Simulation};
+use fissure_server::{RunningServer, ServeOptions, serve};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;

@@ -11,7 +11,7 @@ use fissure_cli::render::plot::{
 };
 use fissure_cli::render::raster::{Camera, Colouring, EdgeStyle, MeshRef, RenderOptions, Renderer};
 use fissure_cli::render::{Image, colormap::Colormap};
-use fissure_server::mesh::blocks::v_valley;
+use fissure_engine::mesh::blocks::v_valley;
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use std::path::PathBuf;
 use std::time::Instant;

@@ -117,7 +117,7 @@ fn a_scene_made_from_an_image_finds_the_slot_and_runs_both_spatulas() -> anyhow:
             "opens {open} m, want {want} m"
         );
     }
-    let (scene, _) = fissure_server::scene::Scene::load(&made.files.scene.display().to_string())?;
+    let (scene, _) = fissure_engine::scene::Scene::load(&made.files.scene.display().to_string())?;
     assert_eq!(scene.name, "slotted");
     assert_eq!(scene.instruments.len(), 2);
 

@@ -3,7 +3,7 @@
 //! error; never a panic, and never an allocation the bytes do not back.
 #![no_main]
 
-use fissure_server::mesh::image::parse_nifti;
+use fissure_engine::mesh::image::parse_nifti;
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {

@@ -7,8 +7,8 @@
 #![no_main]
 
 use fissure_proto::v1::PoseSample;
-use fissure_server::service::convert::raw_pose;
-use fissure_server::sim::pose::{TimedPose, validate};
+use fissure_server::convert::raw_pose;
+use fissure_engine::sim::pose::{TimedPose, validate};
 use libfuzzer_sys::fuzz_target;
 use prost::Message;
 

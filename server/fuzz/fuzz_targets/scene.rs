@@ -2,7 +2,7 @@
 //! or a typed error naming the key, never a panic.
 #![no_main]
 
-use fissure_server::scene::Scene;
+use fissure_engine::scene::Scene;
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {

@@ -2,7 +2,7 @@
 //! index its vertices, or a typed error; never a panic.
 #![no_main]
 
-use fissure_server::mesh::io::{SurfaceFormat, parse_surface};
+use fissure_engine::mesh::io::{SurfaceFormat, parse_surface};
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {

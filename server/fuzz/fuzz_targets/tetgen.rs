@@ -3,7 +3,7 @@
 //! the whole input is the `.node` file and the `.ele` file is empty.
 #![no_main]
 
-use fissure_server::mesh::io::{finish_volume, tetgen};
+use fissure_engine::mesh::io::{finish_volume, tetgen};
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {

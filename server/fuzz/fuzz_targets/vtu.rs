@@ -3,7 +3,7 @@
 //! (orientation fix, unused nodes, `TetMesh::new` checks).
 #![no_main]
 
-use fissure_server::mesh::io::{VolumeFormat, finish_volume, parse_volume};
+use fissure_engine::mesh::io::{VolumeFormat, finish_volume, parse_volume};
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {

@@ -171,8 +171,8 @@ pub(crate) fn widen_box(lo: Point3<f64>, hi: Point3<f64>) -> (Point3<f64>, Point
 
 /// Errors in a surface handed to a backend (and to the contact pipeline):
 /// the one surface-validation error of the engine and its clients.
-pub use fissure_proto::surface::SurfaceError;
+pub use fissure_shared::surface::SurfaceError;
 
 /// Checks indices and finiteness; returns one more than the largest vertex
 /// index used (the number of positions a backend needs).
-pub(crate) use fissure_proto::surface::check_surface;
+pub(crate) use fissure_shared::surface::check_surface;

@@ -34,7 +34,7 @@ pub enum ClosedSurfaceError {
     /// coordinate is NaN or infinite (the engine's one check of a surface's
     /// indices and values).
     #[error(transparent)]
-    Values(#[from] fissure_proto::surface::SurfaceError),
+    Values(#[from] fissure_shared::surface::SurfaceError),
     /// A triangle repeats a vertex or has zero area.
     #[error("triangle {triangle} is degenerate (repeated vertex or zero area)")]
     DegenerateTriangle { triangle: usize },
@@ -131,7 +131,7 @@ pub fn check_closed_surface(
     if triangles.is_empty() {
         return Err(ClosedSurfaceError::Empty);
     }
-    fissure_proto::surface::check_surface(triangles, vertices)?;
+    fissure_shared::surface::check_surface(triangles, vertices)?;
     for (triangle, t) in triangles.iter().enumerate() {
         let [a, b, c] = t.map(|v| vertices[v as usize]);
         if t[0] == t[1]
@@ -589,7 +589,7 @@ mod tests {
         assert!(matches!(
             check_closed_surface(&v, &f),
             Err(ClosedSurfaceError::Values(
-                fissure_proto::surface::SurfaceError::VertexOutOfRange {
+                fissure_shared::surface::SurfaceError::VertexOutOfRange {
                     triangle: 0,
                     vertex: 999,
                     ..
@@ -605,7 +605,7 @@ mod tests {
         assert!(matches!(
             check_closed_surface(&v, &f),
             Err(ClosedSurfaceError::Values(
-                fissure_proto::surface::SurfaceError::NonFinite { vertex: 2 }
+                fissure_shared::surface::SurfaceError::NonFinite { vertex: 2 }
             ))
         ));
         assert!(matches!(

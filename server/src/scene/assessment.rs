@@ -1,6 +1,6 @@
 //! The scene's `[assessment]`: the thresholds a session's injury measures
 //! ([`crate::sim::injury`]) are scored against, with their cited defaults.
-//! Defined in [`fissure_proto::assessment`], beside the messages that carry
+//! Defined in [`fissure_shared::assessment`], beside the messages that carry
 //! them, so that clients score recordings with the same levels.
 
-pub use fissure_proto::assessment::*;
+pub use fissure_shared::assessment::*;

@@ -70,7 +70,7 @@ pub enum SceneError {
     },
     /// The scene asks for a part this build was compiled without.
     #[error(
-        "scene {origin}: field `{field}`: {value} needs the `{feature}` feature of fissure-server, which this build was compiled without (build with `--features {feature}`)"
+        "scene {origin}: field `{field}`: {value} needs the `{feature}` feature of the engine (fissure-engine; on by default in fissure-server and fissure-cli), which this build was compiled without (build with `--features {feature}`)"
     )]
     NotBuilt {
         origin: String,

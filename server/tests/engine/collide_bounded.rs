@@ -6,12 +6,12 @@
 //! infinite and of finite reach, on the BVH and the brute force. Also checks
 //! the ranged cast of each backend against the clipped whole-line answer.
 
-use fissure_server::collide::{
+use fissure_engine::collide::{
     BruteForce, Bvh, ContactOutput, ContactQuery, DetectOptions, History, HistoryMode, Instrument,
     NodeHits, NodeLayout, Plate, RayBackend, RayRange, RimNodes, Stage, Tool, Workspace,
     detect_many,
 };
-use fissure_server::mesh::blocks;
+use fissure_engine::mesh::blocks;
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use proptest::prelude::*;
 

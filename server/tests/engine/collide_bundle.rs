@@ -6,9 +6,9 @@
 //! wide and narrow against the distance to the nearest hit (a narrow bundle
 //! clips its whole lines short of every hit, and the rays are cast again).
 
-use fissure_server::collide::bvh::Traversal;
-use fissure_server::collide::{BruteForce, Bvh, NodeHits, RayBackend, RayRange};
-use fissure_server::mesh::blocks;
+use fissure_engine::collide::bvh::Traversal;
+use fissure_engine::collide::{BruteForce, Bvh, NodeHits, RayBackend, RayRange};
+use fissure_engine::mesh::blocks;
 use nalgebra::{Point3, Vector3};
 
 /// The boundary of a 30 mm cube of 8 cells a side, deformed by `f`.

@@ -3,10 +3,10 @@
 //! deformations, including exact ties (duplicated triangles) and rays through
 //! vertices and edges.
 
-use fissure_server::collide::{
+use fissure_engine::collide::{
     BruteForce, Bvh, Instrument, NodeHits, NodeLayout, Plate, RayBackend, RayTest, RimNodes,
 };
-use fissure_server::mesh::blocks;
+use fissure_engine::mesh::blocks;
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use proptest::prelude::*;
 

@@ -2,12 +2,12 @@
 //! pairs, the A2 normal test, reach of rim nodes, errors, and no allocation in
 //! steady state.
 
-use fissure_server::collide::{
+use fissure_engine::collide::{
     BruteForce, Bvh, ContactError, ContactOutput, ContactQuery, ContactRule, DetectOptions, FaceId,
     History, HistoryMode, Instrument, NodeKind, NodeLayout, Plate, RimNodes, Stage, Tool,
     Workspace, detect, detect_many,
 };
-use fissure_server::mesh::blocks;
+use fissure_engine::mesh::blocks;
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use std::collections::HashMap;
 

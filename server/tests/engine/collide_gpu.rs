@@ -9,9 +9,9 @@
 
 use std::time::Instant;
 
-use fissure_server::collide::gpu::{self, GpuBruteForce, GpuBvh, GpuError, GpuMethod, RefitMode};
-use fissure_server::collide::ray::watertight;
-use fissure_server::collide::{BruteForce, NodeHits, RayBackend, SurfaceError};
+use fissure_engine::collide::gpu::{self, GpuBruteForce, GpuBvh, GpuError, GpuMethod, RefitMode};
+use fissure_engine::collide::ray::watertight;
+use fissure_engine::collide::{BruteForce, NodeHits, RayBackend, SurfaceError};
 use nalgebra::{Point3, Vector3};
 
 /// Small deterministic generator (SplitMix64), so failures reproduce.
@@ -612,7 +612,7 @@ fn ray_count_grows_and_shrinks() {
 
 /// Query times at the paper's size (about 15.9k triangles, 2 x 150 and 2 x 500
 /// source nodes), with a check against the reference. Heavy on a software
-/// adapter: `cargo test --release -p fissure-server --test engine collide_gpu:: -- --ignored
+/// adapter: `cargo test --release -p fissure-engine --test engine collide_gpu:: -- --ignored
 /// --nocapture`.
 #[test]
 #[ignore]

@@ -8,11 +8,11 @@
 //! to 2 mm and whose tetrahedra above z = 10 mm are removed); a phantom-brain
 //! variant belongs with the phantom.
 
-use fissure_server::collide::{
+use fissure_engine::collide::{
     Bvh, ContactOutput, ContactQuery, DetectOptions, History, HistoryMode, Instrument, NodeKind,
     NodeLayout, Pair, Plate, Stage, Tool, Workspace, detect, detect_many,
 };
-use fissure_server::mesh::{TetMesh, blocks};
+use fissure_engine::mesh::{TetMesh, blocks};
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use std::f64::consts::PI;
 

@@ -7,11 +7,11 @@
 //! As in `collide_paper.rs`, the surface stays at rest (the force loop's view
 //! between two deformation steps).
 
-use fissure_server::collide::{
+use fissure_engine::collide::{
     Bvh, ContactOutput, ContactQuery, DetectOptions, FissurePlacement, History, HistoryMode,
     Instrument, NodeKind, NodeLayout, Plate, Stage, Workspace, detect,
 };
-use fissure_server::mesh::phantom::{self, FissureLandmark};
+use fissure_engine::mesh::phantom::{self, FissureLandmark};
 use nalgebra::{Isometry3, Point3, Vector3};
 use std::collections::HashSet;
 

@@ -6,12 +6,12 @@
 //! `E A d / L`; Coulomb friction holds `|F_t| <= mu F_n`, with equality
 //! once sliding.
 
-use fissure_server::fem::lcp::RowKind;
-use fissure_server::fem::{
+use fissure_engine::fem::lcp::RowKind;
+use fissure_engine::fem::{
     ContactAnswer, ContactRow, DeformationSolver, Material, SolverOptions, Strategy, build_solver,
 };
-use fissure_server::mesh::TetMesh;
-use fissure_server::mesh::blocks::cube;
+use fissure_engine::mesh::TetMesh;
+use fissure_engine::mesh::blocks::cube;
 use nalgebra::Vector3;
 
 const L: f64 = 0.02;

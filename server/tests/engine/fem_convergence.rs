@@ -6,12 +6,12 @@
 //! `r`, internal force `f`, `F_floor = floor_strain E L^2`; see
 //! `fem::corotational::IterativeOptions`).
 
-use fissure_server::fem::corotational::IterativeOptions;
-use fissure_server::fem::{
+use fissure_engine::fem::corotational::IterativeOptions;
+use fissure_engine::fem::{
     DeformationSolver, Material, Prescribed, SolveError, SolverOptions, Strategy, build_solver,
 };
-use fissure_server::mesh::TetMesh;
-use fissure_server::mesh::phantom;
+use fissure_engine::mesh::TetMesh;
+use fissure_engine::mesh::phantom;
 use nalgebra::Vector3;
 
 use crate::common::{block, push};

@@ -1,14 +1,14 @@
 //! FEM at the extremes: nu -> 0.5 (locking), E over four decades, slivers,
 //! enforced displacements larger than an element, inverted elements, skull.
 
-use fissure_server::fem::compliance::{Compliance, Recover};
-use fissure_server::fem::model::Model;
-use fissure_server::fem::skull::{Skull, Sphere};
-use fissure_server::fem::{
+use fissure_engine::fem::compliance::{Compliance, Recover};
+use fissure_engine::fem::model::Model;
+use fissure_engine::fem::skull::{Skull, Sphere};
+use fissure_engine::fem::{
     DeformationSolver, Material, Prescribed, SolveError, SolverOptions, Strategy, build_solver,
 };
-use fissure_server::mesh::TetMesh;
-use fissure_server::mesh::blocks::{cube, cuboid};
+use fissure_engine::mesh::TetMesh;
+use fissure_engine::mesh::blocks::{cube, cuboid};
 use nalgebra::{Point3, Vector3};
 
 fn nodes_where(mesh: &TetMesh, f: impl Fn(&Point3<f64>) -> bool) -> Vec<u32> {

@@ -4,15 +4,15 @@
 //! linear tetrahedra against an independent code (scikit-fem, Taylor-Hood
 //! P2-P1 mixed elements on the same mesh) as `nu -> 0.5`.
 
-use fissure_server::fem::compliance::Recover;
-use fissure_server::fem::element::TetGeometry;
-use fissure_server::fem::reactions::net_force_torque;
-use fissure_server::fem::{
+use fissure_engine::fem::compliance::Recover;
+use fissure_engine::fem::element::TetGeometry;
+use fissure_engine::fem::reactions::net_force_torque;
+use fissure_engine::fem::{
     AxisSupport, Constraint, ConstraintKind, Element, Material, Prescribed, SolverOptions,
     Strategy, build_solver,
 };
-use fissure_server::mesh::TetMesh;
-use fissure_server::mesh::blocks::cube;
+use fissure_engine::mesh::TetMesh;
+use fissure_engine::mesh::blocks::cube;
 use nalgebra::{DMatrix, DVector, Matrix3, Point3, Vector3};
 use std::process::Command;
 

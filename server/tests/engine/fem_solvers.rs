@@ -3,14 +3,14 @@
 //! starts, the compliance cache stays bounded (LRU), parallel and sequential
 //! runs agree, and the cost of the interactive tolerance of `corotational`.
 
-use fissure_server::fem::compliance::{Compliance, Recover};
-use fissure_server::fem::corotational::IterativeOptions;
-use fissure_server::fem::model::Model;
-use fissure_server::fem::skull::{Skull, Sphere};
-use fissure_server::fem::{
+use fissure_engine::fem::compliance::{Compliance, Recover};
+use fissure_engine::fem::corotational::IterativeOptions;
+use fissure_engine::fem::model::Model;
+use fissure_engine::fem::skull::{Skull, Sphere};
+use fissure_engine::fem::{
     DeformationSolver, Material, Par, SolveError, SolverOptions, Strategy, build_solver,
 };
-use fissure_server::mesh::TetMesh;
+use fissure_engine::mesh::TetMesh;
 use nalgebra::{Point3, Vector3};
 
 use crate::common::{block, push};

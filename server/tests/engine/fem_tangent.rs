@@ -6,10 +6,10 @@
 //! exact tangent), as `delta` or faster for `corotational` (the
 //! frozen-rotation tangent its iterations use).
 
-use fissure_server::fem::{
+use fissure_engine::fem::{
     CompliancePatch, Material, Prescribed, SolverOptions, Strategy, build_solver,
 };
-use fissure_server::mesh::blocks::cube;
+use fissure_engine::mesh::blocks::cube;
 use nalgebra::{DMatrix, DVector, Vector3};
 
 const L: f64 = 0.02;

@@ -1,4 +1,4 @@
-//! Ties in the contact problem ([`fissure_server::fem::ties`]): a tie is a
+//! Ties in the contact problem ([`fissure_engine::fem::ties`]): a tie is a
 //! tension-only spring, `T = k max(0, L - L0)`, between two tissue nodes.
 //!
 //! The laws checked, on two blocks facing each other across a gap, each
@@ -12,7 +12,7 @@
 //! * a slack tie carries nothing and moves nothing;
 //! * strategies without nodal loads refuse tie *rows* with an error naming
 //!   them; they hold ties as springs of their energy instead
-//!   ([`fissure_server::fem::ties::TieSprings`]), and there:
+//!   ([`fissure_engine::fem::ties::TieSprings`]), and there:
 //!   * a stretched spring pulls with `k` times its true stretch, balanced by
 //!     the supports (equilibrium of each block);
 //!   * at a small stretch it agrees with the linear strategies' row;
@@ -20,15 +20,15 @@
 //!   * the force loop's local model (the tangent compliance) has the
 //!     spring in series with the tissue (Sherman-Morrison).
 
-use fissure_server::fem::corotational::IterativeOptions;
-use fissure_server::fem::lcp::RowKind;
-use fissure_server::fem::ties::{TiePair, TieSprings};
-use fissure_server::fem::{
+use fissure_engine::fem::corotational::IterativeOptions;
+use fissure_engine::fem::lcp::RowKind;
+use fissure_engine::fem::ties::{TiePair, TieSprings};
+use fissure_engine::fem::{
     CompliancePatch, ContactAnswer, ContactRow, DeformationSolver, Material, SolverOptions,
     Strategy, build_solver,
 };
-use fissure_server::mesh::TetMesh;
-use fissure_server::mesh::blocks::cube;
+use fissure_engine::mesh::TetMesh;
+use fissure_engine::mesh::blocks::cube;
 use nalgebra::{DMatrix, DVector, Vector3};
 
 const L: f64 = 0.01;
@@ -84,7 +84,7 @@ fn dense_reference(
         youngs_modulus_pa: E,
         poisson_ratio: 0.3,
     };
-    let model = fissure_server::fem::model::Model::new(mesh, m, fixed, &[]).unwrap();
+    let model = fissure_engine::fem::model::Model::new(mesh, m, fixed, &[]).unwrap();
     let nd = 3 * mesh.nodes.len();
     let mut k = DMatrix::zeros(nd, nd);
     let mut e = vec![0.0; nd];
@@ -383,9 +383,9 @@ fn a_contact_solve_after_others_equals_a_fresh_solvers_answer_on_the_same_rows()
 /// ties cut) with nothing else about the row.
 #[test]
 fn the_force_loops_solver_keeping_rows_across_frames_equals_a_full_solve_at_every_sample() {
-    use fissure_server::fem::CompliancePatch;
-    use fissure_server::sim::local_model::{ForceModel, ForceSolver, SampleAnswer};
-    use fissure_server::sim::rows::{self, Anchors, NO_TRIANGLE, Row, TIE_OWNER};
+    use fissure_engine::fem::CompliancePatch;
+    use fissure_engine::sim::local_model::{ForceModel, ForceSolver, SampleAnswer};
+    use fissure_engine::sim::rows::{self, Anchors, NO_TRIANGLE, Row, TIE_OWNER};
     use nalgebra::Point3;
     use std::sync::Arc;
 
@@ -486,7 +486,7 @@ fn the_force_loops_solver_keeping_rows_across_frames_equals_a_full_solve_at_ever
 /// come from two columns of a symmetric inverse).
 #[test]
 fn a_patch_sharing_the_ties_blocks_equals_a_plain_patch_block_for_block() {
-    use fissure_server::fem::CompliancePatch;
+    use fissure_engine::fem::CompliancePatch;
     let (mesh, fixed, lower, upper) = two_blocks(3);
     let shared: Vec<u32> = vec![
         near(&mesh, &lower, 0.2 * L, 0.2 * L),

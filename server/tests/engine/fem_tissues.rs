@@ -7,12 +7,12 @@
 //! corotational strategies (a pure stretch has no rotation) must meet it to
 //! round-off, neo-Hookean to its nonlinearity at the strain used.
 
-use fissure_server::fem::{
+use fissure_engine::fem::{
     DeformationSolver, Element, Material, Prescribed, SolveError, SolverOptions, Strategy, Tissue,
     build_solver,
 };
-use fissure_server::mesh::TetMesh;
-use fissure_server::mesh::blocks::cuboid;
+use fissure_engine::mesh::TetMesh;
+use fissure_engine::mesh::blocks::cuboid;
 use nalgebra::Vector3;
 
 /// Bar length, m (two halves of `L / 2`).
@@ -254,8 +254,8 @@ fn tissue_labels_survive_the_model_file_and_keep_the_series_law() {
     let (mesh, _, _) = bar();
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("bar.vtu");
-    fissure_server::mesh::io::write_volume(&path, &mesh).unwrap();
-    let read = fissure_server::mesh::io::read_model(&path, 1.0).unwrap();
+    fissure_engine::mesh::io::write_volume(&path, &mesh).unwrap();
+    let read = fissure_engine::mesh::io::read_model(&path, 1.0).unwrap();
     assert_eq!(read.labels, mesh.labels);
     let face = |x: f64| -> Vec<u32> {
         (0..read.nodes.len() as u32)

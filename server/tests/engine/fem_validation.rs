@@ -1,14 +1,14 @@
 //! FEM validation: agreement of the strategies, patch test, uniaxial
 //! compression, mesh convergence, force balance, small-strain agreement.
 
-use fissure_server::fem::compliance::Recover;
-use fissure_server::fem::reactions::net_force_torque;
-use fissure_server::fem::{
+use fissure_engine::fem::compliance::Recover;
+use fissure_engine::fem::reactions::net_force_torque;
+use fissure_engine::fem::{
     AxisSupport, Constraint, ConstraintKind, Material, Prescribed, SolverOptions, Strategy,
     build_solver,
 };
-use fissure_server::mesh::TetMesh;
-use fissure_server::mesh::blocks::{cube, cuboid};
+use fissure_engine::mesh::TetMesh;
+use fissure_engine::mesh::blocks::{cube, cuboid};
 use nalgebra::{Matrix3, Point3, Vector3};
 
 const BRAIN: Material = Material {

@@ -6,7 +6,7 @@
 //! a counting global allocator, and no other test may allocate while it
 //! counts.
 //!
-//! Run one file's tests with a filter: `cargo test -p fissure-server --test
+//! Run one file's tests with a filter: `cargo test -p fissure-engine --test
 //! engine fem_contact::`.
 
 mod common;

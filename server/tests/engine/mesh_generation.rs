@@ -1,8 +1,8 @@
 //! Generation of tetrahedral models: the brain phantom presets, isosurface
 //! stuffing quality and meshing of closed surfaces.
 
-use fissure_server::mesh::phantom;
-use fissure_server::mesh::stuffing;
+use fissure_engine::mesh::phantom;
+use fissure_engine::mesh::stuffing;
 
 fn within(actual: usize, target: f64, tol: f64) -> bool {
     (actual as f64 - target).abs() <= tol * target
@@ -71,9 +71,9 @@ fn coarse_landmarks_open_into_the_meshed_gap() {
 
 #[test]
 fn closed_box_surface_meshes_to_its_volume() {
-    use fissure_server::mesh::from_surface::{SurfaceMeshing, mesh_surface};
+    use fissure_engine::mesh::from_surface::{SurfaceMeshing, mesh_surface};
     // The boundary of a Kuhn-subdivided box is a closed triangle surface.
-    let block = fissure_server::mesh::blocks::cuboid([0.04, 0.03, 0.02], [4, 3, 2]);
+    let block = fissure_engine::mesh::blocks::cuboid([0.04, 0.03, 0.02], [4, 3, 2]);
     let s = block.boundary();
     let mut verts = Vec::new();
     s.gather(&block.nodes, &mut verts);

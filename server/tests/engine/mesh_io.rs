@@ -9,13 +9,13 @@
 //! also needs `libglu1-mesa libxrender1 libxcursor1 libxfixes3 libxext6
 //! libxft2 libfontconfig1 libxinerama1 libgomp1`).
 
-use fissure_server::mesh::TetMesh;
-use fissure_server::mesh::blocks::cube;
-use fissure_server::mesh::io::{
+use fissure_engine::mesh::TetMesh;
+use fissure_engine::mesh::blocks::cube;
+use fissure_engine::mesh::io::{
     self, IoError, VolumeFormat, read_surface, read_volume, read_volume_raw, read_volume_report,
     write_surface, write_volume,
 };
-use fissure_server::mesh::validate::{ValidateOptions, validate_mesh, validate_surface};
+use fissure_engine::mesh::validate::{ValidateOptions, validate_mesh, validate_surface};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -419,7 +419,7 @@ fn committed_tool_fixtures_load() {
 #[test]
 fn round_trips_through_every_writer() {
     let dir = tempfile::tempdir().unwrap();
-    let mesh = fissure_server::mesh::blocks::v_valley();
+    let mesh = fissure_engine::mesh::blocks::v_valley();
     for ext in ["vtu", "msh", "vtk", "node"] {
         let p = dir.path().join(format!("m.{ext}"));
         write_volume(&p, &mesh).unwrap();

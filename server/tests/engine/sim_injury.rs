@@ -1,4 +1,4 @@
-//! The injury measures a frame carries ([`fissure_server::sim::injury`]),
+//! The injury measures a frame carries ([`fissure_engine::sim::injury`]),
 //! through the whole step:
 //!
 //! * a plate larger than a block's top, bottom fixed, `nu = 0`, pressed by
@@ -16,11 +16,11 @@
 //! Green-Lagrange strain, and the closed-form eigenvalue against an
 //! iterative solver, are the module's unit tests.
 
-use fissure_server::fem::compliance::ColumnPolicy;
-use fissure_server::scene::Scene;
-use fissure_server::sim::engine::Model;
-use fissure_server::sim::snapshot::Snapshot;
-use fissure_server::sim::stepped::SteppedRunner;
+use fissure_engine::fem::compliance::ColumnPolicy;
+use fissure_engine::scene::Scene;
+use fissure_engine::sim::engine::Model;
+use fissure_engine::sim::snapshot::Snapshot;
+use fissure_engine::sim::stepped::SteppedRunner;
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 use std::sync::Arc;
 

@@ -4,12 +4,12 @@
 //! the bulk alone), tearing at the rupture criterion (not before), and the
 //! errors of bad declarations.
 
-use fissure_server::fem::compliance::ColumnPolicy;
-use fissure_server::fem::ties::{Rupture, TieKind};
-use fissure_server::scene::Scene;
-use fissure_server::sim::engine::{Model, StepEngine};
-use fissure_server::sim::snapshot::TieCause;
-use fissure_server::sim::stepped::home_pose;
+use fissure_engine::fem::compliance::ColumnPolicy;
+use fissure_engine::fem::ties::{Rupture, TieKind};
+use fissure_engine::scene::Scene;
+use fissure_engine::sim::engine::{Model, StepEngine};
+use fissure_engine::sim::snapshot::TieCause;
+use fissure_engine::sim::stepped::home_pose;
 use nalgebra::{Isometry3, Translation3, Vector3};
 use std::sync::Arc;
 
@@ -77,7 +77,7 @@ fn open(
     scene: &Scene,
     lift_m: f64,
     steps: usize,
-) -> (Vec<f64>, Vec<fissure_server::sim::snapshot::TieEvent>, u32) {
+) -> (Vec<f64>, Vec<fissure_engine::sim::snapshot::TieEvent>, u32) {
     let model = model(scene);
     let mut engine =
         StepEngine::new(scene, model.clone(), ColumnPolicy::Compute, None, None).unwrap();
@@ -295,7 +295,7 @@ fn a_mirror_engine_has_the_others_ties_and_tears_none_itself() {
 /// nearest of all.
 #[test]
 fn a_tear_is_blamed_on_the_nearest_instrument_that_pushes() {
-    use fissure_server::sim::engine::TieStage;
+    use fissure_engine::sim::engine::TieStage;
     let text = include_str!("../../scenes/sylvian.toml").replace("paper-48k", "coarse");
     let s = Scene::parse(
         &format!("{text}\n{}", trabeculae(0.2, "rupture_strain = 0.2")),

@@ -2,8 +2,8 @@
 //! server on the `cube` scene.
 
 use fissure_cli::bridge::{Bridge, FORCE_LEN, decode_force, encode_pose};
-use fissure_server::service::ServeOptions;
-use fissure_server::sim::SimOptions;
+use fissure_engine::sim::SimOptions;
+use fissure_server::ServeOptions;
 use fissure_tests::{Haptic, TestServer, pose};
 use std::time::Duration;
 use tokio::net::UdpSocket;

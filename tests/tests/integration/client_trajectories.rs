@@ -5,8 +5,8 @@
 
 use fissure_cli::replay::{ForceRow, Pacing, replay};
 use fissure_cli::trajectory::{Trajectory, bundled_for};
-use fissure_server::service::ServeOptions;
-use fissure_server::sim::SimOptions;
+use fissure_engine::sim::SimOptions;
+use fissure_server::ServeOptions;
 use fissure_tests::TestServer;
 
 /// Replays `names` (bundled, one per instrument) together on `scene`.

@@ -6,8 +6,8 @@
 use crate::reliability_common::{FLAT_DOWN, HANDLE_Y, LEFT_X, TOUCH_Z};
 use fissure_cli::mesh_cmd::{InspectOptions, convert, inspect};
 use fissure_cli::watch::{WatchArgs, WatchEnd, run};
-use fissure_server::service::ServeOptions;
-use fissure_server::sim::SimOptions;
+use fissure_engine::sim::SimOptions;
+use fissure_server::ServeOptions;
 use fissure_tests::{Haptic, TestServer, pose};
 use std::path::Path;
 use std::time::Duration;

@@ -5,8 +5,8 @@ use fissure_cli::bridge::{
     Bridge, FORCE_LEN, FORCE_MAGIC, ForceDatagram, MAX_DATAGRAM, decode_force, encode_force,
     encode_pose,
 };
-use fissure_server::service::ServeOptions;
-use fissure_server::sim::SimOptions;
+use fissure_engine::sim::SimOptions;
+use fissure_server::ServeOptions;
 use fissure_tests::TestServer;
 use std::time::Duration;
 use tokio::net::UdpSocket;

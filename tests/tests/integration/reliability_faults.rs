@@ -3,9 +3,9 @@
 //! `isolated/reliability_watchers.rs`, alone in its process for its memory figures.)
 
 use crate::reliability_common::*;
+use fissure_engine::sim::{SimOptions, flags};
 use fissure_proto::v1 as pb;
-use fissure_server::service::ServeOptions;
-use fissure_server::sim::{SimOptions, flags};
+use fissure_server::ServeOptions;
 use fissure_tests::{Haptic, TestServer};
 use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};

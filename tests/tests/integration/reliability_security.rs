@@ -3,9 +3,9 @@
 //! the binary.
 
 use crate::reliability_common::*;
+use fissure_engine::sim::SimOptions;
 use fissure_proto::v1 as pb;
-use fissure_server::service::{MAX_DECODING_MESSAGE_BYTES, ServeOptions};
-use fissure_server::sim::SimOptions;
+use fissure_server::{MAX_DECODING_MESSAGE_BYTES, ServeOptions};
 use fissure_tests::{Haptic, TestServer};
 use prost::Message;
 use std::marker::PhantomData;

@@ -3,11 +3,11 @@
 //! boundary is not a closed manifold is refused naming the edge and where it
 //! is.
 
-use fissure_server::mesh::TetMesh;
-use fissure_server::mesh::blocks::cube;
-use fissure_server::mesh::io;
-use fissure_server::scene::Scene;
-use fissure_server::sim::{SimOptions, Simulation};
+use fissure_engine::mesh::TetMesh;
+use fissure_engine::mesh::blocks::cube;
+use fissure_engine::mesh::io;
+use fissure_engine::scene::Scene;
+use fissure_engine::sim::{SimOptions, Simulation};
 use nalgebra::Point3;
 use std::path::Path;
 

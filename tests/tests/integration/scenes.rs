@@ -1,8 +1,8 @@
 //! Every embedded scene loads and runs; what a scene declares is what is built.
 
-use fissure_server::scene::{EMBEDDED, RoiSpec, Scene};
-use fissure_server::sim::pose::RawPose;
-use fissure_server::sim::{SimOptions, Simulation};
+use fissure_engine::scene::{EMBEDDED, RoiSpec, Scene};
+use fissure_engine::sim::pose::RawPose;
+use fissure_engine::sim::{SimOptions, Simulation};
 
 fn stepped() -> SimOptions {
     SimOptions {
@@ -18,7 +18,7 @@ fn drive(
     sim: &std::sync::Arc<Simulation>,
     name: &str,
     poses: &[(f64, [f64; 3])],
-) -> fissure_server::sim::ForceOut {
+) -> fissure_engine::sim::ForceOut {
     let (_, spec) = sim.scene().instrument(name).expect("instrument");
     let q = spec.home_orientation;
     let mut claim = sim.claim(name).expect("claim");
@@ -209,7 +209,7 @@ fn region_of_interest_crops_and_converges() {
 #[test]
 fn corotational_force_samples_at_the_step_pose_give_the_step_force() {
     let (mut scene, _) = Scene::load("cube").unwrap();
-    scene.solver.strategy = fissure_server::scene::Strategy::Corotational;
+    scene.solver.strategy = fissure_engine::scene::Strategy::Corotational;
     let home = scene.instruments[0].home_position_m;
     let sim = Simulation::start(scene, stepped()).unwrap();
     let mut poses = Vec::new();

@@ -2,9 +2,9 @@
 //! stream ends (cleanly or by a client that vanishes), and clear statuses for a
 //! third client and for unknown instruments.
 
+use fissure_engine::sim::SimOptions;
 use fissure_proto::v1 as pb;
-use fissure_server::service::ServeOptions;
-use fissure_server::sim::SimOptions;
+use fissure_server::ServeOptions;
 use fissure_tests::{Haptic, TestServer, pose, wait_until_claimed};
 use std::time::Duration;
 

@@ -5,11 +5,11 @@
 
 use fissure_cli::replay::{ForceRow, Pacing, connect, replay};
 use fissure_cli::trajectory::Trajectory;
+use fissure_engine::sim::SimOptions;
 use fissure_proto::recording;
 use fissure_proto::v1 as pb;
-use fissure_server::service::ServeOptions;
-use fissure_server::service::recording::ToFile;
-use fissure_server::sim::SimOptions;
+use fissure_server::ServeOptions;
+use fissure_server::recording::ToFile;
 use fissure_tests::TestServer;
 use std::collections::BTreeMap;
 use std::path::Path;

@@ -1,9 +1,9 @@
 //! TLS (rustls) and the bearer token of instrument claims, on the `cube` scene.
 
+use fissure_engine::sim::SimOptions;
 use fissure_proto::v1 as pb;
 use fissure_proto::v1::fissure_client::FissureClient;
-use fissure_server::service::ServeOptions;
-use fissure_server::sim::SimOptions;
+use fissure_server::ServeOptions;
 use fissure_tests::{Haptic, TestServer, pose};
 use tonic::transport::{Certificate, Channel, ClientTlsConfig};
 

@@ -4,11 +4,11 @@
 //! the stream and in recordings.
 
 use crate::reliability_common::{FLAT_DOWN, HANDLE_Y, LEFT_X, TOUCH_Z};
+use fissure_engine::sim::SimOptions;
 use fissure_proto::recording;
 use fissure_proto::v1 as pb;
-use fissure_server::service::ServeOptions;
-use fissure_server::service::recording::ToFile;
-use fissure_server::sim::SimOptions;
+use fissure_server::ServeOptions;
+use fissure_server::recording::ToFile;
 use fissure_tests::{Haptic, TestServer, pose};
 
 /// Handle position at sample `i` of a 200-sample press: from 1 mm above the

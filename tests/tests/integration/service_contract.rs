@@ -9,9 +9,9 @@ use crate::raw_h2;
 use crate::reliability_common;
 
 use crate::reliability_common::{FLAT_DOWN, HANDLE_Y, LEFT_X, TOUCH_Z};
+use fissure_engine::sim::SimOptions;
 use fissure_proto::v1 as pb;
-use fissure_server::service::ServeOptions;
-use fissure_server::sim::SimOptions;
+use fissure_server::ServeOptions;
 use fissure_tests::{Haptic, TestServer, pose};
 use std::time::Duration;
 use tokio_stream::wrappers::ReceiverStream;
@@ -162,8 +162,7 @@ async fn health_is_not_serving_for_the_server_or_the_service_until_loaded() -> a
     use tonic_health::pb::HealthCheckRequest;
     use tonic_health::pb::health_check_response::ServingStatus;
     use tonic_health::pb::health_client::HealthClient;
-    let server =
-        fissure_server::service::serve("127.0.0.1:0".parse()?, ServeOptions::default()).await?;
+    let server = fissure_server::serve("127.0.0.1:0".parse()?, ServeOptions::default()).await?;
     let channel = tonic::transport::Channel::from_shared(format!("http://{}", server.addr))?
         .connect()
         .await?;
@@ -181,22 +180,22 @@ async fn health_is_not_serving_for_the_server_or_the_service_until_loaded() -> a
             )
         }
     };
-    for name in fissure_server::service::HEALTH_SERVICES {
+    for name in fissure_server::HEALTH_SERVICES {
         assert_eq!(
             status(name).await?,
             ServingStatus::NotServing as i32,
             "{name:?}"
         );
     }
-    let (scene, _) = fissure_server::scene::Scene::load("cube")?;
+    let (scene, _) = fissure_engine::scene::Scene::load("cube")?;
     let sim = tokio::task::spawn_blocking(move || {
-        fissure_server::sim::Simulation::start(scene, SimOptions::default())
+        fissure_engine::sim::Simulation::start(scene, SimOptions::default())
     })
     .await??;
     // Still loading as far as clients know, until the service has it.
     assert_eq!(status("").await?, ServingStatus::NotServing as i32);
     server.set_simulation(sim.clone()).await;
-    for name in fissure_server::service::HEALTH_SERVICES {
+    for name in fissure_server::HEALTH_SERVICES {
         assert_eq!(
             status(name).await?,
             ServingStatus::Serving as i32,

@@ -1,8 +1,8 @@
 //! End to end on the `cube` scene: a pose in, a force out, through every layer.
 
-use fissure_server::fem;
-use fissure_server::service::ServeOptions;
-use fissure_server::sim::SimOptions;
+use fissure_engine::fem;
+use fissure_engine::sim::SimOptions;
+use fissure_server::ServeOptions;
 use fissure_tests::{Haptic, TestServer, pose};
 use nalgebra::Vector3;
 
@@ -176,8 +176,7 @@ async fn health_serving_once_loaded() -> anyhow::Result<()> {
     use tonic_health::pb::HealthCheckRequest;
     use tonic_health::pb::health_check_response::ServingStatus;
     use tonic_health::pb::health_client::HealthClient;
-    let server =
-        fissure_server::service::serve("127.0.0.1:0".parse()?, ServeOptions::default()).await?;
+    let server = fissure_server::serve("127.0.0.1:0".parse()?, ServeOptions::default()).await?;
     let url = format!("http://{}", server.addr);
     let channel = tonic::transport::Channel::from_shared(url.clone())?
         .connect()
@@ -196,9 +195,9 @@ async fn health_serving_once_loaded() -> anyhow::Result<()> {
         .unwrap_err();
     assert_eq!(err.code(), tonic::Code::Unavailable);
 
-    let (scene, _) = fissure_server::scene::Scene::load("cube")?;
+    let (scene, _) = fissure_engine::scene::Scene::load("cube")?;
     let sim = tokio::task::spawn_blocking(move || {
-        fissure_server::sim::Simulation::start(scene, SimOptions::default())
+        fissure_engine::sim::Simulation::start(scene, SimOptions::default())
     })
     .await??;
     server.set_simulation(sim.clone()).await;

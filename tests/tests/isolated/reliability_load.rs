@@ -9,10 +9,10 @@
 //! can be changed with `FISSURE_LOAD_SCENE` (an embedded name or a path).
 
 use crate::reliability_common::*;
+use fissure_engine::scene::Scene;
+use fissure_engine::sim::SimOptions;
 use fissure_proto::v1 as pb;
-use fissure_server::scene::Scene;
-use fissure_server::service::ServeOptions;
-use fissure_server::sim::SimOptions;
+use fissure_server::ServeOptions;
 use fissure_tests::TestServer;
 use std::time::{Duration, Instant};
 

@@ -18,9 +18,9 @@
 //!   sender), so memory stays flat and the other client keeps its rate.
 
 use crate::reliability_common::*;
+use fissure_engine::sim::{SimOptions, flags};
 use fissure_proto::v1 as pb;
-use fissure_server::service::ServeOptions;
-use fissure_server::sim::{SimOptions, flags};
+use fissure_server::ServeOptions;
 use fissure_tests::{Haptic, TestServer, pose};
 use std::time::Duration;
 

@@ -5,10 +5,10 @@
 //! alone in the process (the `isolated` binary runs one test at a time).
 
 use fissure_cli::report::{LostEntries, report};
+use fissure_engine::sim::snapshot::{Frame, InstrumentReaction, StepTimings};
 use fissure_proto::recording::{RecordingGap, RecordingGapExt, read_recording};
 use fissure_proto::v1 as pb;
-use fissure_server::service::recording::{QUEUE_CAPACITY, Recorder};
-use fissure_server::sim::snapshot::{Frame, InstrumentReaction, StepTimings};
+use fissure_server::recording::{QUEUE_CAPACITY, Recorder};
 use nalgebra::Vector3;
 use std::io::Write;
 use std::sync::atomic::{AtomicBool, Ordering};

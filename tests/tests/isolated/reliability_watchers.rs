@@ -3,9 +3,9 @@
 //! the process's resident memory, which tests running beside it would disturb.
 
 use crate::reliability_common::*;
+use fissure_engine::sim::SimOptions;
 use fissure_proto::v1 as pb;
-use fissure_server::service::ServeOptions;
-use fissure_server::sim::SimOptions;
+use fissure_server::ServeOptions;
 use fissure_tests::TestServer;
 use std::time::{Duration, Instant};
 

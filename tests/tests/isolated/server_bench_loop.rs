@@ -14,7 +14,7 @@ async fn bench_loop_reports_consistent_figures() -> anyhow::Result<()> {
         rate_hz: 1000.0,
         rt_priority: 0,
         transport_rt_priority: 0,
-        traversal: Some(fissure_server::scene::Traversal::PerRay),
+        traversal: Some(fissure_engine::scene::Traversal::PerRay),
         json: true,
     };
     let r = run(&args).await?;
@@ -35,7 +35,7 @@ async fn bench_loop_reports_consistent_figures() -> anyhow::Result<()> {
     #[cfg(target_os = "linux")]
     assert_eq!(
         r.stall_probe_cpus,
-        fissure_server::sim::priority::allowed_cpus().map_or(0, |c| c.len())
+        fissure_engine::sim::priority::allowed_cpus().map_or(0, |c| c.len())
     );
     assert!(r.stall_probe_cpus >= 1 || !cfg!(target_os = "linux"));
     if r.machine_stalls == 0 {

@@ -4,12 +4,12 @@
 
 use fissure_cli::replay::{ForceRow, Pacing, connect, replay};
 use fissure_cli::trajectory::Trajectory;
+use fissure_engine::scene::{ModelSpec, Scene, Strategy};
+use fissure_engine::sim::{SimOptions, flags};
 use fissure_proto::recording;
 use fissure_proto::v1 as pb;
-use fissure_server::scene::{ModelSpec, Scene, Strategy};
-use fissure_server::service::ServeOptions;
-use fissure_server::service::recording::ToFile;
-use fissure_server::sim::{SimOptions, flags};
+use fissure_server::ServeOptions;
+use fissure_server::recording::ToFile;
 use fissure_tests::{Haptic, TestServer, pose};
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};

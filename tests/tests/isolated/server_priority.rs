@@ -3,8 +3,8 @@
 //! `isolated` binary, alone in the process while it runs, so that no other
 //! test's force loop thread shares the process.
 
-use fissure_server::service::ServeOptions;
-use fissure_server::sim::SimOptions;
+use fissure_engine::sim::SimOptions;
+use fissure_server::ServeOptions;
 use fissure_tests::{Haptic, TestServer, pose};
 
 /// Lays the plate flat, face A down, tip towards +y (see cube.toml).
@@ -37,7 +37,7 @@ fn thread_policy(name: &str) -> Option<(u32, u32)> {
 #[cfg(target_os = "linux")]
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn force_loop_runs_realtime_where_permitted() -> anyhow::Result<()> {
-    use fissure_server::sim::priority;
+    use fissure_engine::sim::priority;
     const SCHED_OTHER: u32 = 0;
     const SCHED_FIFO: u32 = 1;
     let _alone = crate::alone().await;

@@ -6,9 +6,9 @@
 use crate::raw_h2;
 
 use crate::reliability_common::{FLAT_DOWN, HANDLE_Y, LEFT_X, TOUCH_Z, cube_scene};
+use fissure_engine::sim::SimOptions;
 use fissure_proto::v1 as pb;
-use fissure_server::service::{MAX_UNREAD_ANSWERS, ServeOptions};
-use fissure_server::sim::SimOptions;
+use fissure_server::{MAX_UNREAD_ANSWERS, ServeOptions};
 use fissure_tests::{Haptic, TestServer, pose, wait_until_claimed};
 use std::io::Write;
 use std::sync::{Arc, Mutex, OnceLock};

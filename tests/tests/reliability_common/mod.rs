@@ -4,9 +4,9 @@
 
 #![allow(dead_code)]
 
+use fissure_engine::scene::Scene;
 use fissure_proto::v1 as pb;
 use fissure_proto::v1::fissure_client::FissureClient;
-use fissure_server::scene::Scene;
 use std::path::PathBuf;
 use std::process::Command;
 use std::sync::{Arc, Mutex};

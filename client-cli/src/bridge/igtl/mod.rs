@@ -824,7 +824,7 @@ async fn surface_loop(
 /// The STATUS of an assessment alert: `ASSESS_WARN` (code OK, subcode 1)
 /// or `ASSESS_FAIL` (an error, subcode 2), the alert's line as text.
 pub fn assess_status(a: &crate::report::assess::Alert) -> StatusMsg {
-    use fissure_proto::assessment::Grade;
+    use fissure_shared::assessment::Grade;
     let (code, subcode, name) = match a.grade {
         Grade::Fail => (status_code::UNKNOWN_ERROR, 2, "ASSESS_FAIL"),
         _ => (status_code::OK, 1, "ASSESS_WARN"),
@@ -1296,7 +1296,7 @@ mod tests {
     #[cfg(feature = "lab")]
     #[test]
     fn the_engines_safety_flags_are_the_proto_flags() {
-        use fissure_server::sim::flags;
+        use fissure_engine::sim::flags;
         let pairs = [
             (
                 flags::FORCE_ABOVE_THRESHOLD,

@@ -41,7 +41,7 @@ pub use light::{Background, Light, Lighting, RenderOptions};
 pub use mesh::{CREASE_DEG, Colouring, EdgeStyle, MeshRef, Shading, TriMesh};
 
 use super::{Image, RenderError};
-use fissure_proto::surface::check_surface;
+use fissure_shared::surface::check_surface;
 use nalgebra::{Isometry3, Vector3};
 use rayon::prelude::*;
 

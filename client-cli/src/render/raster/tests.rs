@@ -3,7 +3,7 @@
 use super::super::Rgb;
 use super::super::colormap::Colormap;
 use super::*;
-use fissure_proto::surface::SurfaceError;
+use fissure_shared::surface::SurfaceError;
 use nalgebra::Point3;
 
 const BG: Rgb = [10, 20, 30];

@@ -7,7 +7,7 @@
 //! `Piece`s (concatenated). Cell types 10, 24 and 71 become tetrahedra of their
 //! first four points; other cells are counted and skipped.
 //!
-//! The writer is [`fissure_proto::vtu`]'s (re-exported here): clients that
+//! The writer is [`fissure_shared::vtu`]'s (re-exported here): clients that
 //! write frame series use it without linking the engine.
 
 use super::cursor::show;
@@ -580,7 +580,7 @@ fn parse_grid(bytes: &[u8]) -> Result<Grid, ParseError> {
     Ok(out)
 }
 
-pub use fissure_proto::vtu::{write_vtu, write_vtu_surface};
+pub use fissure_shared::vtu::{write_vtu, write_vtu_surface};
 
 #[cfg(test)]
 mod tests {

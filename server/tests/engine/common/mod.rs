@@ -1,8 +1,8 @@
 //! Fixtures shared by the FEM integration tests.
 
-use fissure_server::fem::Prescribed;
-use fissure_server::mesh::TetMesh;
-use fissure_server::mesh::blocks::cube;
+use fissure_engine::fem::Prescribed;
+use fissure_engine::mesh::TetMesh;
+use fissure_engine::mesh::blocks::cube;
 use nalgebra::{Point3, Vector3};
 
 /// A 2 cm cube (`n` cells a side), bottom fixed, and the `contacts` top

@@ -1,12 +1,12 @@
 //! Conversions between engine values and `fissure.v1` messages.
 
-use crate::collide::instrument::{Plate, PlateShape};
-use crate::scene::{ContactLaw, Scene, Strategy};
-use crate::sim::ForceOut;
-use crate::sim::engine::Model;
-use crate::sim::pose::{PoseError, RawPose};
-use crate::sim::snapshot::{Frame, InstrumentReaction};
-use crate::sim::stats::{LatencySummary, StatsSummary};
+use fissure_engine::collide::instrument::{Plate, PlateShape};
+use fissure_engine::scene::{ContactLaw, Scene, Strategy};
+use fissure_engine::sim::ForceOut;
+use fissure_engine::sim::engine::Model;
+use fissure_engine::sim::pose::{PoseError, RawPose};
+use fissure_engine::sim::snapshot::{Frame, InstrumentReaction};
+use fissure_engine::sim::stats::{LatencySummary, StatsSummary};
 use fissure_proto::v1 as pb;
 use nalgebra::Vector3;
 
@@ -244,7 +244,7 @@ fn reaction(r: &InstrumentReaction) -> pb::InstrumentReaction {
     }
 }
 
-fn pressure(p: &crate::sim::injury::Pressure) -> pb::RetractionPressure {
+fn pressure(p: &fissure_engine::sim::injury::Pressure) -> pb::RetractionPressure {
     pb::RetractionPressure {
         contact_area_m2: p.contact_area_m2,
         normal_force_n: p.normal_force_n,
@@ -273,7 +273,7 @@ fn strain(f: &Frame, include_picture: bool) -> pb::TissueStrain {
     }
 }
 
-fn levels(l: crate::scene::assessment::Levels) -> Option<pb::Levels> {
+fn levels(l: fissure_engine::scene::assessment::Levels) -> Option<pb::Levels> {
     Some(pb::Levels {
         warn: l.warn,
         fail: l.fail,
@@ -281,7 +281,9 @@ fn levels(l: crate::scene::assessment::Levels) -> Option<pb::Levels> {
 }
 
 /// The scene's assessment thresholds.
-pub fn assessment(a: &crate::scene::assessment::AssessmentSpec) -> pb::AssessmentThresholds {
+pub fn assessment(
+    a: &fissure_engine::scene::assessment::AssessmentSpec,
+) -> pb::AssessmentThresholds {
     pb::AssessmentThresholds {
         pressure_pa: levels(a.pressure_pa),
         time_above_s: levels(a.time_above_s),
@@ -316,19 +318,19 @@ pub fn frame(f: &Frame, include_positions: bool, include_picture: bool) -> pb::D
     }
 }
 
-fn tie_kind(k: crate::fem::ties::TieKind) -> pb::TieKind {
+fn tie_kind(k: fissure_engine::fem::ties::TieKind) -> pb::TieKind {
     match k {
-        crate::fem::ties::TieKind::Trabecula => pb::TieKind::Trabecula,
-        crate::fem::ties::TieKind::Vessel => pb::TieKind::Vessel,
+        fissure_engine::fem::ties::TieKind::Trabecula => pb::TieKind::Trabecula,
+        fissure_engine::fem::ties::TieKind::Vessel => pb::TieKind::Vessel,
     }
 }
 
 /// The ties of a frame (none: the scene has no ties and nothing went).
 fn tie_summary(
-    t: &crate::sim::snapshot::TieFrame,
-    instruments: &[crate::sim::snapshot::InstrumentReaction],
+    t: &fissure_engine::sim::snapshot::TieFrame,
+    instruments: &[fissure_engine::sim::snapshot::InstrumentReaction],
 ) -> Option<pb::TieSummary> {
-    use crate::sim::snapshot::TieCause;
+    use fissure_engine::sim::snapshot::TieCause;
     if t.trabeculae_intact == 0
         && t.vessels_intact == 0
         && t.events.is_empty()
@@ -365,13 +367,13 @@ fn tie_summary(
     })
 }
 
-fn rigid_part(r: &crate::sim::motion::RigidPart) -> pb::RigidPart {
+fn rigid_part(r: &fissure_engine::sim::motion::RigidPart) -> pb::RigidPart {
     pb::RigidPart {
         rotation_deg: r.rotation_deg,
         translation_m: Some(vec3(&r.translation_m)),
         max_rigid_m: r.max_rigid_m,
         centre_m: Some(vec3(&r.centre_m.coords)),
-        near_radius_m: crate::sim::motion::NEAR_RADIUS_M,
+        near_radius_m: fissure_engine::sim::motion::NEAR_RADIUS_M,
         max_non_rigid_near_m: r.max_non_rigid_near_m,
         max_non_rigid_far_m: r.max_non_rigid_far_m,
     }
@@ -447,7 +449,7 @@ mod tests {
     /// draws the tool the server collides with.
     #[test]
     fn the_description_carries_each_shapes_outline_and_a_blades_edge() {
-        use crate::collide::instrument::PlateShape;
+        use fissure_engine::collide::instrument::PlateShape;
         let (mut scene, _) = Scene::load("cube").unwrap();
         let shapes = [
             PlateShape::Flat,

@@ -12,7 +12,7 @@
 //! than the interval; a single slow step (a page fault, a busy machine) does
 //! not count.
 
-use crate::sim::Simulation;
+use fissure_engine::sim::Simulation;
 use std::sync::Arc;
 use std::time::Duration;
 

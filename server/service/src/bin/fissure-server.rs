@@ -2,10 +2,10 @@
 
 use anyhow::{Context, bail};
 use clap::Parser;
-use fissure_server::scene::{DEFAULT_SCENE, Scene};
-use fissure_server::service::recording::ToFile;
-use fissure_server::service::{ServeOptions, Transport};
-use fissure_server::sim::{SimOptions, Simulation};
+use fissure_engine::scene::{DEFAULT_SCENE, Scene};
+use fissure_engine::sim::{SimOptions, Simulation};
+use fissure_server::recording::ToFile;
+use fissure_server::{ServeOptions, Transport};
 use std::net::SocketAddr;
 use std::path::PathBuf;
 
@@ -53,12 +53,12 @@ struct Args {
     max_watchers: usize,
     /// Nice value of the deformation thread and its pool (Linux; 0: unchanged).
     /// Above the force loops' so that a force sample preempts the solver.
-    #[arg(long, default_value_t = fissure_server::sim::DEFAULT_DEFORMATION_NICE)]
+    #[arg(long, default_value_t = fissure_engine::sim::DEFAULT_DEFORMATION_NICE)]
     deformation_nice: i32,
     /// Real-time priority (SCHED_FIFO, 1-99) each force loop asks for; 0 asks
     /// for none. Needs CAP_SYS_NICE or an RLIMIT_RTPRIO allowance; without it
     /// the loops run at normal priority (logged once).
-    #[arg(long, default_value_t = fissure_server::sim::priority::DEFAULT_FORCE_LOOP_RT_PRIORITY,
+    #[arg(long, default_value_t = fissure_engine::sim::priority::DEFAULT_FORCE_LOOP_RT_PRIORITY,
           value_parser = clap::value_parser!(u8).range(0..=99))]
     force_loop_rt_priority: u8,
     /// Real-time priority (SCHED_FIFO, 1-99) of the gRPC transport's threads,
@@ -66,7 +66,7 @@ struct Args {
     /// for none. Keep it below --force-loop-rt-priority. Same privileges as
     /// the force loops; without them the transport runs at normal priority
     /// (logged once).
-    #[arg(long, default_value_t = fissure_server::sim::priority::DEFAULT_TRANSPORT_RT_PRIORITY,
+    #[arg(long, default_value_t = fissure_engine::sim::priority::DEFAULT_TRANSPORT_RT_PRIORITY,
           value_parser = clap::value_parser!(u8).range(0..=99))]
     transport_rt_priority: u8,
     /// Log filter (tracing's EnvFilter syntax), e.g. `info` or `fissure_server=debug`.

@@ -32,11 +32,11 @@
 //! A gap is the `gap` member (field 5) of `RecordingEntry`'s `oneof entry`,
 //! a `fissure.v1.RecordingGap` (its sums in [`RecordingGapExt`]).
 
-use crate::scene::Scene;
-use crate::sim::engine::Model;
-use crate::sim::journal::{Journal, OpenJournal};
-use crate::sim::pose::RawPose;
-use crate::sim::{ForceOut, snapshot::Frame};
+use fissure_engine::scene::Scene;
+use fissure_engine::sim::engine::Model;
+use fissure_engine::sim::journal::{Journal, OpenJournal};
+use fissure_engine::sim::pose::RawPose;
+use fissure_engine::sim::{ForceOut, snapshot::Frame};
 use fissure_proto::recording::gap_entry;
 use fissure_proto::v1 as pb;
 use prost::Message;

@@ -16,10 +16,10 @@
 //! The runtime serves the gRPC calls only: scene loading, signal handling and
 //! the simulation's threads belong elsewhere (threads inherit the policy of
 //! the thread that spawns them; the force loops set their own,
-//! [`crate::sim::Claim::enter_force_thread`]).
+//! [`fissure_engine::sim::Claim::enter_force_thread`]).
 
 use super::{RunningServer, ServeOptions, serve};
-use crate::sim::priority;
+use fissure_engine::sim::priority;
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};

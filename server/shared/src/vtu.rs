@@ -7,7 +7,7 @@
 //! time-series writers (the watcher's surface series), so it takes plain
 //! slices and a `Write`. It lives here, beside the contract, because both the
 //! engine's mesh tools and clients without the engine write these files; the
-//! reader is the engine's (`fissure_server::mesh::io::vtu`).
+//! reader is the engine's (`fissure_engine::mesh::io::vtu`).
 
 use base64::Engine as _;
 use nalgebra::{Point3, Vector3};

@@ -1,4 +1,5 @@
-//! The tonic adapter of `fissure.v1`: moves messages, holds no logic.
+//! fissure-server: the tonic adapter of `fissure.v1` over `fissure-engine`;
+//! it moves messages and holds no logic (the engine never imports it).
 //!
 //! The service answers `UNAVAILABLE` until the scene is loaded and factorized;
 //! health reports `NOT_SERVING` until then, for the server as a whole (`""`,
@@ -6,7 +7,7 @@
 //! ([`ServeOptions::token`]), the calls that change the simulation (`Haptic`,
 //! `Reset`) need it; the calls that only read (`GetScene`, `GetSurface`,
 //! `Watch`, `GetStats`), health and reflection are open. Each haptic stream gets its own
-//! OS thread for its force loop ([`crate::sim::haptic_stream`], with its pose
+//! OS thread for its force loop ([`fissure_engine::sim::haptic_stream`], with its pose
 //! budget and the session's recording; this module converts messages and
 //! forwards them): a 1 kHz loop should not share a scheduler
 //! with watchers' serialisation work. The stream itself is read by a task on
@@ -45,9 +46,9 @@ pub mod transport;
 
 pub use transport::Transport;
 
-use crate::sim::haptic_stream::{self, Rejection};
-use crate::sim::pose::{PoseError, RawPose};
-use crate::sim::{ClaimError, ForceOut, Simulation};
+use fissure_engine::sim::haptic_stream::{self, Rejection};
+use fissure_engine::sim::pose::{PoseError, RawPose};
+use fissure_engine::sim::{ClaimError, ForceOut, Simulation};
 use fissure_proto::v1 as pb;
 use fissure_proto::v1::fissure_server::{Fissure, FissureServer};
 use fissure_proto::{AUTHORIZATION_METADATA_KEY, INSTRUMENT_METADATA_KEY};
@@ -93,7 +94,7 @@ pub const STREAM_RECEIVE_WINDOW_BYTES: u32 = 64 * 1024;
 /// shutdown before they are dropped.
 pub const SHUTDOWN_GRACE: Duration = Duration::from_secs(5);
 
-pub use crate::sim::budget::{MAX_POSE_RATE_FACTOR, POSE_BURST_S};
+pub use fissure_engine::sim::budget::{MAX_POSE_RATE_FACTOR, POSE_BURST_S};
 
 /// How clients must authenticate and where the server listens.
 #[derive(Debug, Clone, Default)]
