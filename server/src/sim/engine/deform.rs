@@ -1,9 +1,15 @@
 //! The deformation stage: the FEM solver of the scene's strategy, the
 //! choice of the nodes a step's compliance patch covers, and the penalty
 //! measure of a row.
-
-use super::*;
+use super::model::Model;
 use crate::collide::Nearby;
+use crate::fem::compliance::ColumnPolicy;
+use crate::fem::{self, CompliancePatch, ContactAnswer, ContactRow, DeformationSolver, RowKind};
+use crate::scene::Scene;
+use crate::sim::SimError;
+use crate::sim::rows::Row;
+use nalgebra::Vector3;
+use std::sync::Arc;
 
 /// The volume nodes a step's compliance patch covers (`near`) and those
 /// whose columns are computed ahead of contact (`ahead`), gathered from the

@@ -15,21 +15,14 @@
 use super::SimError;
 use super::injury::{InjuryGeometry, InjuryStage};
 use super::local_model::ForceModel;
-use super::rows::{self, Anchors, FreePositions, Row, SKULL_OWNER};
+use super::rows::{self, Anchors, FreePositions, Row};
 use super::snapshot::{Frame, InstrumentReaction, Snapshot, StepTimings};
 use crate::collide::RayBackend;
-use crate::collide::brute::BruteForce;
-use crate::collide::bvh::{Bvh, BvhView};
-use crate::collide::contact::{self, ContactOutput, ContactRule, DetectOptions, Tool, Workspace};
-use crate::collide::history::Stage;
-use crate::collide::instrument::{Instrument, RimNodes};
+use crate::collide::bvh::Bvh;
+use crate::collide::contact::{self, ContactOutput};
 use crate::fem::compliance::ColumnPolicy;
-use crate::fem::{self, CompliancePatch, ContactAnswer, ContactRow, DeformationSolver, RowKind};
-use crate::mesh::{BoundarySurface, TetMesh};
-use crate::scene::{
-    CollisionBackend, CollisionMethod, ContactGeometry, ContactLaw, HistoryMode, ModelSpec, Region,
-    Scene,
-};
+use crate::fem::{self, CompliancePatch, RowKind};
+use crate::scene::{HistoryMode, Scene};
 use faer::Par;
 use nalgebra::{Isometry3, Point3, Vector3};
 use std::sync::Arc;
@@ -44,11 +37,11 @@ pub mod query;
 pub mod rules;
 pub mod ties;
 
-pub use deform::*;
-pub use model::*;
-pub use query::*;
-pub use rules::*;
-pub use ties::*;
+pub use deform::{Deformer, PatchNodes, penalty};
+pub use model::{Model, RestContact};
+pub use query::{ContactQuery, SurfaceBvhs, detect_options, ray_backend, scene_bvh};
+pub use rules::{RowRule, SkullRows};
+pub use ties::{TEAR_ROUNDS, TieCuts, TieStage, TiesAtStep};
 
 /// What one deformation step did, beyond the snapshot it publishes.
 #[derive(Debug, Clone, Default)]
@@ -248,6 +241,15 @@ impl StepEngine {
     /// `poses[i]` with the force loop's history `histories[i]` (force-rate
     /// mode; `None`: an instrument at home, or the paper's mode, uses the
     /// step's own history).
+    ///
+    /// The stages, in order: [`collide`] (every instrument's query at its
+    /// pose) and its [`RowRule`] rows; [`Self::join_rows`] (the skull's and
+    /// the ties' rows, the warm start); [`Self::solve_contact`] (the
+    /// contact problem to its fixed point: skull rounds, searches on the
+    /// solved shape, tears); [`Self::refresh`] (multipliers, anchors, the
+    /// new surface and its tree, the force loops' compliance patch); and
+    /// [`Self::snapshot`]. A failed solve publishes the last good state
+    /// ([`Snapshot::failed`]).
     pub fn step(
         &mut self,
         prev: &Snapshot,
@@ -260,150 +262,45 @@ impl StepEngine {
         let frame = self.next_frame;
         self.next_frame += 1;
         let paper_mode = self.scene.collision.history == HistoryMode::PaperFaithful;
-        let own: Vec<bool> = histories
-            .iter()
-            .map(|h| paper_mode || h.is_none())
-            .collect();
-        let mut step_histories: Vec<History> = histories
-            .into_iter()
-            .enumerate()
-            .map(|(i, h)| match h {
-                Some(h) if !paper_mode => h,
-                _ => self.paper_history[i].clone(),
-            })
-            .collect();
+
         let t0 = Instant::now();
-        let contacts = tracing::debug_span!("collision").in_scope(|| {
-            self.query
-                .query_all(&model, prev, poses, &mut step_histories)
+        let collision = tracing::debug_span!("collision").in_scope(|| {
+            collide(
+                &mut self.query,
+                &mut self.paper_history,
+                paper_mode,
+                &model,
+                prev,
+                poses,
+                histories,
+            )
         });
-        let mut after = step_histories.clone();
-        for (i, h) in step_histories.into_iter().enumerate() {
-            if own[i] {
-                self.paper_history[i] = h;
-            }
-        }
         let collision_us = t0.elapsed().as_secs_f64() * 1e6;
         let t1 = Instant::now();
-        // Rows: the instruments', then the skull's.
         self.rows.clear();
         self.rule.rows(
             &model,
-            contacts,
+            collision.contacts,
             &FreePositions::Rest(&model.mesh.nodes),
             &prev.displacements,
             &self.anchors,
             poses,
             &mut self.rows,
         );
-        let last = prev.force_model.clone();
         let mut n_instrument_rows = self.rows.len();
-        // What the snapshot needs of the collision output.
-        let counts: Vec<(u32, u32)> = (0..model.instruments.len())
-            .map(|k| {
-                let pairs = contacts.pairs_of(k as u16).count() as u32;
-                let culled = contacts
-                    .cancelled
-                    .iter()
-                    .filter(|p| p.instrument as usize == k)
-                    .count() as u32;
-                (pairs, culled)
-            })
-            .collect();
-        let nearby = contacts.nearby.clone();
-        if let Some(skull) = &self.skull {
-            skull.rows(&model, &prev.displacements, &[], &mut self.rows);
-        }
-        // The intact ties' rows, less those the blades cut since the last
-        // step.
-        self.ties.take_cuts(&model, sim_time_s);
-        self.ties_into_problem(&model);
-        // Warm start from the last step's multipliers, by key.
-        self.warm.clear();
-        self.warm.extend(
-            self.rows
-                .iter()
-                .map(|r| last.step_multiplier(r.key).unwrap_or(0.0)),
-        );
-        let mut rounds = 0;
-        let mut searches = 0;
-        let mut tear_rounds = 0;
-        let tips = tips_of(&self.scene, poses);
-        let result = 'tear: loop {
-            let solved = loop {
-                rounds += 1;
-                if let Err(e) = self.deformer.solve(&self.rows, &self.warm) {
-                    break Err(e);
-                }
-                // Skull nodes leaving the sphere join the problem.
-                if let Some(skull) = &self.skull {
-                    let u = self.deformer.displacements();
-                    skull.violations(
-                        &model,
-                        u,
-                        &self.rows,
-                        1e-9 * skull.band_m.max(1e-6),
-                        &mut self.extra,
-                    );
-                    if !self.extra.is_empty() && rounds < SKULL_ROUNDS {
-                        let extra = std::mem::take(&mut self.extra);
-                        let u = self.deformer.displacements().to_vec();
-                        skull.rows(&model, &u, &extra, &mut self.rows);
-                        self.extra = extra;
-                        self.warm = self.deformer.answer().multipliers.clone();
-                        self.warm.resize(self.rows.len(), 0.0);
-                        continue;
-                    }
-                }
-                // Contact search on the solved shape: rows a query at the
-                // step's poses finds there that the solution violates (tissue
-                // the plate now pierces elsewhere) join the problem.
-                // (None for a linearized contact: its rows do not depend on
-                // the shape.)
-                if model.contact_rest.is_none() && searches < CONTACT_SEARCHES {
-                    searches += 1;
-                    if self.search_solved(&model, poses, &after, &mut n_instrument_rows) {
-                        continue;
-                    }
-                }
-                break Ok(());
-            };
-            if solved.is_err() || !self.ties.tears() {
-                break solved;
-            }
-            // Ties stretched to their rupture tear, and the step solves again
-            // without them (the load they carried passes to the others).
-            // Only an instrument that pushes the tissue can tear a tie.
-            let mut pushing = vec![false; tips.len()];
-            for (r, &l) in self.rows.iter().zip(&self.deformer.answer().multipliers) {
-                if l != 0.0 {
-                    if let Some(p) = pushing.get_mut(r.owner as usize) {
-                        *p = true;
-                    }
-                }
-            }
-            let torn = self.ties.tear(
-                &model,
-                self.deformer.displacements(),
-                &tips,
-                &pushing,
-                sim_time_s,
-            );
-            if !torn || tear_rounds >= TEAR_ROUNDS {
-                break 'tear solved;
-            }
-            tear_rounds += 1;
-            let old = self.multipliers_by_key();
-            self.rows.retain(|r| r.owner != rows::TIE_OWNER);
-            self.ties_into_problem(&model);
-            self.warm_from(&old);
-        };
+        let counts = contact_counts(collision.contacts, model.instruments.len());
+        let nearby = collision.contacts.nearby.clone();
+        let Collision { mut after, own, .. } = collision;
+
+        self.join_rows(&model, prev, sim_time_s);
+        let (result, rounds) =
+            self.solve_contact(&model, poses, &after, &mut n_instrument_rows, sim_time_s);
         let solve_us = t1.elapsed().as_secs_f64() * 1e6;
         tracing::debug!(
             frame,
-            solves = rounds,
-            searches,
-            tear_rounds,
+            solves = rounds.solves,
+            searches = rounds.searches,
+            tear_rounds = rounds.tears,
             rows = self.rows.len(),
             solve_us,
             "step solved"
@@ -424,6 +321,167 @@ impl StepEngine {
             );
             return (failed, None);
         }
+
+        let fresh = self.refresh(
+            &model,
+            prev,
+            poses,
+            &own,
+            &mut after,
+            &nearby,
+            n_instrument_rows,
+        );
+        let report = StepReport {
+            rows: self.rows.len(),
+            pending: fresh.pending.len(),
+            iterations: fresh.iterations,
+            rounds: rounds.solves,
+            check: fresh.check,
+            patch_nodes: fresh.patch.patch.nodes.len(),
+            cache_bytes: self.deformer.cache_bytes(),
+        };
+        let total_us = started.elapsed().as_secs_f64() * 1e6;
+        let snap = self.snapshot(
+            frame,
+            sim_time_s,
+            &counts,
+            poses,
+            fresh.surface,
+            fresh.surface_bvh,
+            fresh.displacements,
+            fresh.patch,
+            &fresh.pending,
+            timings(total_us),
+        );
+        (snap, Some(report))
+    }
+
+    /// The rows that join the instruments' (the step's second stage): the
+    /// skull's, then the intact ties' less those the blades cut since the
+    /// last step; and the warm start of them all, each row's multiplier of
+    /// the last step by key.
+    fn join_rows(&mut self, model: &Model, prev: &Snapshot, sim_time_s: f64) {
+        if let Some(skull) = &self.skull {
+            skull.rows(model, &prev.displacements, &[], &mut self.rows);
+        }
+        self.ties.take_cuts(model, sim_time_s);
+        self.ties_into_problem(model);
+        let last = &prev.force_model;
+        self.warm.clear();
+        self.warm.extend(
+            self.rows
+                .iter()
+                .map(|r| last.step_multiplier(r.key).unwrap_or(0.0)),
+        );
+    }
+
+    /// The contact problem to its fixed point (the step's third stage):
+    /// solve; skull nodes leaving the sphere join and it solves again (at
+    /// most [`SKULL_ROUNDS`] solves); a search on the solved shape adds the
+    /// rows it finds violated (at most [`CONTACT_SEARCHES`]); then ties
+    /// stretched to their rupture tear and it starts over without them (at
+    /// most [`TEAR_ROUNDS`] times). `after`: the histories after the
+    /// step's query.
+    fn solve_contact(
+        &mut self,
+        model: &Model,
+        poses: &[Isometry3<f64>],
+        after: &[History],
+        n_instrument_rows: &mut usize,
+        sim_time_s: f64,
+    ) -> (Result<(), fem::SolveError>, Rounds) {
+        let mut rounds = Rounds::default();
+        let tips = tips_of(&self.scene, poses);
+        let result = 'tear: loop {
+            let solved = loop {
+                rounds.solves += 1;
+                if let Err(e) = self.deformer.solve(&self.rows, &self.warm) {
+                    break Err(e);
+                }
+                // Skull nodes leaving the sphere join the problem.
+                if let Some(skull) = &self.skull {
+                    let u = self.deformer.displacements();
+                    skull.violations(
+                        model,
+                        u,
+                        &self.rows,
+                        1e-9 * skull.band_m.max(1e-6),
+                        &mut self.extra,
+                    );
+                    if !self.extra.is_empty() && rounds.solves < SKULL_ROUNDS {
+                        let extra = std::mem::take(&mut self.extra);
+                        let u = self.deformer.displacements().to_vec();
+                        skull.rows(model, &u, &extra, &mut self.rows);
+                        self.extra = extra;
+                        self.warm = self.deformer.answer().multipliers.clone();
+                        self.warm.resize(self.rows.len(), 0.0);
+                        continue;
+                    }
+                }
+                // Contact search on the solved shape: rows a query at the
+                // step's poses finds there that the solution violates (tissue
+                // the plate now pierces elsewhere) join the problem.
+                // (None for a linearized contact: its rows do not depend on
+                // the shape.)
+                if model.contact_rest.is_none() && rounds.searches < CONTACT_SEARCHES {
+                    rounds.searches += 1;
+                    if self.search_solved(model, poses, after, n_instrument_rows) {
+                        continue;
+                    }
+                }
+                break Ok(());
+            };
+            if solved.is_err() || !self.ties.tears() {
+                break solved;
+            }
+            // Ties stretched to their rupture tear, and the step solves again
+            // without them (the load they carried passes to the others).
+            // Only an instrument that pushes the tissue can tear a tie.
+            let mut pushing = vec![false; tips.len()];
+            for (r, &l) in self.rows.iter().zip(&self.deformer.answer().multipliers) {
+                if l != 0.0 {
+                    if let Some(p) = pushing.get_mut(r.owner as usize) {
+                        *p = true;
+                    }
+                }
+            }
+            let torn = self.ties.tear(
+                model,
+                self.deformer.displacements(),
+                &tips,
+                &pushing,
+                sim_time_s,
+            );
+            if !torn || rounds.tears >= TEAR_ROUNDS {
+                break 'tear solved;
+            }
+            rounds.tears += 1;
+            let old = self.multipliers_by_key();
+            self.rows.retain(|r| r.owner != rows::TIE_OWNER);
+            self.ties_into_problem(model);
+            self.warm_from(&old);
+        };
+        (result, rounds)
+    }
+
+    /// What a solved step publishes (its fourth stage): the multipliers
+    /// (penalties for rows whose compliance is pending), the paper
+    /// histories' seeds, friction's anchors, the displacements, the new
+    /// surface and its tree, and the force loops' compliance patch, which
+    /// covers the rows a query at the step's poses finds on the new
+    /// surface too (`after`: the histories after the step's query; `own`:
+    /// the instruments whose history is the step's own).
+    #[allow(clippy::too_many_arguments)]
+    fn refresh(
+        &mut self,
+        model: &Model,
+        prev: &Snapshot,
+        poses: &[Isometry3<f64>],
+        own: &[bool],
+        after: &mut [History],
+        nearby: &[contact::Nearby],
+        n_instrument_rows: usize,
+    ) -> Refreshed {
         let answer = self.deformer.answer();
         self.lambda.clear();
         self.lambda.extend_from_slice(&answer.multipliers);
@@ -441,14 +499,14 @@ impl StepEngine {
         // Rows whose node has no compliance yet: a penalty at the tissue's
         // present shape.
         for &p in &answer.pending {
-            self.lambda[p as usize] = penalty(&model, &self.rows[p as usize], &prev.displacements);
+            self.lambda[p as usize] = penalty(model, &self.rows[p as usize], &prev.displacements);
         }
         let pending = answer.pending.clone();
         let check = answer.report;
         let iterations = self.deformer.iterations();
         let displacements = Arc::new(self.deformer.displacements().to_vec());
         if self.rule.friction.is_some() {
-            self.update_anchors(&model, poses, &displacements, n_instrument_rows);
+            self.update_anchors(model, poses, &displacements, n_instrument_rows);
         }
         // The new surface and its tree; the force loops query it, so the
         // patch covers the rows a query at the step's poses finds on it too.
@@ -462,15 +520,15 @@ impl StepEngine {
         let mut selection = deform::PatchNodes::default();
         let band2 = 2.0 * self.scene.contact.band_m;
         selection.add_rows(&self.rows);
-        selection.add_nearby(&nearby, band2);
+        selection.add_nearby(nearby, band2);
         // (A linearized contact finds the same rows on any shape.)
         if model.contact_rest.is_none() {
-            let post =
-                self.query
-                    .query_all_on(&model, &surface, surface_bvh.as_ref(), poses, &mut after);
+            let post = self
+                .query
+                .query_all_on(model, &surface, surface_bvh.as_ref(), poses, after);
             let mut post_rows = Vec::new();
             self.rule.rows(
-                &model,
+                model,
                 post,
                 &FreePositions::Rest(&model.mesh.nodes),
                 &prev.displacements,
@@ -481,7 +539,7 @@ impl StepEngine {
             selection.add_rows(&post_rows);
             selection.add_nearby(&post.nearby, band2);
         }
-        let (patch_nodes, ahead) = selection.finish(&model);
+        let (patch_nodes, ahead) = selection.finish(model);
         let patch = self.deformer.patch(&patch_nodes);
         self.deformer.prefetch(&ahead);
         let has_patch = patch.is_some();
@@ -490,33 +548,19 @@ impl StepEngine {
         for (i, &v) in patch.nodes.iter().enumerate() {
             patch_index[v as usize] = i as u32;
         }
-        let report = StepReport {
-            rows: self.rows.len(),
-            pending: pending.len(),
-            iterations,
-            rounds,
-            check,
-            patch_nodes: patch.nodes.len(),
-            cache_bytes: self.deformer.cache_bytes(),
-        };
-        let total_us = started.elapsed().as_secs_f64() * 1e6;
-        let snap = self.snapshot(
-            frame,
-            sim_time_s,
-            &counts,
-            poses,
+        Refreshed {
+            displacements,
             surface,
             surface_bvh,
-            displacements,
-            ForcePatch {
+            patch: ForcePatch {
                 patch,
                 patch_index: Arc::new(patch_index),
                 has_patch,
             },
-            &pending,
-            timings(total_us),
-        );
-        (snap, Some(report))
+            pending,
+            check,
+            iterations,
+        }
     }
 
     /// The contact geometry's fixed point, one round of [`Self::step`]:
@@ -782,6 +826,93 @@ impl StepEngine {
             summary,
         )
     }
+}
+
+/// The step's first stage: every instrument's query at `poses[i]` on
+/// `prev`'s shape. Instrument `i` uses the force loop's history
+/// `histories[i]` (force-rate mode) or, in the paper's mode or with
+/// `None`, the step's own (`paper_history[i]`, which this updates).
+fn collide<'q>(
+    query: &'q mut ContactQuery,
+    paper_history: &mut [History],
+    paper_mode: bool,
+    model: &Model,
+    prev: &Snapshot,
+    poses: &[Isometry3<f64>],
+    histories: Vec<Option<History>>,
+) -> Collision<'q> {
+    let own: Vec<bool> = histories
+        .iter()
+        .map(|h| paper_mode || h.is_none())
+        .collect();
+    let mut step_histories: Vec<History> = histories
+        .into_iter()
+        .enumerate()
+        .map(|(i, h)| match h {
+            Some(h) if !paper_mode => h,
+            _ => paper_history[i].clone(),
+        })
+        .collect();
+    let contacts = query.query_all(model, prev, poses, &mut step_histories);
+    let after = step_histories.clone();
+    for (i, h) in step_histories.into_iter().enumerate() {
+        if own[i] {
+            paper_history[i] = h;
+        }
+    }
+    Collision {
+        contacts,
+        after,
+        own,
+    }
+}
+
+/// What [`collide`] found.
+struct Collision<'q> {
+    /// The query's output (rows, pairs, nearby vertices).
+    contacts: &'q ContactOutput,
+    /// Every instrument's history after the query.
+    after: Vec<History>,
+    /// Whether instrument `i`'s history is the step's own.
+    own: Vec<bool>,
+}
+
+/// Each instrument's collision pairs and culled pairs.
+fn contact_counts(contacts: &ContactOutput, instruments: usize) -> Vec<(u32, u32)> {
+    (0..instruments)
+        .map(|k| {
+            let pairs = contacts.pairs_of(k as u16).count() as u32;
+            let culled = contacts
+                .cancelled
+                .iter()
+                .filter(|p| p.instrument as usize == k)
+                .count() as u32;
+            (pairs, culled)
+        })
+        .collect()
+}
+
+/// The solves of one step's contact problem.
+#[derive(Debug, Clone, Copy, Default)]
+struct Rounds {
+    /// Solves in all.
+    solves: u32,
+    /// Searches on a solved shape.
+    searches: u32,
+    /// Rounds that tore ties.
+    tears: u32,
+}
+
+/// What [`StepEngine::refresh`] publishes of a solved step.
+struct Refreshed {
+    displacements: Arc<Vec<Vector3<f64>>>,
+    surface: Arc<Vec<Point3<f64>>>,
+    surface_bvh: Option<Arc<Bvh>>,
+    patch: ForcePatch,
+    /// Rows answered by a penalty.
+    pending: Vec<u32>,
+    check: fem::lcp::Report,
+    iterations: u32,
 }
 
 /// The instruments' tips (`+z` of the plate frame at its length from the

@@ -1,8 +1,21 @@
 //! The model of a scene: the mesh, its surface, the fixed set, the
 //! instruments (built from the scene's shapes and layouts) and the rest-shape
 //! contact search's tree.
-
-use super::*;
+use super::History;
+use crate::collide::bvh::Bvh;
+use crate::collide::contact;
+use crate::collide::instrument::{Instrument, RimNodes};
+use crate::fem;
+use crate::mesh::{BoundarySurface, TetMesh};
+use crate::scene::{
+    CollisionBackend, CollisionMethod, ContactGeometry, HistoryMode, ModelSpec, Region, Scene,
+};
+use crate::sim::SimError;
+use crate::sim::local_model::ForceModel;
+use crate::sim::rows::Anchors;
+use crate::sim::snapshot::{Frame, InstrumentReaction, Snapshot, StepTimings};
+use nalgebra::{Point3, Vector3};
+use std::sync::Arc;
 
 /// The immutable model of a scene.
 #[derive(Debug)]

@@ -1,8 +1,18 @@
 //! The collision stage of each loop: the ray backend a scene asks for, the
 //! published surface trees, and [`ContactQuery`], one loop's contact search
 //! over a snapshot.
-
-use super::*;
+use super::History;
+use super::model::Model;
+use crate::collide::brute::BruteForce;
+use crate::collide::bvh::{Bvh, BvhView};
+use crate::collide::contact::{ContactOutput, ContactRule, DetectOptions, Tool, Workspace};
+use crate::collide::history::Stage;
+use crate::collide::{RayBackend, contact};
+use crate::scene::{CollisionBackend, CollisionMethod, ContactGeometry, ContactLaw, Scene};
+use crate::sim::snapshot::Snapshot;
+use faer::Par;
+use nalgebra::{Isometry3, Point3};
+use std::sync::Arc;
 
 /// A CPU BVH over a surface the model checked at load (`triangles` at
 /// `positions`), walking parallel rays as the scene's `collision.traversal`
