@@ -30,7 +30,7 @@ use crate::replay::{connect, haptic_request};
 use anyhow::Context;
 use fissure_engine::scene::Scene;
 use fissure_engine::sim::stats::percentile;
-use fissure_engine::sim::{SimOptions, Simulation};
+use fissure_engine::sim::{Mode, SimOptions, Simulation};
 use fissure_proto::v1 as pb;
 use fissure_server::{ServeOptions, serve};
 use std::time::{Duration, Instant};
@@ -289,7 +289,7 @@ pub async fn run(args: &BridgeBenchArgs) -> anyhow::Result<BridgeBenchReport> {
     for path in &paths {
         let (scene, _) = Scene::load(scene_name)?;
         let options = SimOptions {
-            stepped: Some(false),
+            mode: Some(Mode::FreeRunning),
             ..SimOptions::default()
         };
         let sim = tokio::task::spawn_blocking(move || Simulation::start(scene, options)).await??;

@@ -24,7 +24,7 @@ use crate::trajectory::{BUNDLED, Trajectory, Waypoint};
 use anyhow::{Context, bail};
 use fissure_engine::scene::{Scene, Traversal};
 use fissure_engine::sim::stats::percentile;
-use fissure_engine::sim::{SimOptions, Simulation, priority};
+use fissure_engine::sim::{Mode, SimOptions, Simulation, priority};
 use fissure_proto::v1 as pb;
 use fissure_server::{ServeOptions, Transport};
 use std::sync::Arc;
@@ -291,7 +291,7 @@ pub async fn run(args: &LoopBenchArgs) -> anyhow::Result<LoopBenchReport> {
         );
     }
     let options = SimOptions {
-        stepped: Some(false),
+        mode: Some(Mode::FreeRunning),
         max_watchers: args.watchers + 1,
         force_loop_rt_priority: args.rt_priority,
         ..SimOptions::default()

@@ -24,7 +24,7 @@ use crate::watch::ColourBy;
 use anyhow::{Context, bail};
 use fissure_engine::scene::Scene;
 use fissure_engine::sim::stats::percentile;
-use fissure_engine::sim::{SimOptions, Simulation};
+use fissure_engine::sim::{Mode, SimOptions, Simulation};
 use fissure_proto::v1 as pb;
 use fissure_server::recording::ToFile;
 use fissure_server::{ServeOptions, serve};
@@ -209,8 +209,9 @@ pub async fn run(args: &DemoArgs) -> anyhow::Result<DemoReport> {
         .with_context(|| format!("creating {}", args.out.display()))?;
     let recording = args.out.join("session.fsrec");
     let options = SimOptions {
-        stepped: Some(true),
-        stepped_clients: plans.len(),
+        mode: Some(Mode::Stepped {
+            clients: plans.len(),
+        }),
         recording: Some(ToFile::open_at(&recording)),
         max_watchers: 4,
         ..SimOptions::default()

@@ -24,7 +24,7 @@ use fissure_cli::bridge::{
 };
 use fissure_engine::scene::Scene;
 use fissure_engine::sim::stepped::home_pose;
-use fissure_engine::sim::{SimOptions, Simulation};
+use fissure_engine::sim::{Mode, SimOptions, Simulation};
 use fissure_server::{RunningServer, ServeOptions, serve};
 use nalgebra::{Isometry3, Translation3, Vector3};
 use std::sync::Arc;
@@ -53,8 +53,7 @@ async fn start_server() -> anyhow::Result<Server> {
     let scene = Scene::parse(&text, "test")?;
     let home = home_pose(&scene, 0);
     let options = SimOptions {
-        stepped: Some(true),
-        stepped_clients: 1,
+        mode: Some(Mode::Stepped { clients: 1 }),
         ..SimOptions::default()
     };
     let sim = tokio::task::spawn_blocking(move || Simulation::start(scene, options)).await??;

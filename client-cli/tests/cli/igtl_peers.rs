@@ -14,7 +14,7 @@ use fissure_cli::bridge::igtl::codec::{
 };
 use fissure_cli::bridge::igtl::{IgtlBridge, IgtlOptions, IgtlStats, Registration};
 use fissure_engine::scene::Scene;
-use fissure_engine::sim::{SimOptions, Simulation};
+use fissure_engine::sim::{Mode, SimOptions, Simulation};
 use fissure_server::{RunningServer, ServeOptions, serve};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -33,8 +33,11 @@ struct Server {
 async fn start_server(stepped: bool) -> anyhow::Result<Server> {
     let (scene, _) = Scene::load("cube")?;
     let options = SimOptions {
-        stepped: Some(stepped),
-        stepped_clients: 1,
+        mode: Some(if stepped {
+            Mode::Stepped { clients: 1 }
+        } else {
+            Mode::FreeRunning
+        }),
         ..SimOptions::default()
     };
     let sim = tokio::task::spawn_blocking(move || Simulation::start(scene, options)).await??;

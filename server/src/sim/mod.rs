@@ -22,7 +22,7 @@
 //! * **Stepped mode** ([`stepped`]) makes runs reproducible: one thread runs
 //!   a [`stepped::SteppedRunner`], which answers the poses of each time
 //!   together once every claimed instrument has sent its next pose (and at
-//!   least [`SimOptions::stepped_clients`] have been claimed): deformation
+//!   least the [`Mode::Stepped`] clients have been claimed): deformation
 //!   step `k` happens at `t_k = t_0 + k dt` (`t_0` the session's first pose
 //!   time) with, per instrument, the latest pose with `t <= t_k`; a force
 //!   sample at pose time `t` uses the last step strictly before `t`. Columns
@@ -85,15 +85,45 @@ pub mod flags {
     pub const VESSEL_TORN: u32 = 128;
 }
 
+/// How a simulation's loops advance.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Mode {
+    /// Each instrument's force loop answers its poses as they come, on its
+    /// own thread; the deformation loop steps whenever a pose changed and
+    /// the interval has passed (real time).
+    FreeRunning,
+    /// Reproducible: one thread answers the poses of each time step in
+    /// order and runs the steps at their simulation times
+    /// ([`stepped::SteppedRunner`]). The first step waits until `clients`
+    /// instruments have been claimed, so that runs with several clients
+    /// are reproducible whatever order they connect in.
+    Stepped {
+        /// Instruments claimed before the first step (at least 1).
+        clients: usize,
+    },
+}
+
+impl Mode {
+    /// Whether this is [`Mode::Stepped`].
+    pub fn is_stepped(self) -> bool {
+        matches!(self, Mode::Stepped { .. })
+    }
+
+    /// The scene's own mode (`[loops] stepped`), with one client.
+    pub fn of(scene: &Scene) -> Self {
+        if scene.loops.stepped {
+            Mode::Stepped { clients: 1 }
+        } else {
+            Mode::FreeRunning
+        }
+    }
+}
+
 /// Options of a simulation beyond the scene file.
 #[derive(Debug, Clone)]
 pub struct SimOptions {
-    /// Override of the scene's stepped mode.
-    pub stepped: Option<bool>,
-    /// In stepped mode, the number of instruments that must have been claimed
-    /// before the first step runs (so that runs with several clients are
-    /// reproducible whatever order they connect in).
-    pub stepped_clients: usize,
+    /// Override of the scene's mode (`None`: [`Mode::of`] the scene).
+    pub mode: Option<Mode>,
     /// Where the session is recorded, if anywhere: opened once the model is
     /// built ([`journal`]).
     pub recording: Option<Arc<dyn journal::OpenJournal>>,
@@ -115,8 +145,7 @@ pub const DEFAULT_DEFORMATION_NICE: i32 = 10;
 impl Default for SimOptions {
     fn default() -> Self {
         Self {
-            stepped: None,
-            stepped_clients: 1,
+            mode: None,
             recording: None,
             max_watchers: 16,
             deformation_nice: DEFAULT_DEFORMATION_NICE,
@@ -235,7 +264,7 @@ impl Reply {
 #[derive(Default)]
 struct InstrumentInput {
     claimed: bool,
-    /// Ever claimed (stepped mode counts these).
+    /// Ever claimed ([`Mode::Stepped`] counts these).
     ever_claimed: bool,
     /// Free-running: the latest accepted pose and the force-rate history
     /// after it.
@@ -264,7 +293,7 @@ struct SharedRows {
 pub struct Simulation {
     scene: Scene,
     model: Arc<Model>,
-    stepped: bool,
+    mode: Mode,
     options: SimOptions,
     snapshot: RwLock<Arc<Snapshot>>,
     frames: tokio::sync::watch::Sender<Arc<Frame>>,
@@ -311,7 +340,8 @@ impl Simulation {
         let loading = Instant::now();
         crate::progress::stage(format_args!("scene {}: building the model", scene.name));
         let model = Arc::new(Model::build(&scene)?);
-        let stepped = options.stepped.unwrap_or(scene.loops.stepped);
+        let mode = options.mode.unwrap_or_else(|| Mode::of(&scene));
+        let stepped = mode.is_stepped();
         // The scene as run: GetScene and the recording header report the
         // effective mode, not the file's.
         scene.loops.stepped = stepped;
@@ -362,7 +392,7 @@ impl Simulation {
         let (frames, _) = tokio::sync::watch::channel(rest.frame_summary.clone());
         let sim = Arc::new(Self {
             model: model.clone(),
-            stepped,
+            mode,
             options,
             snapshot: RwLock::new(rest.clone()),
             frames,
@@ -433,9 +463,15 @@ impl Simulation {
         &self.model
     }
 
-    /// Whether deformation steps follow pose timestamps.
+    /// How the loops advance (the options' mode, else the scene's).
+    pub fn mode(&self) -> Mode {
+        self.mode
+    }
+
+    /// Whether deformation steps follow pose timestamps
+    /// ([`Mode::Stepped`]).
     pub fn is_stepped(&self) -> bool {
-        self.stepped
+        self.mode.is_stepped()
     }
 
     /// The latest snapshot.
@@ -497,7 +533,7 @@ impl Simulation {
             name: name.to_owned(),
             last: None,
             resets_seen: self.resets.lock().expect("resets lock").0,
-            force_loop: (!self.stepped)
+            force_loop: (!self.is_stepped())
                 .then(|| ForceLoop::new(&self.scene, &self.model, index, None)),
             held: Vec::new(),
             reply: Arc::new(Reply::default()),
@@ -790,7 +826,11 @@ impl Simulation {
                         .per_instrument
                         .iter()
                         .any(|s| !s.claimed && !s.queue.is_empty());
-                    if ever >= self.options.stepped_clients.max(1) && ((any && all) || leftover) {
+                    let clients = match self.mode {
+                        Mode::Stepped { clients } => clients.max(1),
+                        Mode::FreeRunning => 1,
+                    };
+                    if ever >= clients && ((any && all) || leftover) {
                         break;
                     }
                     inputs = self.inputs_changed.wait(inputs).expect("inputs lock");
@@ -948,7 +988,7 @@ impl Claim {
                 jump = flags::POSE_JUMP;
             }
         }
-        let mut out = if sim.stepped {
+        let mut out = if sim.is_stepped() {
             self.stepped_sample(&pose)?
         } else {
             self.free_sample(&pose, t_start)

@@ -2,7 +2,7 @@
 //! server on the `cube` scene.
 
 use fissure_cli::bridge::{Bridge, FORCE_LEN, decode_force, encode_pose};
-use fissure_engine::sim::SimOptions;
+use fissure_engine::sim::{Mode, SimOptions};
 use fissure_server::ServeOptions;
 use fissure_tests::{Haptic, TestServer, pose};
 use std::time::Duration;
@@ -15,8 +15,7 @@ const TOUCH_Z: f64 = 0.04 + 0.00075;
 
 fn stepped() -> SimOptions {
     SimOptions {
-        stepped: Some(true),
-        stepped_clients: 1,
+        mode: Some(Mode::Stepped { clients: 1 }),
         ..SimOptions::default()
     }
 }

@@ -5,15 +5,16 @@
 
 use fissure_cli::replay::{ForceRow, Pacing, replay};
 use fissure_cli::trajectory::{Trajectory, bundled_for};
-use fissure_engine::sim::SimOptions;
+use fissure_engine::sim::{Mode, SimOptions};
 use fissure_server::ServeOptions;
 use fissure_tests::TestServer;
 
 /// Replays `names` (bundled, one per instrument) together on `scene`.
 async fn run(scene: &str, names: &[(&str, &str)]) -> anyhow::Result<Vec<Vec<ForceRow>>> {
     let options = SimOptions {
-        stepped: Some(true),
-        stepped_clients: names.len(),
+        mode: Some(Mode::Stepped {
+            clients: names.len(),
+        }),
         ..SimOptions::default()
     };
     let server = TestServer::start(scene, options, ServeOptions::default()).await?;

@@ -6,7 +6,7 @@
 use crate::reliability_common::{FLAT_DOWN, HANDLE_Y, LEFT_X, TOUCH_Z};
 use fissure_cli::mesh_cmd::{InspectOptions, convert, inspect};
 use fissure_cli::watch::{WatchArgs, WatchEnd, run};
-use fissure_engine::sim::SimOptions;
+use fissure_engine::sim::{Mode, SimOptions};
 use fissure_server::ServeOptions;
 use fissure_tests::{Haptic, TestServer, pose};
 use std::path::Path;
@@ -194,7 +194,7 @@ async fn a_slow_watcher_stays_current_and_counts_the_frames_it_skipped() -> anyh
     let server = TestServer::start(
         "cube",
         SimOptions {
-            stepped: Some(true),
+            mode: Some(Mode::Stepped { clients: 1 }),
             ..Default::default()
         },
         ServeOptions::default(),

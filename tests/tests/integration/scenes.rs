@@ -2,12 +2,11 @@
 
 use fissure_engine::scene::{EMBEDDED, RoiSpec, Scene};
 use fissure_engine::sim::pose::RawPose;
-use fissure_engine::sim::{SimOptions, Simulation};
+use fissure_engine::sim::{Mode, SimOptions, Simulation};
 
 fn stepped() -> SimOptions {
     SimOptions {
-        stepped: Some(true),
-        stepped_clients: 1,
+        mode: Some(Mode::Stepped { clients: 1 }),
         ..SimOptions::default()
     }
 }

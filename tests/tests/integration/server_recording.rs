@@ -5,7 +5,7 @@
 
 use fissure_cli::replay::{ForceRow, Pacing, connect, replay};
 use fissure_cli::trajectory::Trajectory;
-use fissure_engine::sim::SimOptions;
+use fissure_engine::sim::{Mode, SimOptions};
 use fissure_proto::recording;
 use fissure_proto::v1 as pb;
 use fissure_server::ServeOptions;
@@ -16,8 +16,7 @@ use std::path::Path;
 
 fn stepped(clients: usize, recording: Option<&Path>) -> SimOptions {
     SimOptions {
-        stepped: Some(true),
-        stepped_clients: clients,
+        mode: Some(Mode::Stepped { clients }),
         recording: recording.map(ToFile::open_at),
         ..SimOptions::default()
     }

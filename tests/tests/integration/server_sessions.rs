@@ -4,7 +4,7 @@
 //! the stream and in recordings.
 
 use crate::reliability_common::{FLAT_DOWN, HANDLE_Y, LEFT_X, TOUCH_Z};
-use fissure_engine::sim::SimOptions;
+use fissure_engine::sim::{Mode, SimOptions};
 use fissure_proto::recording;
 use fissure_proto::v1 as pb;
 use fissure_server::ServeOptions;
@@ -42,8 +42,7 @@ async fn press_session(
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn reset_restarts_the_stepped_clock_and_a_pose_behind_it_is_refused() -> anyhow::Result<()> {
     let options = SimOptions {
-        stepped: Some(true),
-        stepped_clients: 1,
+        mode: Some(Mode::Stepped { clients: 1 }),
         ..SimOptions::default()
     };
     let server = TestServer::start("cube", options, ServeOptions::default()).await?;
@@ -104,7 +103,7 @@ async fn frame_numbers_increase_for_the_life_of_the_server() -> anyhow::Result<(
     let dir = tempfile::tempdir()?;
     let path = dir.path().join("frames.fsrec");
     let options = SimOptions {
-        stepped: Some(false),
+        mode: Some(Mode::FreeRunning),
         recording: Some(ToFile::open_at(&path)),
         ..SimOptions::default()
     };

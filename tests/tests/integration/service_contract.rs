@@ -9,7 +9,7 @@ use crate::raw_h2;
 use crate::reliability_common;
 
 use crate::reliability_common::{FLAT_DOWN, HANDLE_Y, LEFT_X, TOUCH_Z};
-use fissure_engine::sim::SimOptions;
+use fissure_engine::sim::{Mode, SimOptions};
 use fissure_proto::v1 as pb;
 use fissure_server::ServeOptions;
 use fissure_tests::{Haptic, TestServer, pose};
@@ -222,7 +222,7 @@ async fn a_stepped_client_far_ahead_of_the_steps_is_held_back_not_disconnected()
     let server = TestServer::start(
         "cube",
         SimOptions {
-            stepped: Some(true),
+            mode: Some(Mode::Stepped { clients: 1 }),
             ..Default::default()
         },
         ServeOptions::default(),

@@ -1,7 +1,7 @@
 //! End to end on the `cube` scene: a pose in, a force out, through every layer.
 
 use fissure_engine::fem;
-use fissure_engine::sim::SimOptions;
+use fissure_engine::sim::{Mode, SimOptions};
 use fissure_server::ServeOptions;
 use fissure_tests::{Haptic, TestServer, pose};
 use nalgebra::Vector3;
@@ -13,8 +13,7 @@ const TOUCH_Z: f64 = 0.04 + 0.00075;
 
 fn stepped() -> SimOptions {
     SimOptions {
-        stepped: Some(true),
-        stepped_clients: 1,
+        mode: Some(Mode::Stepped { clients: 1 }),
         ..SimOptions::default()
     }
 }

@@ -3,7 +3,7 @@
 //! the process's resident memory, which tests running beside it would disturb.
 
 use crate::reliability_common::*;
-use fissure_engine::sim::SimOptions;
+use fissure_engine::sim::{Mode, SimOptions};
 use fissure_proto::v1 as pb;
 use fissure_server::ServeOptions;
 use fissure_tests::TestServer;
@@ -28,7 +28,7 @@ async fn watchers_that_never_read_do_not_grow_memory() -> anyhow::Result<()> {
     // measured run, however loaded the machine.
     let options = SimOptions {
         max_watchers: 17,
-        stepped: Some(true),
+        mode: Some(Mode::Stepped { clients: 1 }),
         ..SimOptions::default()
     };
     let server = TestServer::start_scene(scene, options, ServeOptions::default()).await?;

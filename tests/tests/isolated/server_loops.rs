@@ -5,7 +5,7 @@
 use fissure_cli::replay::{ForceRow, Pacing, connect, replay};
 use fissure_cli::trajectory::Trajectory;
 use fissure_engine::scene::{ModelSpec, Scene, Strategy};
-use fissure_engine::sim::{SimOptions, flags};
+use fissure_engine::sim::{Mode, SimOptions, flags};
 use fissure_proto::recording;
 use fissure_proto::v1 as pb;
 use fissure_server::ServeOptions;
@@ -21,7 +21,7 @@ const TOUCH_Z: f64 = 0.04 + 0.00075;
 
 fn free_running() -> SimOptions {
     SimOptions {
-        stepped: Some(false),
+        mode: Some(Mode::FreeRunning),
         ..SimOptions::default()
     }
 }
@@ -327,8 +327,9 @@ async fn stepped_session(
     trajectories: &[(&str, Trajectory)],
 ) -> anyhow::Result<Vec<(String, Vec<ForceRow>)>> {
     let options = SimOptions {
-        stepped: Some(true),
-        stepped_clients: trajectories.len(),
+        mode: Some(Mode::Stepped {
+            clients: trajectories.len(),
+        }),
         recording: Some(ToFile::open_at(path)),
         ..SimOptions::default()
     };

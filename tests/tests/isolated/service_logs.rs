@@ -6,7 +6,7 @@
 use crate::raw_h2;
 
 use crate::reliability_common::{FLAT_DOWN, HANDLE_Y, LEFT_X, TOUCH_Z, cube_scene};
-use fissure_engine::sim::SimOptions;
+use fissure_engine::sim::{Mode, SimOptions};
 use fissure_proto::v1 as pb;
 use fissure_server::{MAX_UNREAD_ANSWERS, ServeOptions};
 use fissure_tests::{Haptic, TestServer, pose, wait_until_claimed};
@@ -254,7 +254,7 @@ async fn a_stepped_replay_slower_than_real_time_is_warned_once_with_its_ratio() 
         ),
     ]);
     let options = SimOptions {
-        stepped: Some(true),
+        mode: Some(Mode::Stepped { clients: 1 }),
         ..SimOptions::default()
     };
     let server = TestServer::start_scene(scene, options, ServeOptions::default()).await?;

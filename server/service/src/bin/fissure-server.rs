@@ -3,7 +3,7 @@
 use anyhow::{Context, bail};
 use clap::Parser;
 use fissure_engine::scene::{DEFAULT_SCENE, Scene};
-use fissure_engine::sim::{SimOptions, Simulation};
+use fissure_engine::sim::{Mode, SimOptions, Simulation};
 use fissure_server::recording::ToFile;
 use fissure_server::{ServeOptions, Transport};
 use std::net::SocketAddr;
@@ -41,7 +41,8 @@ struct Args {
     /// Run deformation steps on pose timestamps (deterministic), overriding the scene.
     #[arg(long)]
     stepped: bool,
-    /// In stepped mode, how many instruments must be claimed before stepping.
+    /// In stepped mode (this flag's or the scene's), how many instruments must
+    /// be claimed before the first step.
     #[arg(long, default_value_t = 1)]
     stepped_clients: usize,
     /// Append the session (poses, forces, frame summaries) to this recording file.
@@ -119,8 +120,10 @@ async fn run(args: Args, transport: &Transport) -> anyhow::Result<()> {
         .await?;
     tracing::info!(addr = %server.addr, scene = %scene.name, "listening; loading the scene");
     let options = SimOptions {
-        stepped: args.stepped.then_some(true),
-        stepped_clients: args.stepped_clients,
+        // --stepped-clients applies to a scene stepped by its file too.
+        mode: (args.stepped || scene.loops.stepped).then_some(Mode::Stepped {
+            clients: args.stepped_clients,
+        }),
         recording: args.record.clone().map(ToFile::open_at),
         max_watchers: args.max_watchers,
         deformation_nice: args.deformation_nice,
