@@ -32,7 +32,7 @@
 //! ([`DetectOptions::bounded_rays`], the server's default); the CPU BVH is also
 //! timed casting whole lines (`line`, the paper's pass). Both give the same
 //! output (`same`). The CPU BVH rows (`bvh`) walk the tree once per run of
-//! at least [`fissure_engine::collide::bvh::BUNDLE_MIN`] parallel rays (the
+//! at least [`fissure_engine::collide::rays::bvh::BUNDLE_MIN`] parallel rays (the
 //! server's default, `Traversal::Bundled`); the `bvh-per-ray` rows beside
 //! them walk it once per ray, in the same run.
 //!
@@ -58,8 +58,8 @@
 //! `taskset -c 0`) for one core.
 
 use anyhow::Context;
-use fissure_engine::collide::bvh::Traversal;
-use fissure_engine::collide::gpu::{GpuBruteForce, GpuBvh};
+use fissure_engine::collide::rays::bvh::Traversal;
+use fissure_engine::collide::rays::gpu::{GpuBruteForce, GpuBvh};
 use fissure_engine::collide::{
     BruteForce, Bvh, ContactOutput, ContactQuery, DetectOptions, FissurePlacement, History,
     HistoryMode, Instrument, NodeHits, NodeLayout, Plate, RayBackend, RayRange, Stage, Tool,

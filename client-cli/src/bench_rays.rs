@@ -32,7 +32,7 @@
 
 use crate::bench_collision::time_refit;
 use anyhow::Context;
-use fissure_engine::collide::bvh::Traversal;
+use fissure_engine::collide::rays::bvh::Traversal;
 use fissure_engine::collide::{Bvh, Hit, NodeHits, RayBackend, RayRange};
 use nalgebra::{Point3, Vector3};
 use serde::Serialize;

@@ -21,7 +21,7 @@
 //! Units are SI throughout: m, Pa, N, s.
 //!
 //! Feature `gpu` (on by default, and in the shipped binaries): the wgpu ray
-//! backends, `collide::gpu`. Without it the crate builds without wgpu, and a
+//! backends, `collide::rays::gpu`. Without it the crate builds without wgpu, and a
 //! scene asking for `collision.backend = "gpu"` is refused at load
 //! ([`scene::SceneError::NotBuilt`]).
 

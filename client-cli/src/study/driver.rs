@@ -25,8 +25,8 @@
 use super::config::{Backend, Config, FISSURE_CENTRE_M};
 use super::scenario::Scenario;
 use fissure_engine::collide::RayBackend;
-use fissure_engine::collide::brute::BruteForce;
-use fissure_engine::collide::bvh::Bvh;
+use fissure_engine::collide::rays::brute::BruteForce;
+use fissure_engine::collide::rays::bvh::Bvh;
 use fissure_engine::fem::compliance::ColumnPolicy;
 use fissure_engine::mesh::TetMesh;
 use fissure_engine::scene::RoiSpec;
@@ -130,7 +130,7 @@ fn make_backend(kind: Backend, model: &Model) -> (Option<Box<dyn RayBackend>>, S
             )),
             "cpu-brute".into(),
         ),
-        Backend::GpuBvh => match fissure_engine::collide::gpu::GpuBvh::try_new(tris, pos) {
+        Backend::GpuBvh => match fissure_engine::collide::rays::gpu::GpuBvh::try_new(tris, pos) {
             Ok(g) => {
                 let name = format!("gpu-bvh ({})", g.adapter_name());
                 (Some(Box::new(g)), name)

@@ -1,6 +1,6 @@
 //! Conversions between engine values and `fissure.v1` messages.
 
-use fissure_engine::collide::instrument::{Plate, PlateShape};
+use fissure_engine::collide::tool::instrument::{Plate, PlateShape};
 use fissure_engine::scene::{ContactLaw, Scene, Strategy};
 use fissure_engine::sim::ForceOut;
 use fissure_engine::sim::engine::Model;
@@ -449,7 +449,7 @@ mod tests {
     /// draws the tool the server collides with.
     #[test]
     fn the_description_carries_each_shapes_outline_and_a_blades_edge() {
-        use fissure_engine::collide::instrument::PlateShape;
+        use fissure_engine::collide::tool::instrument::PlateShape;
         let (mut scene, _) = Scene::load("cube").unwrap();
         let shapes = [
             PlateShape::Flat,

@@ -31,7 +31,7 @@
 
 use super::TetMesh;
 use super::phantom::FissureLandmark;
-use crate::collide::ray::moller_trumbore;
+use crate::collide::rays::ray::moller_trumbore;
 use nalgebra::{Matrix3, Point3, SymmetricEigen, Unit, Vector3};
 
 /// How the fissure is searched for.

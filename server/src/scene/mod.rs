@@ -393,11 +393,11 @@ impl CollisionBackend {
 }
 
 /// When the contact history is renewed: the collision stage's own enum.
-pub use crate::collide::history::HistoryMode;
+pub use crate::collide::contact::history::HistoryMode;
 
 /// How the CPU BVH walks runs of parallel rays: the collision stage's own
 /// enum.
-pub use crate::collide::bvh::Traversal;
+pub use crate::collide::rays::bvh::Traversal;
 
 /// Collision settings.
 #[derive(Debug, Clone, Deserialize, PartialEq)]
@@ -572,7 +572,7 @@ impl Default for LoopSpec {
     }
 }
 
-pub use crate::collide::instrument::{LayoutKind, PlateShape};
+pub use crate::collide::tool::instrument::{LayoutKind, PlateShape};
 
 /// One spatula.
 #[derive(Debug, Clone, Deserialize, PartialEq)]

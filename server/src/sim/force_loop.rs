@@ -161,7 +161,7 @@ impl ForceLoop {
 
     /// A blade's cuts: every intact tie (at the snapshot's shape) that the
     /// edge crossed moving from the last query's pose to `pose`
-    /// ([`crate::collide::sweep`]); they take effect at once.
+    /// ([`crate::collide::tool::sweep`]); they take effect at once.
     fn cut(&mut self, model: &Model, snap: &Snapshot, pose: &Isometry3<f64>) {
         let (Some(edge), Some(ties)) = (
             model.blades.get(self.index).copied().flatten(),
@@ -173,7 +173,7 @@ impl ForceLoop {
             return;
         };
         self.swept.clear();
-        crate::collide::sweep::swept_triangles(&edge, &last, pose, &mut self.swept);
+        crate::collide::tool::sweep::swept_triangles(&edge, &last, pose, &mut self.swept);
         // The sweep's box: ties wholly outside it are not tested.
         let (mut lo, mut hi) = (
             nalgebra::Point3::from([f64::INFINITY; 3]),
@@ -198,7 +198,7 @@ impl ForceLoop {
             if self
                 .swept
                 .iter()
-                .any(|t| crate::collide::sweep::segment_crosses_triangle(&xa, &xb, t))
+                .any(|t| crate::collide::tool::sweep::segment_crosses_triangle(&xa, &xb, t))
             {
                 let mid = nalgebra::center(&xa, &xb);
                 let strain = tie.strain((xb - xa).norm() - tie.rest_length_m);

@@ -170,7 +170,7 @@ pub enum SimError {
     #[error("building the model: instrument {name:?}: {source}")]
     Instrument {
         name: String,
-        source: crate::collide::instrument::InstrumentError,
+        source: crate::collide::tool::instrument::InstrumentError,
     },
     /// A fixed region names a landmark the model does not have.
     #[error(

@@ -25,7 +25,7 @@
 //! to the next.
 
 use crate::collide::contact::{Candidate, EdgeCandidate, Enforced};
-use crate::collide::faces::FaceId;
+use crate::collide::tool::faces::FaceId;
 pub use crate::fem::{ContactRow, RowKind};
 use nalgebra::{Isometry3, Point3, Vector3};
 use std::collections::HashMap;

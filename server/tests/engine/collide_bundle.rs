@@ -6,7 +6,7 @@
 //! wide and narrow against the distance to the nearest hit (a narrow bundle
 //! clips its whole lines short of every hit, and the rays are cast again).
 
-use fissure_engine::collide::bvh::Traversal;
+use fissure_engine::collide::rays::bvh::Traversal;
 use fissure_engine::collide::{BruteForce, Bvh, NodeHits, RayBackend, RayRange};
 use fissure_engine::mesh::blocks;
 use nalgebra::{Point3, Vector3};

@@ -1,5 +1,5 @@
 //! The wgpu collision backends give the same answers as the f64 brute force
-//! (`collide::brute::BruteForce`, the CPU reference): same triangle ids and the
+//! (`collide::rays::brute::BruteForce`, the CPU reference): same triangle ids and the
 //! same `t, u, v` bit for bit, on grids
 //! with rays through vertices and edges, parallel rays, degenerate triangles,
 //! near-ties, and closed surfaces deforming over several steps (BVH refit).
@@ -9,8 +9,10 @@
 
 use std::time::Instant;
 
-use fissure_engine::collide::gpu::{self, GpuBruteForce, GpuBvh, GpuError, GpuMethod, RefitMode};
-use fissure_engine::collide::ray::watertight;
+use fissure_engine::collide::rays::gpu::{
+    self, GpuBruteForce, GpuBvh, GpuError, GpuMethod, RefitMode,
+};
+use fissure_engine::collide::rays::ray::watertight;
 use fissure_engine::collide::{BruteForce, NodeHits, RayBackend, SurfaceError};
 use nalgebra::{Point3, Vector3};
 
@@ -95,7 +97,7 @@ fn backends(triangles: &[[u32; 3]], positions: &[Point3<f64>]) -> Option<Gpus> {
     })
 }
 
-/// The CPU reference answers (`collide::brute::BruteForce`, watertight test).
+/// The CPU reference answers (`collide::rays::brute::BruteForce`, watertight test).
 fn reference(
     triangles: &[[u32; 3]],
     positions: &[Point3<f64>],

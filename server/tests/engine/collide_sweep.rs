@@ -1,11 +1,11 @@
-//! A blade's swept edge against tie segments ([`fissure_engine::collide::sweep`]):
+//! A blade's swept edge against tie segments ([`fissure_engine::collide::tool::sweep`]):
 //! for translations of any length the test finds exactly the segments a
 //! brute-force solve finds (the parallelogram `a + s e + t d` meets the
 //! segment `p + r f` when the 3 x 3 system `s e + t d - r f = p - a` has a
 //! solution in `[0, 1]^3`), over random placements and travels up to 10 m
 //! per sample; segments through the sweep's edges and vertices count.
 
-use fissure_engine::collide::sweep::edge_sweeps_across;
+use fissure_engine::collide::tool::sweep::edge_sweeps_across;
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 use rand_chacha::ChaCha8Rng;
 use rand_chacha::rand_core::{RngCore, SeedableRng};

@@ -18,7 +18,7 @@
 //!    voxel centres through the inverse affine ([`field::VoxelField`]).
 //!    Oblique and flipped affines need nothing special: the field is a
 //!    function of scanner position.
-//! 2. The field is meshed by [`stuffing::stuff_proven`] (surface at the
+//! 2. The field is meshed by [`stuffing::stuff_proven`](crate::mesh::stuffing::stuff_proven) (surface at the
 //!    spacing everywhere, interior graded, dihedral angles within the proven
 //!    bounds) on a lattice anchored at the scanner origin: the mesh depends
 //!    on the shape in scanner space only, not on how the voxels are stored.

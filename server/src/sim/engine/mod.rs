@@ -18,8 +18,8 @@ use super::local_model::ForceModel;
 use super::rows::{self, Anchors, FreePositions, Row};
 use super::snapshot::{Frame, InstrumentReaction, Snapshot, StepTimings};
 use crate::collide::RayBackend;
-use crate::collide::bvh::Bvh;
 use crate::collide::contact::{self, ContactOutput};
+use crate::collide::rays::bvh::Bvh;
 use crate::fem::compliance::ColumnPolicy;
 use crate::fem::{self, CompliancePatch, RowKind};
 use crate::scene::{HistoryMode, Scene};
@@ -29,7 +29,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 /// Contact history flags of one instrument.
-pub type History = crate::collide::history::History;
+pub type History = crate::collide::contact::history::History;
 
 pub mod deform;
 pub mod model;
@@ -242,13 +242,13 @@ impl StepEngine {
     /// mode; `None`: an instrument at home, or the paper's mode, uses the
     /// step's own history).
     ///
-    /// The stages, in order: [`collide`] (every instrument's query at its
-    /// pose) and its [`RowRule`] rows; [`Self::join_rows`] (the skull's and
-    /// the ties' rows, the warm start); [`Self::solve_contact`] (the
+    /// The stages, in order: `collide` (every instrument's query at its
+    /// pose) and its [`RowRule`] rows; `join_rows` (the skull's and
+    /// the ties' rows, the warm start); `solve_contact` (the
     /// contact problem to its fixed point: skull rounds, searches on the
-    /// solved shape, tears); [`Self::refresh`] (multipliers, anchors, the
+    /// solved shape, tears); `refresh` (multipliers, anchors, the
     /// new surface and its tree, the force loops' compliance patch); and
-    /// [`Self::snapshot`]. A failed solve publishes the last good state
+    /// `snapshot`. A failed solve publishes the last good state
     /// ([`Snapshot::failed`]).
     pub fn step(
         &mut self,

@@ -2,9 +2,9 @@
 //! instruments (built from the scene's shapes and layouts) and the rest-shape
 //! contact search's tree.
 use super::History;
-use crate::collide::bvh::Bvh;
 use crate::collide::contact;
-use crate::collide::instrument::{Instrument, RimNodes};
+use crate::collide::rays::bvh::Bvh;
+use crate::collide::tool::instrument::{Instrument, RimNodes};
 use crate::fem;
 use crate::mesh::{BoundarySurface, TetMesh};
 use crate::scene::{
@@ -49,7 +49,7 @@ pub struct Model {
     /// The ties across the fissure ([`crate::fem::ties`]), in scene order.
     pub ties: Vec<fem::ties::Tie>,
     /// Per instrument: its cutting edge in the instrument frame (a blade's
-    /// tip edge, [`crate::collide::instrument::PlateShape::cutting_edge`]), m.
+    /// tip edge, [`crate::collide::tool::instrument::PlateShape::cutting_edge`]), m.
     pub blades: Vec<Option<[Point3<f64>; 2]>>,
     /// Per surface vertex, its neighbours on the surface.
     pub surface_neighbours: crate::mesh::adjacency::Csr,

@@ -3,10 +3,10 @@
 //! over a snapshot.
 use super::History;
 use super::model::Model;
-use crate::collide::brute::BruteForce;
-use crate::collide::bvh::{Bvh, BvhView};
+use crate::collide::contact::history::Stage;
 use crate::collide::contact::{ContactOutput, ContactRule, DetectOptions, Tool, Workspace};
-use crate::collide::history::Stage;
+use crate::collide::rays::brute::BruteForce;
+use crate::collide::rays::bvh::{Bvh, BvhView};
 use crate::collide::{RayBackend, contact};
 use crate::scene::{CollisionBackend, CollisionMethod, ContactGeometry, ContactLaw, Scene};
 use crate::sim::snapshot::Snapshot;
@@ -50,11 +50,12 @@ pub fn ray_backend(scene: &Scene, model: &Model, positions: &[Point3<f64>]) -> B
         #[cfg(feature = "gpu")]
         CollisionBackend::Gpu => {
             let gpu_method = match method {
-                CollisionMethod::Brute => crate::collide::gpu::GpuMethod::Brute,
-                CollisionMethod::Bvh => crate::collide::gpu::GpuMethod::Bvh,
+                CollisionMethod::Brute => crate::collide::rays::gpu::GpuMethod::Brute,
+                CollisionMethod::Bvh => crate::collide::rays::gpu::GpuMethod::Bvh,
             };
             // Logs a warning with the reason when it falls back.
-            let backend = crate::collide::gpu::backend_or_cpu(gpu_method, tris, positions, cpu);
+            let backend =
+                crate::collide::rays::gpu::backend_or_cpu(gpu_method, tris, positions, cpu);
             if backend.backend() == "gpu" {
                 tracing::info!(
                     scene = %scene.name,

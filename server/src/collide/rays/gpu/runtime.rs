@@ -30,9 +30,9 @@ pub enum ReadbackError {
     View(#[from] wgpu::MapRangeError),
 }
 
-use crate::collide::brute::{cast_line, keep_nearest};
-use crate::collide::ray::{RayTest, WatertightRay};
-use crate::collide::{Hit, NodeHits, SurfaceError, check_surface};
+use crate::collide::rays::brute::{cast_line, keep_nearest};
+use crate::collide::rays::ray::{RayTest, WatertightRay};
+use crate::collide::rays::{Hit, NodeHits, SurfaceError, check_surface};
 
 /// Candidates kept per ray and side (the kernels' `K`).
 pub(crate) const K: usize = 8;

@@ -1,4 +1,4 @@
-//! Stage 3 of the pipeline ([`super::contact`]): history culling (B1-B3),
+//! Stage 3 of the pipeline ([`super`], the contact module): history culling (B1-B3),
 //! per instrument.
 //!
 //! Every node whose history flag is on marks its nearest triangle *in
@@ -15,7 +15,8 @@
 //! through the plate, the far side of what the face pushes, face the way
 //! the node does. The paper's rule marks every front triangle.
 
-use super::contact::{ContactOutput, ContactQuery, ContactRule, DetectOptions, Tool, Workspace};
+use super::types::{ContactOutput, ContactQuery, ContactRule, DetectOptions};
+use super::workspace::{Tool, Workspace};
 
 /// Splits `ws.candidates` into `out.pairs` and `out.cancelled`.
 pub(crate) fn cull(

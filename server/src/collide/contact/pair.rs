@@ -1,4 +1,4 @@
-//! Stage 2 of the pipeline ([`super::contact`]): collision pairs (A1, A2).
+//! Stage 2 of the pipeline ([`super`], the contact module): collision pairs (A1, A2).
 //!
 //! The nearest triangle behind a node (`t <= 0`, within the node's reach)
 //! forms a pair with it when the triangle's outward normal opposes the face
@@ -8,8 +8,9 @@
 //! test: tissue the face is about to touch, or is leaving while the tissue
 //! still pushes on it.
 
-use super::SurfaceError;
-use super::contact::{ContactError, ContactQuery, DetectOptions, Pair, Tool, Workspace};
+use super::types::{ContactError, ContactQuery, DetectOptions, Pair};
+use super::workspace::{Tool, Workspace};
+use crate::collide::rays::SurfaceError;
 
 /// The pairs of every tool, in (instrument, node) order, into
 /// `ws.candidates`.

@@ -3,7 +3,7 @@
 //!
 //! A node's flag is on when the node gave an enforced displacement (a pair that
 //! survived culling) at the last renewal. Culling uses the flags; a call of
-//! [`detect`](super::contact::detect) renews them from its surviving pairs when
+//! [`detect`](super::detect) renews them from its surviving pairs when
 //! the [`HistoryMode`] says so for the call's [`Stage`].
 //!
 //! # How the simulation calls it
@@ -23,7 +23,7 @@
 //!   deformation step larger than the thickness then defeats the culling, which
 //!   this mode exists to show.
 
-use super::instrument::Instrument;
+use crate::collide::tool::instrument::Instrument;
 
 /// When the history flags are renewed (a scene's `collision.history`:
 /// `"force-rate"` or `"paper"`).
@@ -139,11 +139,7 @@ impl History {
     /// Renews the flags from the surviving pairs of this instrument when the
     /// mode renews at `stage`: a node's flag is on exactly when it holds a
     /// pair.
-    pub fn renew<'a>(
-        &mut self,
-        stage: Stage,
-        pairs: impl Iterator<Item = &'a super::contact::Pair>,
-    ) {
+    pub fn renew<'a>(&mut self, stage: Stage, pairs: impl Iterator<Item = &'a super::types::Pair>) {
         if self.renews(stage) {
             self.flags.fill(false);
             for p in pairs {

@@ -1,4 +1,4 @@
-//! Stage 1 of the pipeline ([`super::contact`]): the source-node rays and
+//! Stage 1 of the pipeline ([`super`], the contact module): the source-node rays and
 //! the cast.
 //!
 //! Each source node `S` with unit face normal `N_R` (scene frame, after the
@@ -11,8 +11,9 @@
 //! [`recast_for_culling`] casts flagged lines again beyond their reach when
 //! the culling could still need their nearest front hit.
 
-use super::contact::{DetectOptions, Tool, Workspace, widen};
-use super::{RayBackend, RayRange};
+use super::types::{DetectOptions, widen};
+use super::workspace::{Tool, Workspace};
+use crate::collide::rays::{RayBackend, RayRange};
 use nalgebra::{Point3, Vector3};
 
 /// The rays of all tools, and their first cast.
@@ -89,7 +90,7 @@ pub(crate) fn cast(
 /// [`super::pair::pair`] (in `ws.candidates`).
 pub(crate) fn recast_for_culling(
     backend: &mut dyn RayBackend,
-    query: &super::contact::ContactQuery<'_>,
+    query: &super::types::ContactQuery<'_>,
     tools: &[Tool<'_>],
     opts: &DetectOptions,
     ws: &mut Workspace,
@@ -118,7 +119,7 @@ pub(crate) fn recast_for_culling(
         if lo.x > hi.x {
             continue;
         }
-        let (lo, hi) = super::widen_box(lo, hi);
+        let (lo, hi) = crate::collide::rays::widen_box(lo, hi);
         for (i, &flag) in tool.history.flags().iter().enumerate() {
             let g = first + i;
             if !flag || ws.hits[g].front.is_some() {

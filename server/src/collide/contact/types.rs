@@ -1,46 +1,13 @@
-//! The collision pipeline of one query: [`detect`] (one instrument, the
-//! force loop) or [`detect_many`] (all instruments, the deformation loop)
-//! runs its named stages in order over plain data:
-//!
-//! 1. [`cast`](super::cast): one ray per source node (`S + t N_R`, scene
-//!    frame after the pose), cast once for all instruments; the nearest hit
-//!    behind (`t <= 0`) and in front (`t > 0`), each only as far as a later
-//!    stage can use it ([`DetectOptions::bounded_rays`]).
-//! 2. [`pair`](super::pair) (A1, A2): the nearest triangle behind a node,
-//!    within its reach, whose outward normal opposes the face normal; with
-//!    the Signorini rule also the nearest triangle *in front* within
-//!    [`DetectOptions::band_m`] (tissue about to be touched, or that the
-//!    face is leaving).
-//! 3. [`cull`](super::cull) (B1-B3), per instrument: flagged nodes mark
-//!    their nearest triangle in front as infeasible, and the pairs holding
-//!    one are cancelled.
-//! 4. renew ([`History::renew`]): a node's flag is set exactly when it
-//!    holds a surviving pair (when the history renews at this [`Stage`]).
-//! 5. By the contact rule ([`ContactRule`]):
-//!    * [`gap`](super::gap) (Signorini, the default): the surface vertices
-//!      each face may push ([`Candidate`]: covered by the face, within the
-//!      band), with the face's normal and point; the pierced triangles not
-//!      all of whose vertices a face covers ([`EdgeCandidate`]); and the
-//!      vertices near the faces whose compliance should be ready
-//!      ([`Nearby`]);
-//!    * [`enforce`](super::enforce) (the paper's rule): every vertex of a
-//!      paired triangle projected onto the face plane ([`Enforced`]).
-//!
-//! The caller keeps the backend's positions current: call
-//! [`RayBackend::update_positions`] with the same positions as
-//! [`ContactQuery::positions`] whenever the surface changed (a BVH refits
-//! then). The force loop at 1 kHz does not refit between two published
-//! surfaces.
-//!
-//! Steady state allocates nothing: every buffer lives in the [`Workspace`]
-//! or in the [`ContactOutput`] and is cleared, not freed.
+//! What a contact query reads and returns, as plain data: the surface it
+//! runs against ([`ContactQuery`]), its options ([`DetectOptions`], the
+//! [`ContactRule`]), its errors, and its results ([`ContactOutput`]: the
+//! pairs, the paper's enforced displacements, the Signorini rule's
+//! candidates and nearby vertices). Every stage of the pipeline imports
+//! these; they import no stage.
 
-use super::faces::FaceId;
-use super::history::{History, Stage};
-use super::instrument::Instrument;
-use super::{NodeHits, RayBackend, RayRange, SurfaceError};
-use crate::mesh::adjacency::Csr;
-use nalgebra::{Isometry3, Point3, Vector3};
+use crate::collide::rays::SurfaceError;
+use crate::collide::tool::faces::FaceId;
+use nalgebra::{Point3, Vector3};
 
 /// Errors of a contact query; each names what is inconsistent.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -218,17 +185,6 @@ impl DetectOptions {
     }
 }
 
-/// One instrument in a query: its source nodes, scene pose and history.
-#[derive(Debug)]
-pub struct Tool<'a> {
-    /// The spatula.
-    pub instrument: &'a Instrument,
-    /// Instrument frame -> scene frame.
-    pub pose: Isometry3<f64>,
-    /// Its history flags (renewed according to `history.mode` and the stage).
-    pub history: &'a mut History,
-}
-
 /// A collision pair: source node and its nearest triangle behind (or, with
 /// the Signorini rule, in front within the band).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -293,7 +249,7 @@ pub struct Candidate {
 /// every vertex of the triangle (the contact's boundary, or a plate's edge
 /// in a triangle larger than the contact; the Signorini rule): the face
 /// pushes the tissue point under one corner of the polygon the face's
-/// outline cuts out of the triangle ([`super::gap`]).
+/// outline cuts out of the triangle ([`super::gap`], the Signorini rule's stage).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct EdgeCandidate {
     /// Instrument of the face.
@@ -387,156 +343,8 @@ impl ContactOutput {
     }
 }
 
-/// Reused buffers of [`detect`] / [`detect_many`].
-#[derive(Debug, Clone, Default)]
-pub struct Workspace {
-    /// Scene-frame ray origins of all nodes of all instruments (last query).
-    pub origins: Vec<Point3<f64>>,
-    /// Scene-frame ray directions (last query).
-    pub dirs: Vec<Vector3<f64>>,
-    /// Backend answers per ray (last query). With bounded rays, a flagged
-    /// node's front hit is its nearest one when that lies within the node's
-    /// reach or could be a pair's triangle (see [`DetectOptions::bounded_rays`]);
-    /// farther ones are not looked for and read `None`.
-    pub hits: Vec<NodeHits>,
-    pub(crate) offsets: Vec<usize>,
-    pub(crate) ranges: Vec<RayRange>,
-    /// Second pass of flagged rays: ray index, then its origin, direction
-    /// and answer.
-    pub(crate) recast: Vec<usize>,
-    pub(crate) recast_origins: Vec<Point3<f64>>,
-    pub(crate) recast_dirs: Vec<Vector3<f64>>,
-    pub(crate) recast_ranges: Vec<RayRange>,
-    pub(crate) recast_hits: Vec<NodeHits>,
-    pub(crate) candidates: Vec<Pair>,
-    pub(crate) mark: Vec<u32>,
-    pub(crate) stamp: u32,
-    pub(crate) slot: Vec<u32>,
-    /// Surface topology for the gap stage (built on first use for a
-    /// triangle list, identified by its address and length).
-    pub(crate) topology: Option<Topology>,
-    pub(crate) visit: Vec<u32>,
-    pub(crate) visit_stamp: u32,
-    pub(crate) queue: Vec<u32>,
-    pub(crate) order: Vec<usize>,
-    pub(crate) keep: Vec<bool>,
-    pub(crate) covered: Vec<u32>,
-    pub(crate) covered_stamp: u32,
-    /// Per surface vertex covered at `covered_stamp`: the large face (A or
-    /// B, as [`FaceId::index`]) whose candidate it is, or `u8::MAX`.
-    ///
-    /// [`FaceId::index`]: super::faces::FaceId::index
-    pub(crate) claimed: Vec<u8>,
-    /// Per surface triangle, the `covered_stamp` at which faces A and B
-    /// clipped it.
-    pub(crate) clipped: Vec<[u32; 2]>,
-}
-
-/// Vertex neighbours and vertex triangles of a surface.
-#[derive(Debug, Clone, Default)]
-pub(crate) struct Topology {
-    pub key: (usize, usize),
-    pub neighbours: Csr,
-    pub triangles: Csr,
-}
-
-impl Workspace {
-    /// An empty workspace; buffers grow on first use.
-    pub fn new() -> Self {
-        Self::default()
-    }
-
-    pub(crate) fn next_stamp(&mut self, triangles: usize) {
-        if self.mark.len() != triangles {
-            self.mark.clear();
-            self.mark.resize(triangles, 0);
-            self.stamp = 0;
-        }
-        if self.stamp == u32::MAX {
-            self.mark.fill(0);
-            self.stamp = 0;
-        }
-        self.stamp += 1;
-    }
-}
-
+/// No index (an empty slot of an index buffer).
 pub(crate) const NONE: u32 = u32::MAX;
-
-/// One instrument (the force loop). See [`detect_many`].
-pub fn detect(
-    backend: &mut dyn RayBackend,
-    query: &ContactQuery<'_>,
-    instrument: &Instrument,
-    pose: &Isometry3<f64>,
-    history: &mut History,
-    stage: Stage,
-    opts: &DetectOptions,
-    ws: &mut Workspace,
-    out: &mut ContactOutput,
-) -> Result<(), ContactError> {
-    let mut tools = [Tool {
-        instrument,
-        pose: *pose,
-        history,
-    }];
-    detect_many(backend, query, &mut tools, stage, opts, ws, out)
-}
-
-/// All instruments in one cast (the deformation loop): the stages of the
-/// module documentation, in order. On error, `out` is left empty and no
-/// history is changed.
-pub fn detect_many(
-    backend: &mut dyn RayBackend,
-    query: &ContactQuery<'_>,
-    tools: &mut [Tool<'_>],
-    stage: Stage,
-    opts: &DetectOptions,
-    ws: &mut Workspace,
-    out: &mut ContactOutput,
-) -> Result<(), ContactError> {
-    out.clear();
-    check(query, tools)?;
-    super::cast::cast(backend, tools, opts, ws);
-    super::pair::pair(query, tools, opts, ws)?;
-    super::cast::recast_for_culling(backend, query, tools, opts, ws);
-    super::cull::cull(query, tools, opts, ws, out);
-    for (k, tool) in tools.iter_mut().enumerate() {
-        tool.history.renew(stage, out.pairs_of(k as u16));
-    }
-    match opts.rule {
-        ContactRule::Paper => super::enforce::project(query, opts, ws, out),
-        ContactRule::Signorini => super::gap::candidates(query, tools, opts, ws, out),
-    }
-    Ok(())
-}
-
-/// Consistent lengths, finite poses, a countable number of instruments.
-fn check(query: &ContactQuery<'_>, tools: &[Tool<'_>]) -> Result<(), ContactError> {
-    let nv = query.positions.len();
-    for (what, got) in [
-        ("rest", query.rest.len()),
-        ("to_volume", query.to_volume.len()),
-    ] {
-        if got != nv {
-            return Err(ContactError::LengthMismatch {
-                what,
-                expected: nv,
-                got,
-            });
-        }
-    }
-    if tools.len() > u16::MAX as usize {
-        return Err(ContactError::TooManyInstruments(tools.len()));
-    }
-    for (k, tool) in tools.iter().enumerate() {
-        let finite = tool.pose.translation.vector.iter().all(|x| x.is_finite())
-            && tool.pose.rotation.coords.iter().all(|x| x.is_finite());
-        if !finite {
-            return Err(ContactError::NonFinitePose { instrument: k });
-        }
-    }
-    Ok(())
-}
 
 /// `x` plus a relative margin far above the rounding of the tests it bounds
 /// (a bound that is slightly loose only costs time; a tight one could drop an

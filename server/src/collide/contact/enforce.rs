@@ -1,4 +1,4 @@
-//! Stage 5 of the pipeline ([`super::contact`]) with the paper's rule:
+//! Stage 5 of the pipeline ([`super`], the contact module) with the paper's rule:
 //! enforced displacements.
 //!
 //! For each surviving pair and each vertex `V` of its triangle, with current
@@ -18,7 +18,8 @@
 //! rule ([`super::gap`]) is the default; this one is kept for comparison
 //! with the paper.
 
-use super::contact::{ContactOutput, ContactQuery, DetectOptions, Enforced, NONE, Workspace};
+use super::types::{ContactOutput, ContactQuery, DetectOptions, Enforced, NONE};
+use super::workspace::Workspace;
 
 /// `out.enforced` from `out.pairs`.
 pub(crate) fn project(

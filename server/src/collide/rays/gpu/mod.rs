@@ -12,8 +12,8 @@
 //!
 //! The engine is f64; the kernels run in f32. They do not decide the answer, they
 //! narrow it down, and the host decides in f64 with the CPU pipeline's own test,
-//! [`WatertightRay::intersect`](crate::collide::ray::WatertightRay::intersect)
-//! (Woop, Benthin and Wald 2013, with the tie rule of [`crate::collide::ray`]):
+//! [`WatertightRay::intersect`](crate::collide::rays::ray::WatertightRay::intersect)
+//! (Woop, Benthin and Wald 2013, with the tie rule of [`crate::collide::rays::ray`]):
 //!
 //! 1. **Conservative f32 filter.** The kernel evaluates the watertight test's edge
 //!    functions `e_i` in f32 together with a bound `tol_i` of their error, and
@@ -42,10 +42,10 @@
 //!    dropped, so it is never the answer and `theta` is unaffected.
 //! 3. **f64 decision on the host.** The host evaluates the listed triangles with
 //!    the watertight test on the f64 positions and keeps the nearest per side
-//!    with [`keep_nearest`](crate::collide::brute::keep_nearest) (ties in `|t|`:
+//!    with [`keep_nearest`](crate::collide::rays::brute::keep_nearest) (ties in `|t|`:
 //!    lower triangle index). The answer is final when the list was complete or
 //!    when its key is `< theta`; otherwise that ray's side is answered by the
-//!    CPU reference [`cast_line`](crate::collide::brute::cast_line). This happens only
+//!    CPU reference [`cast_line`](crate::collide::rays::brute::cast_line). This happens only
 //!    when more than `K` candidates tie within the f32 bounds: a line lying in
 //!    the plane of several triangles (unknown `t`), a line through a vertex
 //!    shared by more than `K` triangles, coincident triangles.

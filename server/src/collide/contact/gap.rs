@@ -1,4 +1,4 @@
-//! Stage 5 of the pipeline ([`super::contact`]) with the Signorini rule:
+//! Stage 5 of the pipeline ([`super`], the contact module) with the Signorini rule:
 //! the candidates of the contact problem (DESIGN.md section 3b).
 //!
 //! The pairs decide which face a patch of tissue belongs to (after the
@@ -17,7 +17,7 @@
 //!   the tip) that covers it the same way, within the plate's thickness (or
 //!   the rim nodes' reach) behind it: the plate's edges push too, whether
 //!   or not the instrument has rim nodes. A rim face claims a vertex deeper
-//!   than the entry depth ([`super::contact::entry_depth_m`]: what the
+//!   than the entry depth ([`super::types::entry_depth_m`]: what the
 //!   plate travels in a step) behind it only where it pushed it last time:
 //!   deeper tissue came in through a large face, and the rim would push it
 //!   out across the plate's width;
@@ -35,13 +35,11 @@
 //! stays: the contact problem then never holds a vertex twice along one
 //! direction.
 //!
-//! [`Plate::project`]: super::instrument::Plate::project
+//! [`Plate::project`]: crate::collide::tool::instrument::Plate::project
 
-use super::contact::{
-    Candidate, ContactOutput, ContactQuery, DetectOptions, EdgeCandidate, Nearby, Tool, Topology,
-    Workspace,
-};
-use super::faces::FaceId;
+use super::types::{Candidate, ContactOutput, ContactQuery, DetectOptions, EdgeCandidate, Nearby};
+use super::workspace::{Tool, Topology, Workspace};
+use crate::collide::tool::faces::FaceId;
 use crate::mesh::adjacency::{Csr, surface_vertex_neighbours};
 use nalgebra::Vector3;
 
@@ -87,7 +85,7 @@ pub(crate) fn candidates(
         let inst = tool.instrument;
         let inv = tool.pose.inverse();
         let first = ws.offsets[k];
-        let entry = super::contact::entry_depth_m(band, inst.plate.thickness);
+        let entry = super::types::entry_depth_m(band, inst.plate.thickness);
         // How deep behind a rim face a vertex may lie and still be its
         // candidate: its nodes' reach, at least the plate's thickness.
         // And each face's deepest node reach (none: the face has no nodes).
@@ -275,7 +273,7 @@ pub(crate) fn candidates(
 ///   node;
 /// * on a curved face and on the rim faces, the deepest node's line meets
 ///   the triangle at the candidate point; a rim face's only within the
-///   entry depth ([`super::contact::entry_depth_m`]) behind it (deeper, the
+///   entry depth ([`super::types::entry_depth_m`]) behind it (deeper, the
 ///   tissue came in through a large face, and the rim node's line crosses
 ///   the plate's width to it).
 ///
@@ -391,7 +389,7 @@ fn edges(
             // node's line crosses the plate's width to it (a row on it
             // would push the tissue out through the plate's other side).
             if matches!(face, FaceId::SidePlusY | FaceId::SideMinusY | FaceId::Tip)
-                && p.t < -super::contact::entry_depth_m(band, inst.plate.thickness)
+                && p.t < -super::types::entry_depth_m(band, inst.plate.thickness)
             {
                 continue;
             }
@@ -566,7 +564,7 @@ fn clip_triangle(
         !tri.iter()
             .any(|&v| tool.history.is_seed(face.index() as u8, v))
     });
-    let entry = super::contact::entry_depth_m(band, tool.instrument.plate.thickness);
+    let entry = super::types::entry_depth_m(band, tool.instrument.plate.thickness);
     clip_points(
         &tool.instrument.plate,
         face,
@@ -649,7 +647,7 @@ impl Poly {
 /// `emit(feature, weights, gap, (face point, normal))` for each (features
 /// of [`EdgeCandidate::feature`]).
 fn clip_points(
-    plate: &super::instrument::Plate,
+    plate: &crate::collide::tool::instrument::Plate,
     face: FaceId,
     local: &[nalgebra::Point3<f64>; 3],
     band: f64,

@@ -53,8 +53,8 @@
 //! and is reused: a cast allocates nothing once it has grown.
 
 use super::{Bvh, segment};
-use crate::collide::brute::keep_nearest;
-use crate::collide::ray::PreparedRay;
+use crate::collide::rays::brute::keep_nearest;
+use crate::collide::rays::ray::PreparedRay;
 use crate::collide::{Hit, NodeHits, RayRange};
 use nalgebra::{Point3, Vector3};
 use std::cell::RefCell;
@@ -254,7 +254,7 @@ fn cast_in(
         // the caller recasts what needs it.
         return cast;
     }
-    let (lo, hi) = crate::collide::widen_box(lo, hi);
+    let (lo, hi) = crate::collide::rays::widen_box(lo, hi);
     let size = rlo
         .iter()
         .chain(rhi.iter())
