@@ -2,8 +2,8 @@
 
 use anyhow::Context;
 use clap::{Parser, Subcommand};
-use fissure_cli::replay::{Pacing, connect, forces_csv, replay};
-use fissure_cli::trajectory::Trajectory;
+use fissure_cli::client::replay::{Pacing, connect, forces_csv, replay};
+use fissure_cli::client::trajectory::Trajectory;
 use std::path::PathBuf;
 
 /// Client of the fissure brain-fissure simulation server: replay trajectories,
@@ -20,7 +20,7 @@ enum Command {
     /// Start a server in-process, drive both spatulas with the bundled
     /// trajectories and write a results folder.
     #[cfg(feature = "lab")]
-    Demo(fissure_cli::demo::DemoArgs),
+    Demo(fissure_cli::lab::demo::DemoArgs),
     /// Stream trajectories to a server as haptic clients (one per instrument)
     /// and write the forces per instrument.
     #[command(after_help = REPLAY_HELP)]
@@ -29,22 +29,22 @@ enum Command {
     /// --igtl-listen / --igtl-connect, OpenIGTLink peers such as 3D Slicer
     /// and PLUS) to the server's haptic streams; forces go back to the sender.
     #[command(after_help = BRIDGE_HELP)]
-    Bridge(fissure_cli::bridge::BridgeArgs),
+    Bridge(fissure_cli::client::bridge::BridgeArgs),
     /// Subscribe to deformation frames; write a VTU series (+ .pvd for
     /// ParaView), PNG images and an animated GIF.
-    Watch(fissure_cli::watch::WatchArgs),
+    Watch(fissure_cli::client::watch::WatchArgs),
     /// Build, convert and inspect brain models.
     #[cfg(feature = "lab")]
     Mesh {
         #[command(subcommand)]
-        command: fissure_cli::mesh_cmd::MeshCommand,
+        command: fissure_cli::lab::mesh::MeshCommand,
     },
     /// Make scenes: a patient's brain from an image, with the fissure to
     /// open found near a point.
     #[cfg(feature = "lab")]
     Scene {
         #[command(subcommand)]
-        command: fissure_cli::scene_cmd::SceneCommand,
+        command: fissure_cli::lab::scene::SceneCommand,
     },
     /// Benchmarks (print a table, or JSON with --json).
     #[cfg(feature = "lab")]
@@ -86,7 +86,7 @@ enum Command {
     /// `run` and `merge` run it anywhere, e.g. as a Slurm job array
     /// (client-cli/slurm/study.sbatch).
     #[cfg(feature = "lab")]
-    Study(fissure_cli::study::StudyCommand),
+    Study(fissure_cli::lab::study::StudyCommand),
     /// Ask a server's grpc.health.v1 whether it is serving; exits non-zero if not.
     Health {
         /// Server URL.
@@ -124,25 +124,25 @@ enum Bench {
     /// Force-loop latency under load: an in-process free-running server, one
     /// haptic client per instrument at 1 kHz on real-time ticks, and watchers;
     /// round trip, server compute time, missed samples, deformation rate.
-    Loop(fissure_cli::bench_loop::LoopBenchArgs),
+    Loop(fissure_cli::lab::bench::loops::LoopBenchArgs),
     /// Collision query time, brute force against the refitted BVH, CPU and GPU
     /// rows side by side, with two spatulas in the left Sylvian fissure of a
     /// phantom preset (or on a box of the paper's size): ms per query, speedup.
-    Collision(fissure_cli::bench_collision::CollisionArgs),
+    Collision(fissure_cli::lab::bench::collision::CollisionArgs),
     /// The rays of `bench collision --dump-rays` cast again by the CPU BVH,
     /// one thread by default: ns per line bounded and whole, bundled and per
     /// ray, build and refit (the figures the Embree comparison sets beside
     /// its own).
-    Rays(fissure_cli::bench_rays::RaysArgs),
+    Rays(fissure_cli::lab::bench::rays::RaysArgs),
     /// Force samples against a full solve at every sample, on every scene
     /// with bundled trajectories (stepped, 1 kHz): error, ripple at frame
     /// changes, onset, press/retract hysteresis, normal force, settling of
     /// held poses, model age and cost, beside their targets.
-    Haptic(fissure_cli::bench_haptic::HapticArgs),
+    Haptic(fissure_cli::lab::bench::haptic::HapticArgs),
     /// Latency the device bridges add to a force round trip: direct gRPC,
     /// the UDP bridge and the OpenIGTLink bridge (with and without the
     /// surface stream), lockstep at 1 kHz on the cube scene.
-    Bridge(fissure_cli::bench_bridge::BridgeBenchArgs),
+    Bridge(fissure_cli::lab::bench::bridge::BridgeBenchArgs),
 }
 
 const REPLAY_HELP: &str = "\
@@ -250,7 +250,7 @@ fn main() -> anyhow::Result<()> {
         // Progress events come from engine work in process (lab commands).
         #[cfg(feature = "lab")]
         let registry = {
-            use fissure_cli::progress::ProgressLayer;
+            use fissure_cli::lab::progress::ProgressLayer;
             registry.with(ProgressLayer::stderr().with_filter(ProgressLayer::filter()))
         };
         registry.init();
@@ -258,17 +258,18 @@ fn main() -> anyhow::Result<()> {
     let rt = tokio::runtime::Runtime::new().context("starting the async runtime")?;
     match cli.command {
         #[cfg(feature = "lab")]
-        Command::Study(cmd) => fissure_cli::study::command(&cmd)?,
+        Command::Study(cmd) => fissure_cli::lab::study::command(&cmd)?,
         #[cfg(feature = "lab")]
         Command::Demo(args) => {
-            rt.block_on(fissure_cli::demo::run(&args))?;
+            rt.block_on(fissure_cli::lab::demo::run(&args))?;
         }
         Command::Replay(args) => {
             let set = match &args.recording {
-                Some(rec) => fissure_cli::report::trajectories(rec)?,
-                None => {
-                    fissure_cli::trajectory::resolve(args.instrument.as_deref(), &args.trajectory)?
-                }
+                Some(rec) => fissure_cli::client::report::trajectories(rec)?,
+                None => fissure_cli::client::trajectory::resolve(
+                    args.instrument.as_deref(),
+                    &args.trajectory,
+                )?,
             };
             let stem = args
                 .out
@@ -321,15 +322,15 @@ fn main() -> anyhow::Result<()> {
             })?;
         }
         Command::Bridge(args) => {
-            rt.block_on(fissure_cli::bridge::run(&args))?;
+            rt.block_on(fissure_cli::client::bridge::run(&args))?;
         }
         Command::Watch(args) => {
-            rt.block_on(fissure_cli::watch::run(&args))?;
+            rt.block_on(fissure_cli::client::watch::run(&args))?;
         }
         #[cfg(feature = "lab")]
-        Command::Mesh { command } => fissure_cli::mesh_cmd::run(command)?,
+        Command::Mesh { command } => fissure_cli::lab::mesh::run(command)?,
         #[cfg(feature = "lab")]
-        Command::Scene { command } => fissure_cli::scene_cmd::run(command)?,
+        Command::Scene { command } => fissure_cli::lab::scene::run(command)?,
         #[cfg(feature = "lab")]
         Command::Bench { which } => match which {
             Bench::Fem {
@@ -340,7 +341,7 @@ fn main() -> anyhow::Result<()> {
                 steps,
                 json,
             } => {
-                use fissure_cli::bench_fem::{FemBenchOptions, print, run_fem_bench};
+                use fissure_cli::lab::bench::fem::{FemBenchOptions, print, run_fem_bench};
                 let mut opts = FemBenchOptions {
                     contact_counts: contacts,
                     steps,
@@ -366,11 +367,11 @@ fn main() -> anyhow::Result<()> {
                 }
                 print(&rows, json);
             }
-            Bench::Loop(args) => rt.block_on(fissure_cli::bench_loop::main(&args))?,
-            Bench::Collision(args) => fissure_cli::bench_collision::run(&args)?,
-            Bench::Rays(args) => fissure_cli::bench_rays::run(&args)?,
-            Bench::Haptic(args) => fissure_cli::bench_haptic::main(&args)?,
-            Bench::Bridge(args) => rt.block_on(fissure_cli::bench_bridge::main(&args))?,
+            Bench::Loop(args) => rt.block_on(fissure_cli::lab::bench::loops::main(&args))?,
+            Bench::Collision(args) => fissure_cli::lab::bench::collision::run(&args)?,
+            Bench::Rays(args) => fissure_cli::lab::bench::rays::run(&args)?,
+            Bench::Haptic(args) => fissure_cli::lab::bench::haptic::main(&args)?,
+            Bench::Bridge(args) => rt.block_on(fissure_cli::lab::bench::bridge::main(&args))?,
         },
         Command::Report {
             file,
@@ -380,13 +381,13 @@ fn main() -> anyhow::Result<()> {
             compare,
             accept_truncated,
         } => {
-            let options = fissure_cli::report::Options {
+            let options = fissure_cli::client::report::Options {
                 threshold_n,
                 accept_truncated,
             };
             print!(
                 "{}",
-                fissure_cli::report::command(
+                fissure_cli::client::report::command(
                     &file,
                     &options,
                     json,

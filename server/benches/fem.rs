@@ -1,6 +1,6 @@
 //! Criterion benchmarks of one deformation step per strategy on a 6,000-tet
 //! cube (bottom fixed, 50 top vertices indented). The 48k-tet figures come
-//! from `fissure_cli::bench_fem`.
+//! from `fissure_cli::lab::bench::fem`.
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use fissure_engine::fem::{Material, Prescribed, SolverOptions, Strategy, build_solver};

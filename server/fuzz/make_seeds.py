@@ -177,7 +177,7 @@ def delimited(msgs):
     return b"".join(varint(len(m)) + m for m in msgs)
 
 
-# The bridge's datagrams (client-cli/src/bridge.rs, "Datagram format"),
+# The bridge's datagrams (client-cli/src/client/bridge.rs, "Datagram format"),
 # packed here from the documented layout.
 POSE_FMT = "<4sBBHQd3d4d"  # 80 bytes
 FORCE_FMT = "<4sBBHQd3d3dIIQddQ"  # 112 bytes
@@ -236,7 +236,7 @@ def bridge_seeds():
     put("bridge", "padded.json", json_pose("right", 9, 0.009, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0)).ljust(1024))
 
 
-# OpenIGTLink messages (client-cli/src/bridge/igtl/codec.rs), packed here
+# OpenIGTLink messages (client-cli/src/client/bridge/igtl/codec.rs), packed here
 # from the protocol's layout. File names: `ok-*` parse; `bad-<cause>-*` are
 # refused with that cause (`IgtlError::kind`), which
 # client-cli/tests/cli/igtl_corpus.rs checks.

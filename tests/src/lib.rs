@@ -57,7 +57,7 @@ impl TestServer {
 
     /// A connected client.
     pub async fn client(&self) -> anyhow::Result<FissureClient<Channel>> {
-        fissure_cli::replay::connect(&self.url).await
+        fissure_cli::client::replay::connect(&self.url).await
     }
 
     /// Stops the server and the simulation.
@@ -91,7 +91,7 @@ impl Haptic {
         token: Option<&str>,
     ) -> Result<Self, tonic::Status> {
         let (tx, rx) = tokio::sync::mpsc::channel(16);
-        let req = fissure_cli::replay::haptic_request(
+        let req = fissure_cli::client::replay::haptic_request(
             tokio_stream::wrappers::ReceiverStream::new(rx),
             instrument,
             token,

@@ -13,9 +13,9 @@
 //! * a truncated recording is refused with the byte offset of its cut
 //!   entry, and a page already there is left as it was.
 
-use fissure_cli::demo::{DemoArgs, run};
-use fissure_cli::replay::Pacing;
-use fissure_cli::report::{self, Options, Report};
+use fissure_cli::client::replay::Pacing;
+use fissure_cli::client::report::{self, Options, Report};
+use fissure_cli::lab::demo::{DemoArgs, run};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -36,7 +36,7 @@ pub(crate) fn run_demo(
     out: &Path,
     scene: &str,
     trajectory: &[String],
-) -> anyhow::Result<fissure_cli::demo::DemoReport> {
+) -> anyhow::Result<fissure_cli::lab::demo::DemoReport> {
     let args = DemoArgs {
         scene: scene.into(),
         out: out.into(),
@@ -48,7 +48,7 @@ pub(crate) fn run_demo(
         width: 400,
         height: 300,
         gif_frames: 2,
-        colour_by: fissure_cli::watch::ColourBy::NonRigid,
+        colour_by: fissure_cli::client::watch::ColourBy::NonRigid,
         no_pictures: true,
         quiet: true,
     };
@@ -178,8 +178,8 @@ fn the_careless_session_scores_worse_and_the_page_renders() -> anyhow::Result<()
             .filter(|p| p[..3].iter().zip(rgb).all(|(&a, b)| a.abs_diff(b) <= 12))
             .count()
     };
-    let blue = fissure_cli::render::plot::palette(0);
-    let orange = fissure_cli::render::plot::palette(1);
+    let blue = fissure_cli::client::render::plot::palette(0);
+    let orange = fissure_cli::client::render::plot::palette(1);
     assert!(count(blue) > 500, "{} blue pixels", count(blue));
     assert!(count(orange) > 500, "{} orange pixels", count(orange));
     Ok(())

@@ -2,7 +2,7 @@
 //! the round trips are positive and finite, and the surface path reads
 //! POLYDATA between its answers.
 
-use fissure_cli::bench_bridge::{BridgeBenchArgs, run, table};
+use fissure_cli::lab::bench::bridge::{BridgeBenchArgs, run, table};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn every_bridge_path_answers_every_pose() -> anyhow::Result<()> {

@@ -2,8 +2,8 @@
 //! loop must give whatever the machine's speed, and the README's table of
 //! the command's flags.
 
-use fissure_cli::bench_haptic::{SummaryOptions, measure, plan, summarise};
-use fissure_cli::trajectory::Trajectory;
+use fissure_cli::client::trajectory::Trajectory;
+use fissure_cli::lab::bench::haptic::{SummaryOptions, measure, plan, summarise};
 use fissure_engine::scene::Scene;
 use fissure_engine::sim::engine::Model;
 use std::sync::Arc;

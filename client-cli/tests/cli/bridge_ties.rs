@@ -13,12 +13,12 @@
 //! level (OpenIGTLink: STATUS `ASSESS_WARN` and `ASSESS_FAIL`, device
 //! `fissure_assess`; UDP with `--assess-events`: `b"FSA1"` datagrams).
 
-use fissure_cli::bridge::igtl::codec::{
+use fissure_cli::client::bridge::igtl::codec::{
     self, Body, HEADER_LEN, Transform, name_field, parse_message, s_to_timestamp,
     transform_content, type_field, write_message,
 };
-use fissure_cli::bridge::igtl::{IgtlBridge, IgtlOptions};
-use fissure_cli::bridge::{
+use fissure_cli::client::bridge::igtl::{IgtlBridge, IgtlOptions};
+use fissure_cli::client::bridge::{
     ALERT_LEN, Bridge, FORCE_LEN, TIE_LEN, UdpOptions, decode_alert, decode_force, decode_tie,
     encode_pose,
 };

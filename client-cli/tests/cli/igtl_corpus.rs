@@ -2,7 +2,7 @@
 //! `server/fuzz/make_seeds.py`): every `ok-*` message parses, and every
 //! `bad-<cause>-*` message is refused with that cause named.
 
-use fissure_cli::bridge::igtl::codec::parse_message;
+use fissure_cli::client::bridge::igtl::codec::parse_message;
 use std::path::Path;
 
 #[test]

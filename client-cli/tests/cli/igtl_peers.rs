@@ -8,11 +8,11 @@
 //! `openigtlink-examples`, `pyigtl`). Where one is missing the test says so
 //! and passes, except under `CI=true`, where it fails.
 
-use fissure_cli::bridge::igtl::codec::{
+use fissure_cli::client::bridge::igtl::codec::{
     self, Body, HEADER_LEN, Transform, name_field, parse_message, s_to_timestamp,
     transform_content, type_field, write_message,
 };
-use fissure_cli::bridge::igtl::{IgtlBridge, IgtlOptions, IgtlStats, Registration};
+use fissure_cli::client::bridge::igtl::{IgtlBridge, IgtlOptions, IgtlStats, Registration};
 use fissure_engine::scene::Scene;
 use fissure_engine::sim::{Mode, SimOptions, Simulation};
 use fissure_server::{RunningServer, ServeOptions, serve};

@@ -4,13 +4,17 @@
 //! decodes) and writes its pictures to `$FISSURE_RENDER_OUT` when set (else a
 //! temporary folder), printing how long each took.
 
-use fissure_cli::render::anim::{GifOptions, save_gif};
-use fissure_cli::render::frame::{CameraPreset, Caption, FrameRenderer, Plate, Scene, bounds};
-use fissure_cli::render::plot::{
+use fissure_cli::client::render::anim::{GifOptions, save_gif};
+use fissure_cli::client::render::frame::{
+    CameraPreset, Caption, FrameRenderer, Plate, Scene, bounds,
+};
+use fissure_cli::client::render::plot::{
     Axis, InstrumentForces, Marker, ScatterGroup, ScatterPlot, force_plot, palette,
 };
-use fissure_cli::render::raster::{Camera, Colouring, EdgeStyle, MeshRef, RenderOptions, Renderer};
-use fissure_cli::render::{Image, colormap::Colormap};
+use fissure_cli::client::render::raster::{
+    Camera, Colouring, EdgeStyle, MeshRef, RenderOptions, Renderer,
+};
+use fissure_cli::client::render::{Image, colormap::Colormap};
 use fissure_engine::mesh::blocks::v_valley;
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use std::path::PathBuf;
@@ -191,7 +195,7 @@ fn v_valley_pushed_open_with_force_arrow() {
     img.save_png(dir.join("v_valley_pushed.png")).unwrap();
     assert!(not_background_fraction(&img) > 0.15);
     // The force readout is written in the arrow's colour, bottom-left.
-    let arrow = fissure_cli::render::frame::ARROWS[0];
+    let arrow = fissure_cli::client::render::frame::ARROWS[0];
     let readout = (0..500)
         .flat_map(|x| (img.height() - 40..img.height()).map(move |y| (x, y)))
         .filter(|&(x, y)| {

@@ -6,7 +6,7 @@
 //! and never pulls (frictionless contact is unilateral), and a plate out of
 //! the tissue feels nothing.
 
-use fissure_cli::scene_cmd::{FromImageArgs, from_image};
+use fissure_cli::lab::scene::{FromImageArgs, from_image};
 use std::path::Path;
 
 /// Block half-size, mm; slot half-width, mm; the slot runs from the top

@@ -1,9 +1,9 @@
 //! `fissure study --quick`: the whole pipeline on the coarse phantom, with the
 //! stability results asserted.
 
-use fissure_cli::study::plan::{PlanOptions, Role, StudyPlan};
-use fissure_cli::study::runs::{Outcome, run_range};
-use fissure_cli::study::{StudyArgs, StudyError, merge, record, run_study};
+use fissure_cli::lab::study::plan::{PlanOptions, Role, StudyPlan};
+use fissure_cli::lab::study::runs::{Outcome, run_range};
+use fissure_cli::lab::study::{StudyArgs, StudyError, merge, record, run_study};
 use std::path::Path;
 
 /// The measured times (the machine's, never equal between two runs).

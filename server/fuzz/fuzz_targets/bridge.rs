@@ -1,4 +1,4 @@
-//! Fuzzes the UDP bridge's datagram codecs (`fissure_cli::bridge`, the format
+//! Fuzzes the UDP bridge's datagram codecs (`fissure_cli::client::bridge`, the format
 //! is documented there): the pose parser `parse_datagram` (binary `FSP1` and
 //! JSON), the force decoder `decode_force`, and the JSON answer line written
 //! for what the parser accepted.
@@ -15,7 +15,7 @@
 //!   bytes 104..112 aside.
 #![no_main]
 
-use fissure_cli::bridge::{
+use fissure_cli::client::bridge::{
     DatagramError, FORCE_LEN, ForceDatagram, Format, InstrumentRef, MAX_DATAGRAM, POSE_LEN,
     POSE_MAGIC, VERSION, decode_force, encode_force, encode_force_json, encode_pose,
     parse_datagram,
@@ -23,7 +23,7 @@ use fissure_cli::bridge::{
 use libfuzzer_sys::fuzz_target;
 use serde_json::Value;
 
-fn check_json(data: &[u8], d: &fissure_cli::bridge::PoseDatagram<'_>) {
+fn check_json(data: &[u8], d: &fissure_cli::client::bridge::PoseDatagram<'_>) {
     let v: Value = serde_json::from_slice(data).expect("accepted JSON is JSON");
     let o = v.as_object().expect("accepted JSON is an object");
     let absent = |k: &str| o.get(k).is_none_or(Value::is_null);

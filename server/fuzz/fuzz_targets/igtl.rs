@@ -1,5 +1,5 @@
 //! Fuzzes the OpenIGTLink codec of `fissure bridge --igtl-*`
-//! (`fissure_cli::bridge::igtl::codec`): the header parser, the body check
+//! (`fissure_cli::client::bridge::igtl::codec`): the header parser, the body check
 //! (size, CRC-64, version-2 extended header) and the TRANSFORM, POSITION,
 //! SENSOR, STATUS and POLYDATA readers.
 //!
@@ -14,7 +14,7 @@
 //!   are fuzzed past the CRC check.
 #![no_main]
 
-use fissure_cli::bridge::igtl::codec::{
+use fissure_cli::client::bridge::igtl::codec::{
     Body, HEADER_LEN, IgtlError, crc64, parse_content, parse_message,
     polydata_content, position_content, sensor_content, status_content, transform_content,
     write_message,

@@ -12,9 +12,9 @@
 //! contact.
 //!
 //! The same functions serve the free-running force loops (each on its own
-//! thread, reading the others' rows from shared slots) and the stepped
-//! runner ([`super::stepped`]), which queries every instrument of one time
-//! before solving any.
+//! thread, exchanging rows with the others through a [`RowExchange`]) and
+//! the stepped runner ([`super::stepped`]), which queries every instrument
+//! of one time before solving any.
 
 use super::engine::{ContactQuery, History, Model, RowRule, penalty};
 use super::flags;
@@ -24,6 +24,7 @@ use super::snapshot::Snapshot;
 use crate::scene::{HistoryMode, Scene};
 use faer::Par;
 use nalgebra::{Isometry3, Vector3};
+use std::sync::{Arc, Mutex};
 
 /// A sample's force on one instrument.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -330,5 +331,144 @@ impl ForceLoop {
             contact_count: self.contact_count,
             flags: out_flags,
         }
+    }
+}
+
+/// The free-running force loops' exchange of contact rows: each loop
+/// publishes its instrument's rows after its query and reads the other
+/// instruments' latest before its solve, so that every sample's contact
+/// problem couples the instruments (DESIGN.md section 4) without a loop
+/// waiting for another. A slot's rows are replaced in place when no reader
+/// holds them, so a sample allocates nothing once the slots have grown.
+#[derive(Debug)]
+pub struct RowExchange {
+    slots: Vec<Mutex<RowSlot>>,
+}
+
+/// One instrument's latest rows.
+#[derive(Debug, Default)]
+struct RowSlot {
+    /// Whether its instrument is claimed (a released one's rows are stale).
+    live: bool,
+    rows: Arc<Vec<Row>>,
+}
+
+/// The other instruments' rows as one sample read them (reused from one
+/// sample to the next).
+#[derive(Debug, Default)]
+pub struct HeldRows {
+    held: Vec<Option<Arc<Vec<Row>>>>,
+}
+
+impl HeldRows {
+    /// Instrument `j`'s rows, if it was live when they were read.
+    pub fn of(&self, j: usize) -> Option<&[Row]> {
+        self.held
+            .get(j)
+            .and_then(|h| h.as_deref().map(|v| v.as_slice()))
+    }
+
+    /// Lets the rows go (their slots may be reused in place again).
+    pub fn clear(&mut self) {
+        self.held.clear();
+    }
+}
+
+impl RowExchange {
+    /// Slots for `instruments` instruments, none live.
+    pub fn new(instruments: usize) -> Self {
+        Self {
+            slots: (0..instruments)
+                .map(|_| Mutex::new(RowSlot::default()))
+                .collect(),
+        }
+    }
+
+    /// Instrument `index`'s rows of its latest sample; it is live from now on.
+    pub fn publish(&self, index: usize, rows: &[Row]) {
+        let mut mine = self.slots[index].lock().expect("rows lock");
+        mine.live = true;
+        match Arc::get_mut(&mut mine.rows) {
+            Some(v) => {
+                v.clear();
+                v.extend_from_slice(rows);
+            }
+            None => mine.rows = Arc::new(rows.to_vec()),
+        }
+    }
+
+    /// Instrument `index` was released: the others stop reading its rows.
+    pub fn release(&self, index: usize) {
+        self.slots[index].lock().expect("rows lock").live = false;
+    }
+
+    /// Every other live instrument's latest rows into `held` (instrument
+    /// `index`'s own slot reads as none).
+    pub fn gather(&self, index: usize, held: &mut HeldRows) {
+        held.held.clear();
+        for (j, slot) in self.slots.iter().enumerate() {
+            if j == index {
+                held.held.push(None);
+                continue;
+            }
+            let s = slot.lock().expect("rows lock");
+            held.held.push(s.live.then(|| s.rows.clone()));
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fem::{ContactRow, RowKind};
+    use nalgebra::Point3;
+
+    fn row(owner: u16, node: u32) -> Row {
+        Row {
+            key: rows::key(node, owner, 0, 0),
+            owner,
+            row: ContactRow::at_node(node, Vector3::z(), 1e-3, RowKind::Unilateral),
+            point: Point3::origin(),
+            triangle: rows::NO_TRIANGLE,
+        }
+    }
+
+    /// Each loop reads the others' latest rows, never its own, and none of
+    /// a released instrument; a slot no reader holds is rewritten in place
+    /// (the same allocation), one a reader holds is replaced and the reader
+    /// keeps what it read.
+    #[test]
+    fn the_exchange_gives_each_loop_the_other_live_instruments_latest_rows() {
+        let exchange = RowExchange::new(3);
+        let mut held = HeldRows::default();
+        exchange.gather(0, &mut held);
+        assert!((0..3).all(|j| held.of(j).is_none()), "nothing is live yet");
+
+        exchange.publish(0, &[row(0, 1)]);
+        exchange.publish(1, &[row(1, 2), row(1, 3)]);
+        exchange.gather(0, &mut held);
+        assert!(held.of(0).is_none(), "a loop does not read its own slot");
+        assert_eq!(held.of(1).map(<[Row]>::len), Some(2));
+        assert!(held.of(2).is_none(), "instrument 2 never published");
+
+        // Held by a reader: the publisher replaces the slot, the reader
+        // keeps the rows it read.
+        exchange.publish(1, &[row(1, 4)]);
+        assert_eq!(held.of(1).map(|r| r[0].row.node), Some(2));
+        held.clear();
+        let before = Arc::as_ptr(&exchange.slots[1].lock().unwrap().rows);
+        exchange.publish(1, &[row(1, 5)]);
+        let after = Arc::as_ptr(&exchange.slots[1].lock().unwrap().rows);
+        assert_eq!(before, after, "a slot no one holds is rewritten in place");
+        exchange.gather(2, &mut held);
+        assert_eq!(held.of(1).map(|r| r[0].row.node), Some(5));
+        assert_eq!(held.of(0).map(|r| r[0].row.node), Some(1));
+
+        exchange.release(1);
+        exchange.gather(0, &mut held);
+        assert!(
+            held.of(1).is_none(),
+            "a released instrument's rows are not read"
+        );
     }
 }

@@ -30,6 +30,8 @@
 //!   not depend on timing). `fissure study` drives the same runner.
 
 pub mod budget;
+mod claim;
+mod driver;
 pub mod engine;
 pub mod force_loop;
 pub mod haptic_stream;
@@ -44,15 +46,15 @@ pub mod snapshot;
 pub mod stats;
 pub mod stepped;
 
+pub use claim::Claim;
 pub use stepped::step_before;
 
 use crate::fem::compliance::ColumnPolicy;
 use crate::scene::Scene;
 use engine::{Model, StepEngine};
-use force_loop::{ForceLoop, SampleForce};
-use nalgebra::{Isometry3, Vector3};
-use pose::{PoseError, RawPose, TimedPose};
-use rows::Row;
+use force_loop::{ForceLoop, HeldRows, RowExchange, SampleForce};
+use nalgebra::Vector3;
+use pose::{PoseError, TimedPose};
 use snapshot::{Frame, Snapshot};
 use stats::{LatencyRecorder, StatsSummary};
 use std::collections::VecDeque;
@@ -282,13 +284,6 @@ struct Inputs {
     reset: bool,
 }
 
-/// An instrument's latest rows, for the other force loops (free-running).
-#[derive(Default)]
-struct SharedRows {
-    live: bool,
-    rows: Arc<Vec<Row>>,
-}
-
 /// A running simulation: the model, the loop thread, the shared state.
 pub struct Simulation {
     scene: Scene,
@@ -315,7 +310,8 @@ pub struct Simulation {
     solver_cache_bytes: AtomicU64,
     watchers: AtomicU64,
     recorder: Option<Arc<dyn journal::Journal>>,
-    shared_rows: Vec<Mutex<SharedRows>>,
+    /// The free-running force loops' rows, each read by the others.
+    exchange: RowExchange,
 }
 
 impl std::fmt::Debug for Simulation {
@@ -415,7 +411,7 @@ impl Simulation {
             solver_cache_bytes: AtomicU64::new(0),
             watchers: AtomicU64::new(0),
             recorder,
-            shared_rows: (0..n).map(|_| Mutex::new(SharedRows::default())).collect(),
+            exchange: RowExchange::new(n),
             scene,
         });
         if let Some(rec) = &sim.recorder {
@@ -535,7 +531,7 @@ impl Simulation {
             resets_seen: self.resets.lock().expect("resets lock").0,
             force_loop: (!self.is_stepped())
                 .then(|| ForceLoop::new(&self.scene, &self.model, index, None)),
-            held: Vec::new(),
+            held: HeldRows::default(),
             reply: Arc::new(Reply::default()),
         })
     }
@@ -707,183 +703,6 @@ impl Simulation {
             compute_us,
         }
     }
-
-    /// Free-running: a step whenever a pose changed and the interval has
-    /// passed.
-    fn deformation_loop(self: Arc<Self>, mut engine: StepEngine) {
-        let dt = self.scene.loops.deformation_interval_s;
-        let n = self.scene.instruments.len();
-        let mut seen_versions = vec![u64::MAX; n];
-        let mut last_start = Instant::now();
-        let homes: Vec<Isometry3<f64>> =
-            (0..n).map(|i| stepped::home_pose(&self.scene, i)).collect();
-        loop {
-            let mut poses = Vec::with_capacity(n);
-            let mut histories = Vec::with_capacity(n);
-            {
-                let mut inputs = self.inputs.lock().expect("inputs lock");
-                loop {
-                    if self.shutdown.load(Ordering::SeqCst) {
-                        return;
-                    }
-                    if inputs.reset {
-                        break;
-                    }
-                    let changed = inputs
-                        .per_instrument
-                        .iter()
-                        .zip(&seen_versions)
-                        .any(|(s, &v)| s.version != v);
-                    let due = last_start.elapsed().as_secs_f64() >= dt;
-                    if changed && due {
-                        break;
-                    }
-                    let wait = if changed {
-                        Duration::from_secs_f64((dt - last_start.elapsed().as_secs_f64()).max(0.0))
-                    } else {
-                        Duration::from_millis(50)
-                    };
-                    inputs = self
-                        .inputs_changed
-                        .wait_timeout(inputs, wait)
-                        .expect("inputs lock")
-                        .0;
-                }
-                if inputs.reset {
-                    inputs.reset = false;
-                    drop(inputs);
-                    let rest = Arc::new(engine.rest(self.started.elapsed().as_secs_f64()));
-                    let frame = rest.frame;
-                    self.publish(rest);
-                    self.finish_reset(frame);
-                    continue;
-                }
-                for i in 0..n {
-                    let slot = &inputs.per_instrument[i];
-                    seen_versions[i] = slot.version;
-                    match slot.latest.as_ref().filter(|_| slot.claimed) {
-                        Some((p, h)) => {
-                            poses.push(p.pose);
-                            histories.push(Some(h.clone()));
-                        }
-                        None => {
-                            poses.push(homes[i]);
-                            histories.push(None);
-                        }
-                    }
-                }
-            }
-            last_start = Instant::now();
-            let _span = tracing::debug_span!("deformation_step").entered();
-            let prev = self.snapshot();
-            // The step's time is the instant it was due, not a reading
-            // taken later: a thread preempted between the two would put
-            // two frames less than the interval apart.
-            let sim_time = last_start
-                .saturating_duration_since(self.started)
-                .as_secs_f64();
-            let (snap, report) = engine.step(&prev, sim_time, &poses, histories);
-            let step_us = last_start.elapsed().as_secs_f64() * 1e6;
-            self.note_step(&StepDone {
-                snapshot: Arc::new(snap),
-                report,
-                step_us,
-            });
-        }
-    }
-
-    /// Stepped: answers the poses of each time once every claimed
-    /// instrument has sent its next one.
-    fn stepped_loop(self: Arc<Self>, mut runner: SteppedRunner) {
-        let mut answers = Vec::new();
-        loop {
-            let mut batch: Vec<(usize, Pending)> = Vec::new();
-            {
-                let mut inputs = self.inputs.lock().expect("inputs lock");
-                loop {
-                    if self.shutdown.load(Ordering::SeqCst) {
-                        return;
-                    }
-                    if inputs.reset {
-                        break;
-                    }
-                    for (i, slot) in inputs.per_instrument.iter_mut().enumerate() {
-                        if slot.ended && slot.queue.is_empty() {
-                            slot.ended = false;
-                            runner.end(i);
-                        }
-                    }
-                    let ever = inputs
-                        .per_instrument
-                        .iter()
-                        .filter(|s| s.ever_claimed)
-                        .count();
-                    let claimed = || inputs.per_instrument.iter().filter(|s| s.claimed);
-                    let any = claimed().any(|s| !s.queue.is_empty());
-                    let all = claimed().all(|s| !s.queue.is_empty());
-                    // An ended stream's poses still queued are answered too.
-                    let leftover = inputs
-                        .per_instrument
-                        .iter()
-                        .any(|s| !s.claimed && !s.queue.is_empty());
-                    let clients = match self.mode {
-                        Mode::Stepped { clients } => clients.max(1),
-                        Mode::FreeRunning => 1,
-                    };
-                    if ever >= clients && ((any && all) || leftover) {
-                        break;
-                    }
-                    inputs = self.inputs_changed.wait(inputs).expect("inputs lock");
-                }
-                if inputs.reset {
-                    inputs.reset = false;
-                    drop(inputs);
-                    let mut frame = 0;
-                    runner.reset(&mut |done| {
-                        frame = done.snapshot.frame;
-                        self.publish(done.snapshot.clone());
-                    });
-                    self.finish_reset(frame);
-                    continue;
-                }
-                let t = inputs
-                    .per_instrument
-                    .iter()
-                    .filter_map(|s| s.queue.front().map(|p| p.pose.t_s))
-                    .fold(f64::INFINITY, f64::min);
-                for (i, slot) in inputs.per_instrument.iter_mut().enumerate() {
-                    if slot.queue.front().is_some_and(|p| p.pose.t_s == t) {
-                        batch.push((i, slot.queue.pop_front().expect("front checked")));
-                    }
-                }
-            }
-            let t = batch[0].1.pose.t_s;
-            if let Some(clock) = runner.clock().filter(|&c| t < c) {
-                for (_, p) in batch {
-                    self.rejected.fetch_add(1, Ordering::Relaxed);
-                    p.reply.send(Err(PoseError::BehindClock { got: t, clock }));
-                }
-                continue;
-            }
-            let poses: Vec<(usize, Isometry3<f64>)> =
-                batch.iter().map(|(i, p)| (*i, p.pose.pose)).collect();
-            answers.clear();
-            runner.tick(t, &poses, &mut |done| self.note_step(done), &mut answers);
-            for ((_, p), a) in batch.into_iter().zip(&answers) {
-                let out = self.answer(
-                    &p.pose,
-                    &a.force,
-                    a.frame,
-                    a.model_age_s,
-                    a.solver_failed,
-                    a.compute_us,
-                );
-                self.force_latency.record(a.compute_us);
-                self.force_samples.fetch_add(1, Ordering::Relaxed);
-                p.reply.send(Ok(out));
-            }
-        }
-    }
 }
 
 impl Drop for Simulation {
@@ -904,214 +723,6 @@ pub struct WatcherGuard {
 impl Drop for WatcherGuard {
     fn drop(&mut self) {
         self.sim.watchers.fetch_sub(1, Ordering::SeqCst);
-    }
-}
-
-/// An exclusive claim of one instrument: its force loop. Released on drop.
-pub struct Claim {
-    sim: Arc<Simulation>,
-    index: usize,
-    name: String,
-    last: Option<TimedPose>,
-    resets_seen: u64,
-    /// Free-running: the instrument's force loop (stepped: the runner's).
-    force_loop: Option<ForceLoop>,
-    /// Free-running: the other instruments' rows read for one sample.
-    held: Vec<Option<Arc<Vec<Row>>>>,
-    reply: Arc<Reply>,
-}
-
-impl std::fmt::Debug for Claim {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Claim")
-            .field("instrument", &self.name)
-            .finish_non_exhaustive()
-    }
-}
-
-impl Claim {
-    /// Prepares the calling thread to run this claim's force loop: asks for
-    /// the real-time priority of [`SimOptions::force_loop_rt_priority`]. Call
-    /// once, on the thread that will call [`Claim::force_sample`]. Whether it
-    /// took is logged (a refusal once per process, at `warn`).
-    pub fn enter_force_thread(&self) {
-        static REFUSED: AtomicBool = AtomicBool::new(false);
-        let asked = self.sim.options.force_loop_rt_priority;
-        match priority::raise_current_thread(asked) {
-            Ok(true) => {
-                tracing::debug!(instrument = %self.name, priority = asked, "force loop runs SCHED_FIFO")
-            }
-            Ok(false) => {}
-            Err(why) => {
-                if !REFUSED.swap(true, Ordering::Relaxed) {
-                    tracing::warn!(
-                        priority = asked,
-                        %why,
-                        "force loops run at normal priority: no real-time scheduling here \
-                         (grant CAP_SYS_NICE or an RLIMIT_RTPRIO allowance, or pass 0 to stop asking)"
-                    );
-                }
-            }
-        }
-    }
-
-    /// The claimed instrument's name.
-    pub fn instrument(&self) -> &str {
-        &self.name
-    }
-
-    /// Answers one pose: validates it (a rejected pose changes nothing), then
-    /// the force loop ([`force_loop`]). Blocking in stepped mode (the stepped
-    /// runner answers once every claimed instrument has sent its pose of that
-    /// time); never blocking otherwise.
-    pub fn force_sample(&mut self, raw: &RawPose) -> Result<ForceOut, PoseError> {
-        let _span = tracing::trace_span!("force_sample", instrument = %self.name).entered();
-        let t_start = Instant::now();
-        let sim = self.sim.clone();
-        // A reset starts a new session: its timestamps may start over.
-        let resets = sim.resets.lock().expect("resets lock").0;
-        if resets != self.resets_seen {
-            self.resets_seen = resets;
-            self.last = None;
-        }
-        let pose = match pose::validate(raw, self.last.as_ref()) {
-            Ok(p) => p,
-            Err(e) => {
-                sim.rejected.fetch_add(1, Ordering::Relaxed);
-                return Err(e);
-            }
-        };
-        let mut jump = 0;
-        if let Some(last) = &self.last {
-            let d = (pose.pose.translation.vector - last.pose.translation.vector).norm();
-            if d > sim.scene.loops.max_jump_m {
-                jump = flags::POSE_JUMP;
-            }
-        }
-        let mut out = if sim.is_stepped() {
-            self.stepped_sample(&pose)?
-        } else {
-            self.free_sample(&pose, t_start)
-        };
-        out.safety_flags |= jump;
-        self.last = Some(pose);
-        Ok(out)
-    }
-
-    fn stepped_sample(&mut self, pose: &TimedPose) -> Result<ForceOut, PoseError> {
-        let sim = &self.sim;
-        *self.reply.slot.lock().expect("reply lock") = None;
-        {
-            let mut inputs = sim.inputs.lock().expect("inputs lock");
-            inputs.per_instrument[self.index].queue.push_back(Pending {
-                pose: *pose,
-                reply: self.reply.clone(),
-            });
-        }
-        sim.inputs_changed.notify_all();
-        let mut slot = self.reply.slot.lock().expect("reply lock");
-        loop {
-            if let Some(r) = slot.take() {
-                return r;
-            }
-            if sim.shutdown.load(Ordering::SeqCst) {
-                drop(slot);
-                sim.fail_pending();
-                slot = self.reply.slot.lock().expect("reply lock");
-                if let Some(r) = slot.take() {
-                    return r;
-                }
-                return Err(PoseError::NotAnswered("the server is shutting down".into()));
-            }
-            slot = self
-                .reply
-                .ready
-                .wait_timeout(slot, Duration::from_millis(100))
-                .expect("reply lock")
-                .0;
-        }
-    }
-
-    fn free_sample(&mut self, pose: &TimedPose, t_start: Instant) -> ForceOut {
-        let sim = self.sim.clone();
-        let snap = sim.snapshot();
-        let fl = self
-            .force_loop
-            .as_mut()
-            .expect("free-running claims have a force loop");
-        let t_query = Instant::now();
-        fl.query(&sim.model, &snap, &pose.pose);
-        sim.force_collision_latency
-            .record(t_query.elapsed().as_secs_f64() * 1e6);
-        {
-            let mut mine = sim.shared_rows[self.index].lock().expect("rows lock");
-            mine.live = true;
-            match Arc::get_mut(&mut mine.rows) {
-                Some(v) => {
-                    v.clear();
-                    v.extend_from_slice(fl.rows());
-                }
-                None => mine.rows = Arc::new(fl.rows().to_vec()),
-            }
-        }
-        self.held.clear();
-        for (j, slot) in sim.shared_rows.iter().enumerate() {
-            if j == self.index {
-                self.held.push(None);
-                continue;
-            }
-            let s = slot.lock().expect("rows lock");
-            self.held.push(s.live.then(|| s.rows.clone()));
-        }
-        let held = &self.held;
-        let others = |j: usize| held.get(j).and_then(|h| h.as_deref().map(|v| v.as_slice()));
-        let sample = fl.solve(&sim.model, &snap, &others, &pose.pose.translation.vector);
-        self.held.clear();
-        {
-            let mut inputs = sim.inputs.lock().expect("inputs lock");
-            let slot = &mut inputs.per_instrument[self.index];
-            slot.version += 1;
-            match slot.latest.as_mut() {
-                Some((p, h)) => {
-                    // Reuse the slot's flags (no allocation per sample).
-                    *p = *pose;
-                    h.copy_from(fl.history());
-                }
-                None => slot.latest = Some((*pose, fl.history().clone())),
-            }
-        }
-        sim.inputs_changed.notify_all();
-        let model_age_s = snap.published.elapsed().as_secs_f64();
-        let compute_us = t_start.elapsed().as_secs_f64() * 1e6;
-        sim.force_latency.record(compute_us);
-        sim.force_samples.fetch_add(1, Ordering::Relaxed);
-        sim.answer(
-            pose,
-            &sample,
-            snap.frame,
-            model_age_s,
-            snap.solver_error.is_some(),
-            compute_us,
-        )
-    }
-}
-
-impl Drop for Claim {
-    fn drop(&mut self) {
-        {
-            let mut inputs = self.sim.inputs.lock().expect("inputs lock");
-            let slot = &mut inputs.per_instrument[self.index];
-            slot.claimed = false;
-            slot.latest = None;
-            slot.version += 1;
-            slot.ended = true;
-        }
-        {
-            let mut mine = self.sim.shared_rows[self.index].lock().expect("rows lock");
-            mine.live = false;
-        }
-        self.sim.inputs_changed.notify_all();
-        tracing::info!(instrument = %self.name, "instrument released");
     }
 }
 

@@ -1,7 +1,7 @@
 //! `fissure bridge` driven from a plain UDP socket against an in-process
 //! server on the `cube` scene.
 
-use fissure_cli::bridge::{Bridge, FORCE_LEN, decode_force, encode_pose};
+use fissure_cli::client::bridge::{Bridge, FORCE_LEN, decode_force, encode_pose};
 use fissure_engine::sim::{Mode, SimOptions};
 use fissure_server::ServeOptions;
 use fissure_tests::{Haptic, TestServer, pose};

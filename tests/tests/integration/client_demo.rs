@@ -1,8 +1,8 @@
 //! `fissure demo` end to end: the results folder holds what the README
 //! promises, and the pictures show the deformation.
 
-use fissure_cli::demo::{DemoArgs, run};
-use fissure_cli::replay::Pacing;
+use fissure_cli::client::replay::Pacing;
+use fissure_cli::lab::demo::{DemoArgs, run};
 
 fn args(scene: &str, out: &std::path::Path) -> DemoArgs {
     DemoArgs {
@@ -16,7 +16,7 @@ fn args(scene: &str, out: &std::path::Path) -> DemoArgs {
         width: 400,
         height: 300,
         gif_frames: 4,
-        colour_by: fissure_cli::watch::ColourBy::NonRigid,
+        colour_by: fissure_cli::client::watch::ColourBy::NonRigid,
         no_pictures: false,
         quiet: true,
     }

@@ -3,8 +3,8 @@
 //! force opposes the motion. (The phantom scenes' trajectories run in
 //! `fissure demo --scene sylvian|interhemispheric`, see `client_demo.rs`.)
 
-use fissure_cli::replay::{ForceRow, Pacing, replay};
-use fissure_cli::trajectory::{Trajectory, bundled_for};
+use fissure_cli::client::replay::{ForceRow, Pacing, replay};
+use fissure_cli::client::trajectory::{Trajectory, bundled_for};
 use fissure_engine::sim::{Mode, SimOptions};
 use fissure_server::ServeOptions;
 use fissure_tests::TestServer;

@@ -4,8 +4,8 @@
 //! stepped replay stays current and counts the frames it skipped.
 
 use crate::reliability_common::{FLAT_DOWN, HANDLE_Y, LEFT_X, TOUCH_Z};
-use fissure_cli::mesh_cmd::{InspectOptions, convert, inspect};
-use fissure_cli::watch::{WatchArgs, WatchEnd, run};
+use fissure_cli::client::watch::{WatchArgs, WatchEnd, run};
+use fissure_cli::lab::mesh::{InspectOptions, convert, inspect};
 use fissure_engine::sim::{Mode, SimOptions};
 use fissure_server::ServeOptions;
 use fissure_tests::{Haptic, TestServer, pose};
@@ -27,7 +27,7 @@ fn args(server: &str, out: &Path) -> WatchArgs {
         range_mm: None,
         azimuth_deg: None,
         elevation_deg: None,
-        colour_by: fissure_cli::watch::ColourBy::NonRigid,
+        colour_by: fissure_cli::client::watch::ColourBy::NonRigid,
     }
 }
 

@@ -1,7 +1,7 @@
 //! `fissure bridge` under malformed datagrams: each kind is dropped and
 //! counted without an answer, and the bridge keeps serving the device.
 
-use fissure_cli::bridge::{
+use fissure_cli::client::bridge::{
     Bridge, FORCE_LEN, FORCE_MAGIC, ForceDatagram, MAX_DATAGRAM, decode_force, encode_force,
     encode_pose,
 };

@@ -3,8 +3,8 @@
 //! `fissure report`, and replayed with `fissure replay --recording` against a
 //! fresh server, which gives the same forces.
 
-use fissure_cli::replay::{ForceRow, Pacing, connect, replay};
-use fissure_cli::trajectory::Trajectory;
+use fissure_cli::client::replay::{ForceRow, Pacing, connect, replay};
+use fissure_cli::client::trajectory::Trajectory;
 use fissure_engine::sim::{Mode, SimOptions};
 use fissure_proto::recording;
 use fissure_proto::v1 as pb;
@@ -152,7 +152,7 @@ async fn recording_round_trip_report_and_replay() -> anyhow::Result<()> {
     // 2. `fissure report`: peak force, path length and duration against the
     // same quantities computed here from the trajectories and the live rows.
     let threshold = 0.05;
-    let report = fissure_cli::report::report(&path, threshold)?;
+    let report = fissure_cli::client::report::report(&path, threshold)?;
     assert_eq!(report.scene, "cube");
     assert_eq!(report.frames, frames.len());
     assert_eq!(report.failed_frames, failed);
@@ -201,7 +201,7 @@ async fn recording_round_trip_report_and_replay() -> anyhow::Result<()> {
 
     // 3. `fissure replay --recording`: the recorded trajectories against a
     // fresh stepped server give the same forces, to the bit.
-    let replayed_plans = fissure_cli::report::trajectories(&path)?;
+    let replayed_plans = fissure_cli::client::report::trajectories(&path)?;
     assert_eq!(
         replayed_plans
             .iter()

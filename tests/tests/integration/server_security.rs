@@ -134,7 +134,7 @@ async fn tls_with_self_signed_certificate() -> anyhow::Result<()> {
     // Plaintext HTTP/2 to a TLS port: no call succeeds.
     let plain = format!("http://{}", server.addr);
     let plain_result = async {
-        let mut c = fissure_cli::replay::connect(&plain).await?;
+        let mut c = fissure_cli::client::replay::connect(&plain).await?;
         c.get_scene(pb::GetSceneRequest {}).await?;
         anyhow::Ok(())
     }

@@ -187,7 +187,7 @@ async fn health_serving_once_loaded() -> anyhow::Result<()> {
     let status = health.check(req()).await?.into_inner().status;
     assert_eq!(status, ServingStatus::NotServing as i32);
     // Calls before the scene is loaded are UNAVAILABLE, not errors of the client.
-    let mut client = fissure_cli::replay::connect(&url).await?;
+    let mut client = fissure_cli::client::replay::connect(&url).await?;
     let err = client
         .get_scene(fissure_proto::v1::GetSceneRequest {})
         .await

@@ -4,7 +4,7 @@
 //! still reads it. Memory is the process's resident set, so these tests run
 //! alone in the process (the `isolated` binary runs one test at a time).
 
-use fissure_cli::report::{LostEntries, report};
+use fissure_cli::client::report::{LostEntries, report};
 use fissure_engine::sim::snapshot::{Frame, InstrumentReaction, StepTimings};
 use fissure_proto::recording::{RecordingGap, RecordingGapExt, read_recording};
 use fissure_proto::v1 as pb;
@@ -342,7 +342,7 @@ fn a_stalled_disk_keeps_the_queue_bounded_and_the_file_records_the_loss() {
             gaps: 1,
         }
     );
-    let table = fissure_cli::report::table(&summary);
+    let table = fissure_cli::client::report::table(&summary);
     assert!(
         table.contains(&format!(
             "poses {}, force samples {}, frames {}, in 1 gap\n",

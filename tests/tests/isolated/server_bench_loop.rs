@@ -2,7 +2,7 @@
 //! the figures it reports are consistent with what it ran. Speed targets are
 //! the benchmark's business, not this test's.
 
-use fissure_cli::bench_loop::{LoopBenchArgs, run};
+use fissure_cli::lab::bench::loops::{LoopBenchArgs, run};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn bench_loop_reports_consistent_figures() -> anyhow::Result<()> {
@@ -41,7 +41,7 @@ async fn bench_loop_reports_consistent_figures() -> anyhow::Result<()> {
     if r.machine_stalls == 0 {
         assert_eq!(r.machine_stall_max_us, 0.0);
     } else {
-        assert!(r.machine_stall_max_us > fissure_cli::bench_loop::STALL_THRESHOLD_US);
+        assert!(r.machine_stall_max_us > fissure_cli::lab::bench::loops::STALL_THRESHOLD_US);
     }
     assert!(r.duration_s >= 0.999, "{}", r.duration_s);
     for (name, v) in [

@@ -2,8 +2,8 @@
 //! never waits for the deformation loop and watchers are latest-wins; in
 //! stepped mode two runs of the same two-instrument session are bit-identical.
 
-use fissure_cli::replay::{ForceRow, Pacing, connect, replay};
-use fissure_cli::trajectory::Trajectory;
+use fissure_cli::client::replay::{ForceRow, Pacing, connect, replay};
+use fissure_cli::client::trajectory::Trajectory;
 use fissure_engine::scene::{ModelSpec, Scene, Strategy};
 use fissure_engine::sim::{Mode, SimOptions, flags};
 use fissure_proto::recording;

@@ -52,7 +52,7 @@ pub fn rss_bytes() -> u64 {
 /// A client on its own HTTP/2 connection (streams on one connection share
 /// its flow-control window; a stalled stream must not stall the others).
 pub async fn own_connection(url: &str) -> anyhow::Result<FissureClient<Channel>> {
-    fissure_cli::replay::connect(url).await
+    fissure_cli::client::replay::connect(url).await
 }
 
 /// A client on its own connection whose HTTP/2 receive windows are the
@@ -116,7 +116,7 @@ pub async fn pipelined(
     timeout: Duration,
 ) -> anyhow::Result<StreamReport> {
     let (tx, rx) = tokio::sync::mpsc::channel::<pb::PoseSample>(256);
-    let req = fissure_cli::replay::haptic_request(
+    let req = fissure_cli::client::replay::haptic_request(
         tokio_stream::wrappers::ReceiverStream::new(rx),
         instrument,
         None,

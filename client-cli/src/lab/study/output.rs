@@ -1,0 +1,368 @@
+//! Outputs of the study: CSV, a markdown report, PNG plots.
+//!
+//! * `grid.csv`, `stability.csv`: one row per run (units in the headers);
+//! * `study.md`: the tables and the stability checks;
+//! * `error-vs-step-time.png`: RMS surface error against time per deformation
+//!   step, the Pareto front marked; `force-error-vs-step-time.png` likewise
+//!   for the force;
+//! * `forces/<label>.png`: net force on each spatula against time, per
+//!   configuration; `forces-all.png`: the left spatula's |F| of every
+//!   configuration on one plot.
+
+use super::stability::StabilityRow;
+use super::{Row, StudyError, StudyResult};
+use crate::client::render::plot::{
+    Axis, InstrumentForces, LinePlot, Marker, ScatterGroup, ScatterPlot, Series, force_plot,
+    palette,
+};
+use std::fmt::Write as _;
+use std::path::Path;
+
+fn io_err(path: &Path, e: impl std::fmt::Display) -> StudyError {
+    StudyError::Output {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    }
+}
+
+fn write(path: &Path, text: &str) -> Result<(), StudyError> {
+    std::fs::write(path, text).map_err(|e| io_err(path, e))
+}
+
+/// A file-name-safe version of a label.
+pub fn slug(label: &str) -> String {
+    label
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '.' || c == '-' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect()
+}
+
+const GRID_HEADER: &str = "label,sweep,preset,strategy,tolerance,nodes_per_face,roi_mm,backend,threads,tets,nodes,steps,ms_per_step,collision_ms,us_per_sample,us_per_sample_p99,setup_ms,iterations_mean,iterations_max,min_det_f,finite,failed_steps,haptic_local_model,rms_err_mm,max_err_mm,ref_max_mm,force_err_left_n,force_err_left_pct,force_err_right_n,force_err_right_pct,final_force_err_left_pct,final_force_err_right_pct,final_force_left_n,final_force_right_n,mean_match_mm";
+
+fn grid_csv_row(r: &Row) -> String {
+    let c = &r.config;
+    let e = r.errors.unwrap_or_default();
+    format!(
+        "{},{},{},{},{:e},{},{},{},{},{},{},{},{:.3},{:.3},{:.1},{:.1},{:.0},{:.2},{},{:.4},{},{},{},{:.4},{:.4},{:.4},{:.4},{:.2},{:.4},{:.2},{:.2},{:.2},{:.4},{:.4},{:.3}",
+        c.label,
+        c.sweep,
+        c.preset,
+        c.strategy.name(),
+        c.tolerance,
+        c.nodes_per_face,
+        c.roi_m.map_or(String::new(), |d| format!("{:.0}", d * 1e3)),
+        r.backend_used.replace(',', ";"),
+        c.threads,
+        r.tets,
+        r.nodes,
+        r.steps,
+        r.ms_per_step,
+        r.collision_ms,
+        r.us_per_sample,
+        r.us_per_sample_p99,
+        r.setup_ms,
+        r.iterations_mean,
+        r.iterations_max,
+        r.min_det_f,
+        r.finite,
+        r.failed_steps,
+        r.haptic_local_model,
+        e.rms_mm,
+        e.max_mm,
+        e.ref_max_mm,
+        e.force_rms_n[0],
+        e.force_rms_pct[0],
+        e.force_rms_n[1],
+        e.force_rms_pct[1],
+        e.final_force_pct[0],
+        e.final_force_pct[1],
+        r.final_force_n[0],
+        r.final_force_n[1],
+        e.mean_match_mm,
+    )
+}
+
+const STAB_HEADER: &str = "label,dimension,strategy,element,youngs_pa,nu,speed_mps,steps,finite,min_det_f,iterations_mean,iterations_max,failed_steps,final_force_left_n,final_force_right_n,force_ratio,force_error_pct,stable,reason,ms_per_step";
+
+fn stab_csv_row(s: &StabilityRow) -> String {
+    let r = &s.row;
+    format!(
+        "{},{},{},{},{},{},{:.4},{},{},{:.4},{:.2},{},{},{:.5},{:.5},{:.4},{},{},\"{}\",{:.3}",
+        r.config.label,
+        s.dimension,
+        r.config.strategy.name(),
+        r.config.element.name(),
+        r.config.youngs_pa,
+        r.config.nu,
+        r.speed_mps,
+        r.steps,
+        r.finite,
+        r.min_det_f,
+        r.iterations_mean,
+        r.iterations_max,
+        r.failed_steps,
+        r.final_force_n[0],
+        r.final_force_n[1],
+        s.force_ratio,
+        s.force_error_pct
+            .map_or(String::new(), |e| format!("{e:.3}")),
+        s.stable,
+        s.reason.clone().unwrap_or_default().replace('"', "'"),
+        r.ms_per_step,
+    )
+}
+
+/// The markdown tables and checks.
+pub fn markdown(res: &StudyResult) -> String {
+    let mut md = String::new();
+    let _ = writeln!(
+        md,
+        "Scenario: bundled Sylvian opening, nominal window 0-{:.2} s, deformation step every {} ms, force samples at {} Hz; {}, the runs took {:.0} s in all.\n",
+        res.window_s,
+        res.dt_s * 1e3,
+        res.rate_hz,
+        if res.quick {
+            "quick variant"
+        } else {
+            "full study"
+        },
+        res.total_s
+    );
+    if !res.absent.is_empty() {
+        let _ = writeln!(
+            md,
+            "**Incomplete: {} planned runs have no result and are left out:**\n",
+            res.absent.len()
+        );
+        for a in &res.absent {
+            let _ = writeln!(
+                md,
+                "- {} (index {}): {}",
+                a.id,
+                a.index,
+                a.failure.as_deref().unwrap_or("missing")
+            );
+        }
+        let _ = writeln!(md);
+    }
+    if !res.grid.is_empty() {
+        let _ = writeln!(
+            md,
+            "### Speed against accuracy (errors against the reference, surface within {:.0} mm of the fissure centre)\n",
+            super::compare::ERROR_RADIUS_M * 1e3
+        );
+        let _ = writeln!(
+            md,
+            "| configuration | sweep | tets | ms/step | us/force sample | iterations (mean/max) | RMS err (mm) | max err (mm) | force err L (N, %) | force err R (N, %) | min det F | haptic local model |"
+        );
+        let _ = writeln!(
+            md,
+            "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|"
+        );
+        for r in res.reference.iter().chain(&res.grid) {
+            let e = r.errors.unwrap_or_default();
+            let _ = writeln!(
+                md,
+                "| {}{} | {} | {} | {:.1} | {:.0} | {:.1} / {} | {:.3} | {:.3} | {:.3}, {:.1}% | {:.3}, {:.1}% | {:.3} | {} |",
+                r.config.label,
+                if r.backend_used.starts_with(r.config.backend.name()) {
+                    String::new()
+                } else {
+                    format!(" ({})", r.backend_used)
+                },
+                r.config.sweep,
+                r.tets,
+                r.ms_per_step,
+                r.us_per_sample,
+                r.iterations_mean,
+                r.iterations_max,
+                e.rms_mm,
+                e.max_mm,
+                e.force_rms_n[0],
+                e.force_rms_pct[0],
+                e.force_rms_n[1],
+                e.force_rms_pct[1],
+                r.min_det_f,
+                if r.haptic_local_model { "yes" } else { "no" },
+            );
+        }
+        if let Some(r) = &res.reference {
+            let e = r.errors.unwrap_or_default();
+            let _ = writeln!(
+                md,
+                "\nReference: {} ({} region points; largest reference displacement there {:.2} mm; final net force L {:.3} N, R {:.3} N).\n",
+                r.config.label, e.points, e.ref_max_mm, r.final_force_n[0], r.final_force_n[1]
+            );
+        }
+    }
+    if !res.stability.is_empty() {
+        let _ = writeln!(md, "### Stability at the extremes\n");
+        let _ = writeln!(
+            md,
+            "| run | strategy (element) | E (Pa) | nu | speed (mm/s) | finite | min det F | iterations (mean/max) | F/F0 | force err | verdict |"
+        );
+        let _ = writeln!(md, "|---|---|---:|---:|---:|---|---:|---:|---:|---:|---|");
+        for s in &res.stability {
+            let r = &s.row;
+            let _ = writeln!(
+                md,
+                "| {} | {} ({}) | {} | {} | {:.1} | {} | {:.3} | {:.1} / {} | {:.3} | {} | {} |",
+                r.config.label,
+                r.config.strategy.name(),
+                r.config.element.name(),
+                r.config.youngs_pa,
+                r.config.nu,
+                r.speed_mps * 1e3,
+                if r.finite { "yes" } else { "NO" },
+                r.min_det_f,
+                r.iterations_mean,
+                r.iterations_max,
+                s.force_ratio,
+                s.force_error_pct.map_or("-".into(), |e| format!("{e:.2}%")),
+                if s.stable {
+                    "stable".to_string()
+                } else {
+                    format!("FAILS: {}", s.reason.clone().unwrap_or_default())
+                },
+            );
+        }
+        let _ = writeln!(md, "\nChecks:\n");
+        for c in &res.checks {
+            let _ = writeln!(
+                md,
+                "- [{}] {} ({})",
+                if c.passed { "x" } else { " " },
+                c.name,
+                c.detail
+            );
+        }
+    }
+    md
+}
+
+fn pareto_plot(
+    res: &StudyResult,
+    title: &str,
+    y_title: &str,
+    y: impl Fn(&Row) -> f64,
+) -> ScatterPlot {
+    let mut plot = ScatterPlot::new(
+        title,
+        Axis::log("time per deformation step (ms)"),
+        Axis::log(y_title),
+    );
+    let mut sweeps: Vec<&str> = Vec::new();
+    for r in &res.grid {
+        if !sweeps.contains(&r.config.sweep.as_str()) {
+            sweeps.push(&r.config.sweep);
+        }
+    }
+    let markers = [Marker::Circle, Marker::Square, Marker::Diamond];
+    for (i, sw) in sweeps.iter().enumerate() {
+        let rows: Vec<&Row> = res
+            .grid
+            .iter()
+            .filter(|r| r.config.sweep == *sw && r.ms_per_step > 0.0 && y(r) > 0.0)
+            .collect();
+        if rows.is_empty() {
+            continue;
+        }
+        plot.add(ScatterGroup {
+            label: (*sw).to_string(),
+            points: rows.iter().map(|r| [r.ms_per_step, y(r)]).collect(),
+            point_labels: rows.iter().map(|r| r.config.label.clone()).collect(),
+            colour: palette(i),
+            marker: markers[i % markers.len()],
+        });
+    }
+    plot
+}
+
+/// Writes every output into `dir`.
+pub fn write_all(
+    dir: &Path,
+    res: &StudyResult,
+    forces: &[(String, Vec<InstrumentForces>)],
+) -> Result<(), StudyError> {
+    std::fs::create_dir_all(dir.join("forces")).map_err(|e| io_err(dir, e))?;
+    if res.reference.is_some() || !res.grid.is_empty() {
+        let mut csv = String::from(GRID_HEADER);
+        csv.push('\n');
+        for r in res.reference.iter().chain(&res.grid) {
+            csv.push_str(&grid_csv_row(r));
+            csv.push('\n');
+        }
+        write(&dir.join("grid.csv"), &csv)?;
+    }
+    // The Pareto plots need errors: none without the reference (a merge
+    // with --allow-missing whose reference is missing).
+    if res.reference.is_some() && !res.grid.is_empty() {
+        let p = dir.join("error-vs-step-time.png");
+        pareto_plot(
+            res,
+            "Surface error against time per step (Pareto front)",
+            "RMS surface displacement error (mm)",
+            |r| r.errors.map_or(f64::NAN, |e| e.rms_mm),
+        )
+        .save_png(&p)
+        .map_err(|e| io_err(&p, e))?;
+        let p = dir.join("force-error-vs-step-time.png");
+        pareto_plot(
+            res,
+            "Force error against time per step (Pareto front)",
+            "RMS net force error, left spatula (% of peak)",
+            |r| r.errors.map_or(f64::NAN, |e| e.force_rms_pct[0]),
+        )
+        .save_png(&p)
+        .map_err(|e| io_err(&p, e))?;
+    }
+    if !forces.is_empty() {
+        let mut all = LinePlot::new(
+            "Net force on the left spatula, every configuration",
+            Axis::linear("time (s)"),
+            Axis::linear("|F| (N)"),
+        );
+        for (i, (label, f)) in forces.iter().enumerate() {
+            let p = dir.join("forces").join(format!("{}.png", slug(label)));
+            force_plot(&format!("Net forces: {label}"), f, true, None)
+                .save_png(&p)
+                .map_err(|e| io_err(&p, e))?;
+            if let Some(left) = f.first() {
+                let pts = left
+                    .time
+                    .iter()
+                    .zip(&left.force)
+                    .map(|(t, v)| [*t, (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()])
+                    .collect();
+                all.add(
+                    Series::new(label.clone(), pts, palette(i)).width(if i == 0 {
+                        3.0
+                    } else {
+                        1.4
+                    }),
+                );
+            }
+        }
+        let p = dir.join("forces-all.png");
+        all.save_png(&p).map_err(|e| io_err(&p, e))?;
+    }
+    if !res.stability.is_empty() {
+        let mut csv = String::from(STAB_HEADER);
+        csv.push('\n');
+        for s in &res.stability {
+            csv.push_str(&stab_csv_row(s));
+            csv.push('\n');
+        }
+        write(&dir.join("stability.csv"), &csv)?;
+    }
+    write(&dir.join("study.md"), &markdown(res))?;
+    let json = serde_json::to_string_pretty(res).map_err(|e| io_err(dir, e))?;
+    write(&dir.join("study.json"), &json)?;
+    Ok(())
+}
