@@ -510,11 +510,7 @@ impl StepEngine {
         }
         // The new surface and its tree; the force loops query it, so the
         // patch covers the rows a query at the step's poses finds on it too.
-        let mut surface = Vec::with_capacity(model.rest_surface.len());
-        for (s, &v) in model.surface.to_volume.iter().enumerate() {
-            surface.push(model.rest_surface[s] + displacements[v as usize]);
-        }
-        let surface = Arc::new(surface);
+        let surface = Arc::new(model.surface_at(&displacements));
         let surface_bvh =
             tracing::debug_span!("refit").in_scope(|| self.bvhs.as_mut().map(|b| b.fit(&surface)));
         let mut selection = deform::PatchNodes::default();
@@ -581,14 +577,7 @@ impl StepEngine {
         n_instrument_rows: &mut usize,
     ) -> bool {
         let u = self.deformer.displacements();
-        let surface: Vec<Point3<f64>> = model
-            .surface
-            .to_volume
-            .iter()
-            .enumerate()
-            .map(|(s, &v)| model.rest_surface[s] + u[v as usize])
-            .collect();
-        let surface = Arc::new(surface);
+        let surface = Arc::new(model.surface_at(u));
         let mut h = histories.to_vec();
         let multipliers = &self.deformer.answer().multipliers;
         for (k, hk) in h.iter_mut().enumerate() {

@@ -287,6 +287,17 @@ impl Model {
         History::new(&self.instruments[i], self.history_mode)
     }
 
+    /// The surface vertices' positions under the volume displacements
+    /// `u` (m): each rest position plus its volume node's displacement.
+    pub fn surface_at(&self, u: &[Vector3<f64>]) -> Vec<Point3<f64>> {
+        self.surface
+            .to_volume
+            .iter()
+            .zip(&self.rest_surface)
+            .map(|(&v, rest)| rest + u[v as usize])
+            .collect()
+    }
+
     /// Rim source nodes of instrument `i`.
     pub fn rim_node_count(&self, i: usize) -> usize {
         self.instruments[i].len() - 2 * self.instruments[i].per_face
