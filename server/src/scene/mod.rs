@@ -14,6 +14,7 @@
 pub mod assessment;
 pub mod region;
 pub mod ties;
+mod serde_fields;
 
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
@@ -109,7 +110,7 @@ pub struct Scene {
     #[serde(default)]
     pub loops: LoopSpec,
     /// The instruments (spatulas).
-    #[serde(rename = "instrument")]
+    #[serde(rename = "instrument", deserialize_with = "instrument_tables")]
     pub instruments: Vec<InstrumentSpec>,
     /// The skull, when modelled.
     #[serde(default)]
@@ -576,12 +577,14 @@ pub use crate::collide::tool::instrument::{LayoutKind, PlateShape};
 
 /// One spatula.
 #[derive(Debug, Clone, Deserialize, PartialEq)]
-#[serde(try_from = "InstrumentFields")]
+#[serde(deny_unknown_fields)]
 pub struct InstrumentSpec {
     /// Name clients claim it by.
     pub name: String,
     /// The plate's outline with the parameter only it has (`shape`, and
-    /// `base_width_m` for a trapezoid or `bend_radius_m` for a curved plate).
+    /// `base_width_m` for a trapezoid or `bend_radius_m` for a curved plate;
+    /// read by [`instrument_tables`], whence the default here).
+    #[serde(default)]
     pub shape: PlateShape,
     /// Plate thickness, m.
     pub thickness_m: f64,
@@ -590,93 +593,83 @@ pub struct InstrumentSpec {
     /// Plate length, m.
     pub length_m: f64,
     /// Source-node layout.
+    #[serde(default)]
     pub layout: LayoutKind,
     /// Source nodes a face.
     pub nodes_per_face: u32,
     /// Whether rim nodes are added for contact with the side.
+    #[serde(default)]
     pub rim: bool,
     /// Position of the handle point at rest, m.
     pub home_position_m: [f64; 3],
     /// Orientation at rest, quaternion (w, x, y, z).
+    #[serde(default = "identity_quaternion")]
     pub home_orientation: [f64; 4],
 }
 
-/// The name of a plate's outline in a scene file (`shape`).
-#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq, Default)]
-#[serde(rename_all = "kebab-case")]
-enum ShapeName {
-    #[default]
-    Flat,
-    Trapezoid,
-    Curved,
-    Blade,
+/// Reads the `[[instrument]]` tables.
+///
+/// In a scene file a plate's shape and its parameter sit beside the
+/// instrument's other fields (`shape = "curved"`, `bend_radius_m = 0.05`),
+/// while [`PlateShape`] is one internally tagged enum. serde cannot flatten
+/// a tagged enum into a struct that denies unknown fields, and a tagged
+/// enum has no default tag, so each table is regrouped first: `shape`
+/// (`"flat"` when absent) and every key that is not a field of
+/// [`InstrumentSpec`] move into a `shape` sub-table, which the enum's own
+/// derive reads (refusing a parameter of another shape or a missing one).
+fn instrument_tables<'de, D>(d: D) -> Result<Vec<InstrumentSpec>, D::Error>
+where
+    D: serde::Deserializer<'de>,
+{
+    use serde::de::Error as _;
+    let tables = Vec::<toml::Table>::deserialize(d)?;
+    tables
+        .into_iter()
+        .enumerate()
+        .map(|(i, table)| instrument_from_table(table, i).map_err(D::Error::custom))
+        .collect()
 }
 
-/// An `[[instruments]]` table as written: the outline's parameters sit
-/// beside its name, and [`InstrumentSpec`] takes only the one its shape has
-/// (serde cannot flatten a tagged enum into a struct that denies unknown
-/// fields).
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct InstrumentFields {
-    name: String,
-    #[serde(default)]
-    shape: ShapeName,
-    thickness_m: f64,
-    width_m: f64,
-    #[serde(default)]
-    base_width_m: Option<f64>,
-    length_m: f64,
-    #[serde(default)]
-    bend_radius_m: Option<f64>,
-    #[serde(default)]
-    layout: LayoutKind,
-    nodes_per_face: u32,
-    #[serde(default)]
-    rim: bool,
-    home_position_m: [f64; 3],
-    #[serde(default = "identity_quaternion")]
-    home_orientation: [f64; 4],
-}
-
-impl TryFrom<InstrumentFields> for InstrumentSpec {
-    type Error = String;
-
-    fn try_from(f: InstrumentFields) -> Result<Self, String> {
-        let named = |field: &str| format!("instrument {:?}: {field}", f.name);
-        if f.base_width_m.is_some() && f.shape != ShapeName::Trapezoid {
-            return Err(named("base_width_m is only for shape = \"trapezoid\""));
-        }
-        if f.bend_radius_m.is_some() && f.shape != ShapeName::Curved {
-            return Err(named("bend_radius_m is only for shape = \"curved\""));
-        }
-        let shape = match f.shape {
-            ShapeName::Flat => PlateShape::Flat,
-            ShapeName::Trapezoid => PlateShape::Trapezoid {
-                base_width_m: f
-                    .base_width_m
-                    .ok_or_else(|| named("shape = \"trapezoid\" needs base_width_m (m)"))?,
-            },
-            ShapeName::Curved => PlateShape::Curved {
-                bend_radius_m: f
-                    .bend_radius_m
-                    .ok_or_else(|| named("shape = \"curved\" needs bend_radius_m (m)"))?,
-            },
-            ShapeName::Blade => PlateShape::Blade,
-        };
-        Ok(Self {
-            name: f.name,
-            shape,
-            thickness_m: f.thickness_m,
-            width_m: f.width_m,
-            length_m: f.length_m,
-            layout: f.layout,
-            nodes_per_face: f.nodes_per_face,
-            rim: f.rim,
-            home_position_m: f.home_position_m,
-            home_orientation: f.home_orientation,
-        })
+/// One `[[instrument]]` table (the `i`th) as an [`InstrumentSpec`].
+fn instrument_from_table(mut table: toml::Table, i: usize) -> Result<InstrumentSpec, String> {
+    let named = match table.get("name").and_then(toml::Value::as_str) {
+        Some(name) => format!("instrument {name:?}"),
+        None => format!("instrument[{i}]"),
+    };
+    let fields = serde_fields::of::<InstrumentSpec>();
+    let mut shape = toml::Table::new();
+    let tag = table.remove("shape").unwrap_or_else(|| "flat".into());
+    let tag_name = tag.as_str().unwrap_or_default().to_owned();
+    shape.insert("shape".into(), tag);
+    let params: Vec<String> = table
+        .keys()
+        .filter(|k| !fields.contains(&k.as_str()))
+        .cloned()
+        .collect();
+    for key in &params {
+        let value = table.remove(key).expect("key listed from the table");
+        shape.insert(key.clone(), value);
     }
+    let plate = PlateShape::deserialize(toml::Value::Table(shape)).map_err(|e| {
+        format!(
+            "{named}: {} (in shape = {tag_name:?} and its parameters; an instrument's own fields are {})",
+            e.message().trim_end(),
+            fields.join(", ")
+        )
+    })?;
+    // A shape without parameters is a unit variant, whose derive ignores
+    // extra keys: anything moved beside it is unknown.
+    if matches!(plate, PlateShape::Flat | PlateShape::Blade) && !params.is_empty() {
+        return Err(format!(
+            "{named}: unknown field `{}`: shape = {tag_name:?} takes no parameter, and an instrument's own fields are {}",
+            params.join("`, `"),
+            fields.join(", ")
+        ));
+    }
+    let mut spec = InstrumentSpec::deserialize(toml::Value::Table(table))
+        .map_err(|e| format!("{named}: {}", e.message().trim_end()))?;
+    spec.shape = plate;
+    Ok(spec)
 }
 
 fn identity_quaternion() -> [f64; 4] {
@@ -1294,6 +1287,15 @@ mod tests {
                 .unwrap_err()
                 .contains("\"left\"")
         );
+        // A key that is neither a field nor the shape's parameter is named,
+        // with the fields an instrument has.
+        for shape in ["", "shape = \"trapezoid\"\nbase_width_m = 0.014"] {
+            let err = with(&format!("{shape}\nwidht_m = 0.01")).unwrap_err();
+            assert!(err.contains("widht_m"), "{err}");
+            assert!(err.contains("thickness_m, width_m"), "{err}");
+        }
+        let err = with("shape = \"oval\"").unwrap_err();
+        assert!(err.contains("`oval`") && err.contains("`curved`"), "{err}");
     }
 
     #[test]

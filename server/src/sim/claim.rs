@@ -6,7 +6,7 @@
 
 use super::force_loop::{ForceLoop, HeldRows};
 use super::pose::{self, PoseError, RawPose, TimedPose};
-use super::{ForceOut, Pending, Reply, Simulation, flags, priority};
+use super::{ForceOut, Lane, Pending, Reply, Simulation, flags, priority};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
@@ -107,7 +107,10 @@ impl Claim {
         *self.reply.slot.lock().expect("reply lock") = None;
         {
             let mut inputs = sim.inputs.lock().expect("inputs lock");
-            inputs.per_instrument[self.index].queue.push_back(Pending {
+            inputs.per_instrument[self.index]
+                .queued_mut()
+                .poses
+                .push_back(Pending {
                 pose: *pose,
                 reply: self.reply.clone(),
             });
@@ -155,15 +158,15 @@ impl Claim {
         self.held.clear();
         {
             let mut inputs = sim.inputs.lock().expect("inputs lock");
-            let slot = &mut inputs.per_instrument[self.index];
+            let slot = inputs.per_instrument[self.index].latest_mut();
             slot.version += 1;
-            match slot.latest.as_mut() {
+            match slot.pose.as_mut() {
                 Some((p, h)) => {
                     // Reuse the slot's flags (no allocation per sample).
                     *p = *pose;
                     h.copy_from(fl.history());
                 }
-                None => slot.latest = Some((*pose, fl.history().clone())),
+                None => slot.pose = Some((*pose, fl.history().clone())),
             }
         }
         sim.inputs_changed.notify_all();
@@ -188,9 +191,13 @@ impl Drop for Claim {
             let mut inputs = self.sim.inputs.lock().expect("inputs lock");
             let slot = &mut inputs.per_instrument[self.index];
             slot.claimed = false;
-            slot.latest = None;
-            slot.version += 1;
-            slot.ended = true;
+            match &mut slot.lane {
+                Lane::Latest(l) => {
+                    l.pose = None;
+                    l.version += 1;
+                }
+                Lane::Queued(q) => q.ended = true,
+            }
         }
         self.sim.exchange.release(self.index);
         self.sim.inputs_changed.notify_all();

@@ -38,7 +38,7 @@ impl Simulation {
                         .per_instrument
                         .iter()
                         .zip(&seen_versions)
-                        .any(|(s, &v)| s.version != v);
+                        .any(|(s, &v)| s.latest().version != v);
                     let due = last_start.elapsed().as_secs_f64() >= dt;
                     if changed && due {
                         break;
@@ -65,8 +65,8 @@ impl Simulation {
                 }
                 for i in 0..n {
                     let slot = &inputs.per_instrument[i];
-                    seen_versions[i] = slot.version;
-                    match slot.latest.as_ref().filter(|_| slot.claimed) {
+                    seen_versions[i] = slot.latest().version;
+                    match slot.latest().pose.as_ref().filter(|_| slot.claimed) {
                         Some((p, h)) => {
                             poses.push(p.pose);
                             histories.push(Some(h.clone()));
@@ -113,8 +113,9 @@ impl Simulation {
                         break;
                     }
                     for (i, slot) in inputs.per_instrument.iter_mut().enumerate() {
-                        if slot.ended && slot.queue.is_empty() {
-                            slot.ended = false;
+                        let q = slot.queued_mut();
+                        if q.ended && q.poses.is_empty() {
+                            q.ended = false;
                             runner.end(i);
                         }
                     }
@@ -124,13 +125,13 @@ impl Simulation {
                         .filter(|s| s.ever_claimed)
                         .count();
                     let claimed = || inputs.per_instrument.iter().filter(|s| s.claimed);
-                    let any = claimed().any(|s| !s.queue.is_empty());
-                    let all = claimed().all(|s| !s.queue.is_empty());
+                    let any = claimed().any(|s| !s.queued().poses.is_empty());
+                    let all = claimed().all(|s| !s.queued().poses.is_empty());
                     // An ended stream's poses still queued are answered too.
                     let leftover = inputs
                         .per_instrument
                         .iter()
-                        .any(|s| !s.claimed && !s.queue.is_empty());
+                        .any(|s| !s.claimed && !s.queued().poses.is_empty());
                     let clients = match self.mode {
                         Mode::Stepped { clients } => clients.max(1),
                         Mode::FreeRunning => 1,
@@ -154,11 +155,12 @@ impl Simulation {
                 let t = inputs
                     .per_instrument
                     .iter()
-                    .filter_map(|s| s.queue.front().map(|p| p.pose.t_s))
+                    .filter_map(|s| s.queued().poses.front().map(|p| p.pose.t_s))
                     .fold(f64::INFINITY, f64::min);
                 for (i, slot) in inputs.per_instrument.iter_mut().enumerate() {
-                    if slot.queue.front().is_some_and(|p| p.pose.t_s == t) {
-                        batch.push((i, slot.queue.pop_front().expect("front checked")));
+                    let q = slot.queued_mut();
+                    if q.poses.front().is_some_and(|p| p.pose.t_s == t) {
+                        batch.push((i, q.poses.pop_front().expect("front checked")));
                     }
                 }
             }

@@ -263,20 +263,82 @@ impl Reply {
 }
 
 /// Per-instrument input state shared between its force loop and the loops.
-#[derive(Default)]
 struct InstrumentInput {
     claimed: bool,
     /// Ever claimed ([`Mode::Stepped`] counts these).
     ever_claimed: bool,
-    /// Free-running: the latest accepted pose and the force-rate history
-    /// after it.
-    latest: Option<(TimedPose, engine::History)>,
-    /// Bumped at each accepted pose (free-running: has anything changed?).
+    /// How its poses reach the deformation loop: one lane per [`Mode`].
+    lane: Lane,
+}
+
+/// How an instrument's poses reach the deformation loop.
+enum Lane {
+    /// [`Mode::FreeRunning`]: the loop steps on the newest pose.
+    Latest(Latest),
+    /// [`Mode::Stepped`]: the runner answers every pose, in order.
+    Queued(Queued),
+}
+
+/// A free-running instrument's newest pose.
+#[derive(Default)]
+struct Latest {
+    /// The latest accepted pose and the force-rate history after it.
+    pose: Option<(TimedPose, engine::History)>,
+    /// Bumped at each accepted pose and at release (has anything changed?).
     version: u64,
-    /// Stepped: poses waiting for the runner, oldest first.
-    queue: VecDeque<Pending>,
-    /// Stepped: the claim's stream ended and the runner has not been told.
+}
+
+/// A stepped instrument's poses waiting for the runner.
+#[derive(Default)]
+struct Queued {
+    /// Oldest first.
+    poses: VecDeque<Pending>,
+    /// The claim's stream ended and the runner has not been told.
     ended: bool,
+}
+
+impl InstrumentInput {
+    fn new(mode: Mode) -> Self {
+        Self {
+            claimed: false,
+            ever_claimed: false,
+            lane: match mode {
+                Mode::FreeRunning => Lane::Latest(Latest::default()),
+                Mode::Stepped { .. } => Lane::Queued(Queued::default()),
+            },
+        }
+    }
+
+    /// The free-running lane (a simulation's mode never changes, so the
+    /// free-running paths only ever meet this one).
+    fn latest(&self) -> &Latest {
+        match &self.lane {
+            Lane::Latest(l) => l,
+            Lane::Queued(_) => unreachable!("a stepped simulation has no latest pose"),
+        }
+    }
+
+    fn latest_mut(&mut self) -> &mut Latest {
+        match &mut self.lane {
+            Lane::Latest(l) => l,
+            Lane::Queued(_) => unreachable!("a stepped simulation has no latest pose"),
+        }
+    }
+
+    /// The stepped lane.
+    fn queued(&self) -> &Queued {
+        match &self.lane {
+            Lane::Queued(q) => q,
+            Lane::Latest(_) => unreachable!("a free-running simulation queues no pose"),
+        }
+    }
+
+    fn queued_mut(&mut self) -> &mut Queued {
+        match &mut self.lane {
+            Lane::Queued(q) => q,
+            Lane::Latest(_) => unreachable!("a free-running simulation queues no pose"),
+        }
+    }
 }
 
 struct Inputs {
@@ -393,7 +455,7 @@ impl Simulation {
             snapshot: RwLock::new(rest.clone()),
             frames,
             inputs: Mutex::new(Inputs {
-                per_instrument: (0..n).map(|_| InstrumentInput::default()).collect(),
+                per_instrument: (0..n).map(|_| InstrumentInput::new(mode)).collect(),
                 reset: false,
             }),
             inputs_changed: Condvar::new(),
@@ -518,8 +580,10 @@ impl Simulation {
             }
             slot.claimed = true;
             slot.ever_claimed = true;
-            slot.ended = false;
-            slot.queue.clear();
+            if let Lane::Queued(q) = &mut slot.lane {
+                q.ended = false;
+                q.poses.clear();
+            }
         }
         self.inputs_changed.notify_all();
         tracing::info!(instrument = name, "instrument claimed");
@@ -613,7 +677,10 @@ impl Simulation {
     fn fail_pending(&self) {
         let mut inputs = self.inputs.lock().expect("inputs lock");
         for slot in &mut inputs.per_instrument {
-            for p in slot.queue.drain(..) {
+            let Lane::Queued(q) = &mut slot.lane else {
+                continue;
+            };
+            for p in q.poses.drain(..) {
                 p.reply.send(Err(PoseError::NotAnswered(
                     "the server is shutting down".into(),
                 )));

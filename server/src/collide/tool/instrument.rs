@@ -216,9 +216,16 @@ impl Plate {
 /// The outline of a plate as a scene names it: its kind and the parameter
 /// only that kind has (`shape` and `base_width_m` or `bend_radius_m` in a
 /// scene file). The widths and lengths every plate has stay beside it.
-#[derive(Debug, Clone, Copy, PartialEq)]
+///
+/// This enum is the one description of the shapes a scene file reads: its
+/// serde form is the `shape` tag with the variant's fields beside it
+/// (`crate::scene` gathers them from the instrument's table), so a new
+/// shape is a new variant here and its geometry below.
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Deserialize)]
+#[serde(tag = "shape", rename_all = "kebab-case", deny_unknown_fields)]
 pub enum PlateShape {
     /// A flat rectangular plate.
+    #[default]
     Flat,
     /// A flat plate whose width goes from `base_width_m` at the handle end to
     /// the plate's width at the tip.
