@@ -13,8 +13,8 @@
 
 pub mod assessment;
 pub mod region;
-pub mod ties;
 mod serde_fields;
+pub mod ties;
 
 use serde::Deserialize;
 use std::path::{Path, PathBuf};

@@ -111,9 +111,9 @@ impl Claim {
                 .queued_mut()
                 .poses
                 .push_back(Pending {
-                pose: *pose,
-                reply: self.reply.clone(),
-            });
+                    pose: *pose,
+                    reply: self.reply.clone(),
+                });
         }
         sim.inputs_changed.notify_all();
         let mut slot = self.reply.slot.lock().expect("reply lock");
