@@ -28,9 +28,9 @@ fn count(f: impl FnOnce()) -> usize {
 fn coupled_force_samples_do_not_allocate() {
     use fissure_engine::fem::compliance::ColumnPolicy;
     use fissure_engine::scene::Scene;
-    use fissure_engine::sim::engine::{Model, StepEngine};
-    use fissure_engine::sim::force_loop::ForceLoop;
-    use fissure_engine::sim::stepped::home_pose;
+    use fissure_engine::sim::core::engine::{Model, StepEngine};
+    use fissure_engine::sim::core::force_loop::ForceLoop;
+    use fissure_engine::sim::core::stepped::home_pose;
     use nalgebra::{Isometry3, Translation3};
     use std::sync::Arc;
 

@@ -5,7 +5,7 @@
 use fissure_cli::client::trajectory::Trajectory;
 use fissure_cli::lab::bench::haptic::{SummaryOptions, measure, plan, summarise};
 use fissure_engine::scene::Scene;
-use fissure_engine::sim::engine::Model;
+use fissure_engine::sim::core::engine::Model;
 use std::sync::Arc;
 
 /// The left plate pressed 3 mm into the cube, held and lifted, every

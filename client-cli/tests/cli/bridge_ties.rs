@@ -23,7 +23,7 @@ use fissure_cli::client::bridge::{
     encode_pose,
 };
 use fissure_engine::scene::Scene;
-use fissure_engine::sim::stepped::home_pose;
+use fissure_engine::sim::core::stepped::home_pose;
 use fissure_engine::sim::{Mode, SimOptions, Simulation};
 use fissure_server::{RunningServer, ServeOptions, serve};
 use nalgebra::{Isometry3, Translation3, Vector3};

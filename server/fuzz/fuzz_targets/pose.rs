@@ -2,13 +2,13 @@
 //! sees them: prost decoding of `PoseSample` (the input is a sequence of
 //! length-delimited messages, as a stream delivers them), the conversion to an
 //! engine pose (`service::convert::raw_pose`) and its validation
-//! (`sim::pose::validate`) against the previous accepted pose. An accepted pose
+//! (`sim::core::pose::validate`) against the previous accepted pose. An accepted pose
 //! must be finite with a unit rotation, and sequence and time must go forward.
 #![no_main]
 
 use fissure_proto::v1::PoseSample;
 use fissure_server::convert::raw_pose;
-use fissure_engine::sim::pose::{TimedPose, validate};
+use fissure_engine::sim::core::pose::{TimedPose, validate};
 use libfuzzer_sys::fuzz_target;
 use prost::Message;
 

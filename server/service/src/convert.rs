@@ -3,10 +3,10 @@
 use fissure_engine::collide::tool::instrument::{Plate, PlateShape};
 use fissure_engine::scene::{ContactLaw, Scene, Strategy};
 use fissure_engine::sim::ForceOut;
-use fissure_engine::sim::engine::Model;
-use fissure_engine::sim::pose::{PoseError, RawPose};
-use fissure_engine::sim::snapshot::{Frame, InstrumentReaction};
-use fissure_engine::sim::stats::{LatencySummary, StatsSummary};
+use fissure_engine::sim::core::engine::Model;
+use fissure_engine::sim::core::pose::{PoseError, RawPose};
+use fissure_engine::sim::core::snapshot::{Frame, InstrumentReaction};
+use fissure_engine::sim::runtime::stats::{LatencySummary, StatsSummary};
 use fissure_proto::v1 as pb;
 use nalgebra::Vector3;
 
@@ -244,7 +244,7 @@ fn reaction(r: &InstrumentReaction) -> pb::InstrumentReaction {
     }
 }
 
-fn pressure(p: &fissure_engine::sim::injury::Pressure) -> pb::RetractionPressure {
+fn pressure(p: &fissure_engine::sim::core::injury::Pressure) -> pb::RetractionPressure {
     pb::RetractionPressure {
         contact_area_m2: p.contact_area_m2,
         normal_force_n: p.normal_force_n,
@@ -327,10 +327,10 @@ fn tie_kind(k: fissure_engine::fem::ties::TieKind) -> pb::TieKind {
 
 /// The ties of a frame (none: the scene has no ties and nothing went).
 fn tie_summary(
-    t: &fissure_engine::sim::snapshot::TieFrame,
-    instruments: &[fissure_engine::sim::snapshot::InstrumentReaction],
+    t: &fissure_engine::sim::core::snapshot::TieFrame,
+    instruments: &[fissure_engine::sim::core::snapshot::InstrumentReaction],
 ) -> Option<pb::TieSummary> {
-    use fissure_engine::sim::snapshot::TieCause;
+    use fissure_engine::sim::core::snapshot::TieCause;
     if t.trabeculae_intact == 0
         && t.vessels_intact == 0
         && t.events.is_empty()
@@ -367,13 +367,13 @@ fn tie_summary(
     })
 }
 
-fn rigid_part(r: &fissure_engine::sim::motion::RigidPart) -> pb::RigidPart {
+fn rigid_part(r: &fissure_engine::sim::core::motion::RigidPart) -> pb::RigidPart {
     pb::RigidPart {
         rotation_deg: r.rotation_deg,
         translation_m: Some(vec3(&r.translation_m)),
         max_rigid_m: r.max_rigid_m,
         centre_m: Some(vec3(&r.centre_m.coords)),
-        near_radius_m: fissure_engine::sim::motion::NEAR_RADIUS_M,
+        near_radius_m: fissure_engine::sim::core::motion::NEAR_RADIUS_M,
         max_non_rigid_near_m: r.max_non_rigid_near_m,
         max_non_rigid_far_m: r.max_non_rigid_far_m,
     }

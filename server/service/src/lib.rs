@@ -7,7 +7,7 @@
 //! ([`ServeOptions::token`]), the calls that change the simulation (`Haptic`,
 //! `Reset`) need it; the calls that only read (`GetScene`, `GetSurface`,
 //! `Watch`, `GetStats`), health and reflection are open. Each haptic stream gets its own
-//! OS thread for its force loop ([`fissure_engine::sim::haptic_stream`], with its pose
+//! OS thread for its force loop ([`fissure_engine::sim::runtime::haptic_stream`], with its pose
 //! budget and the session's recording; this module converts messages and
 //! forwards them): a 1 kHz loop should not share a scheduler
 //! with watchers' serialisation work. The stream itself is read by a task on
@@ -46,8 +46,8 @@ pub mod transport;
 
 pub use transport::Transport;
 
-use fissure_engine::sim::haptic_stream::{self, Rejection};
-use fissure_engine::sim::pose::{PoseError, RawPose};
+use fissure_engine::sim::core::pose::{PoseError, RawPose};
+use fissure_engine::sim::runtime::haptic_stream::{self, Rejection};
 use fissure_engine::sim::{ClaimError, ForceOut, Simulation};
 use fissure_proto::v1 as pb;
 use fissure_proto::v1::fissure_server::{Fissure, FissureServer};
@@ -94,7 +94,7 @@ pub const STREAM_RECEIVE_WINDOW_BYTES: u32 = 64 * 1024;
 /// shutdown before they are dropped.
 pub const SHUTDOWN_GRACE: Duration = Duration::from_secs(5);
 
-pub use fissure_engine::sim::budget::{MAX_POSE_RATE_FACTOR, POSE_BURST_S};
+pub use fissure_engine::sim::runtime::budget::{MAX_POSE_RATE_FACTOR, POSE_BURST_S};
 
 /// How clients must authenticate and where the server listens.
 #[derive(Debug, Clone, Default)]

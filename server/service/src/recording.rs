@@ -33,10 +33,11 @@
 //! a `fissure.v1.RecordingGap` (its sums in [`RecordingGapExt`]).
 
 use fissure_engine::scene::Scene;
-use fissure_engine::sim::engine::Model;
-use fissure_engine::sim::journal::{Journal, OpenJournal};
-use fissure_engine::sim::pose::RawPose;
-use fissure_engine::sim::{ForceOut, snapshot::Frame};
+use fissure_engine::sim::ForceOut;
+use fissure_engine::sim::core::engine::Model;
+use fissure_engine::sim::core::pose::RawPose;
+use fissure_engine::sim::core::snapshot::Frame;
+use fissure_engine::sim::runtime::journal::{Journal, OpenJournal};
 use fissure_proto::recording::gap_entry;
 use fissure_proto::v1 as pb;
 use prost::Message;

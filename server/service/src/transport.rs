@@ -19,7 +19,7 @@
 //! [`fissure_engine::sim::Claim::enter_force_thread`]).
 
 use super::{RunningServer, ServeOptions, serve};
-use fissure_engine::sim::priority;
+use fissure_engine::sim::runtime::priority;
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};

@@ -51,7 +51,7 @@
 //! # Rupture
 //! A tie breaks when its strain or its tension (its kind's criterion)
 //! reaches the criterion's value: [`Tie::breaks`], judged on its true
-//! length at the solved shape (`sim::engine::ties`). Units: m, N, N/m.
+//! length at the solved shape (`sim::core::engine::ties`). Units: m, N, N/m.
 
 // Negated comparisons are deliberate: NaN must fail the checks.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]

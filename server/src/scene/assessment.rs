@@ -1,5 +1,5 @@
 //! The scene's `[assessment]`: the thresholds a session's injury measures
-//! ([`crate::sim::injury`]) are scored against, with their cited defaults.
+//! ([`crate::sim::core::injury`]) are scored against, with their cited defaults.
 //! Defined in [`fissure_shared::assessment`], beside the messages that carry
 //! them, so that clients score recordings with the same levels.
 

@@ -1328,7 +1328,7 @@ mod tests {
                 proven: true
             }
         );
-        let model = crate::sim::engine::Model::build(&scene).unwrap();
+        let model = crate::sim::core::engine::Model::build(&scene).unwrap();
         let (lo, hi) = crate::mesh::stuffing::dihedral_range(&model.mesh);
         assert!(
             lo >= crate::mesh::stuffing::PROVEN_MIN_DIHEDRAL_DEG
@@ -1500,7 +1500,7 @@ mod tests {
         )
     }
 
-    fn centroid(model: &crate::sim::engine::Model, f: &[u32; 3]) -> [f64; 3] {
+    fn centroid(model: &crate::sim::core::engine::Model, f: &[u32; 3]) -> [f64; 3] {
         let mut c = [0.0; 3];
         for &n in f {
             let p = model.mesh.nodes[n as usize];
@@ -1520,13 +1520,13 @@ mod tests {
             _ => unreachable!(),
         };
         let all = Scene::parse(&cube_on_foundation(""), "all.toml").unwrap();
-        let all = crate::sim::engine::Model::build(&all).unwrap();
+        let all = crate::sim::core::engine::Model::build(&all).unwrap();
         let open = format!(
             "{{ box_min_m = [-1.0, -1.0, {}], box_max_m = [1.0, 1.0, 1.0] }}",
             size / 2.0
         );
         let half = Scene::parse(&cube_on_foundation(&open), "half.toml").unwrap();
-        let half = crate::sim::engine::Model::build(&half).unwrap();
+        let half = crate::sim::core::engine::Model::build(&half).unwrap();
         let (fa, fh) = (
             all.foundation.as_ref().unwrap(),
             half.foundation.as_ref().unwrap(),
@@ -1560,7 +1560,7 @@ mod tests {
         )
         .unwrap();
         let (listed, _) = Scene::load(path.to_str().unwrap()).unwrap();
-        let listed = crate::sim::engine::Model::build(&listed).unwrap();
+        let listed = crate::sim::core::engine::Model::build(&listed).unwrap();
         let fl = listed.foundation.as_ref().unwrap();
         assert_eq!(fl.faces.len(), fa.faces.len() - 1);
         assert!(!fl.faces.contains(&face));
@@ -1573,7 +1573,7 @@ mod tests {
             "u.toml",
         )
         .unwrap();
-        let err = crate::sim::engine::Model::build(&scene)
+        let err = crate::sim::core::engine::Model::build(&scene)
             .unwrap_err()
             .to_string();
         assert!(
@@ -1587,7 +1587,7 @@ mod tests {
                 "landmark = \"sylvian-middle\"",
             );
         let scene = Scene::parse(&text, "s.toml").unwrap();
-        let err = crate::sim::engine::Model::build(&scene)
+        let err = crate::sim::core::engine::Model::build(&scene)
             .unwrap_err()
             .to_string();
         assert!(
@@ -1598,7 +1598,7 @@ mod tests {
             &cube_on_foundation("{ vertices_file = \"no-such-list.txt\" }"),
             "v.toml",
         )
-        .map(|s| crate::sim::engine::Model::build(&s).map(|_| ()))
+        .map(|s| crate::sim::core::engine::Model::build(&s).map(|_| ()))
         .unwrap()
         .unwrap_err()
         .to_string();
@@ -1634,7 +1634,7 @@ mod tests {
                 preset: "coarse".into(),
                 proven: false,
             };
-            let model = crate::sim::engine::Model::build(&coarse).unwrap();
+            let model = crate::sim::core::engine::Model::build(&coarse).unwrap();
             let springs = model.foundation.as_ref().unwrap();
             let total = model.surface.triangles.len();
             assert!(

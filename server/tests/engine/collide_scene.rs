@@ -8,8 +8,8 @@
 use faer::Par;
 use fissure_engine::fem::compliance::ColumnPolicy;
 use fissure_engine::scene::{CollisionBackend, Scene};
-use fissure_engine::sim::engine::{ContactQuery, Deformer, Model, RowRule, ray_backend};
-use fissure_engine::sim::rows::{Anchors, FreePositions};
+use fissure_engine::sim::core::engine::{ContactQuery, Deformer, Model, RowRule, ray_backend};
+use fissure_engine::sim::core::rows::{Anchors, FreePositions};
 use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion};
 use std::sync::Arc;
 

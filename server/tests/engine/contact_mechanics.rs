@@ -23,8 +23,8 @@
 
 use fissure_engine::fem::compliance::ColumnPolicy;
 use fissure_engine::scene::Scene;
-use fissure_engine::sim::engine::{Model, StepEngine};
-use fissure_engine::sim::stepped::{SteppedRunner, home_pose};
+use fissure_engine::sim::core::engine::{Model, StepEngine};
+use fissure_engine::sim::core::stepped::{SteppedRunner, home_pose};
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use std::sync::Arc;
 
@@ -485,7 +485,7 @@ fn a_plate_dragged_with_friction_slides_with_mu_times_the_normal_force() {
 /// The cube pressed 3 mm by one plate, stepped in eight full solves, with
 /// the cube's scene text extended by `extra`: the model and the last
 /// snapshot.
-fn pressed_cube(extra: &str) -> (Arc<Model>, fissure_engine::sim::snapshot::Snapshot) {
+fn pressed_cube(extra: &str) -> (Arc<Model>, fissure_engine::sim::core::snapshot::Snapshot) {
     let text = format!("{}\n{extra}", include_str!("../../scenes/cube.toml"));
     let scene = Scene::parse(&text, "cube (skull variant)").expect("the variant parses");
     let model = Arc::new(Model::build(&scene).expect("the model builds"));
@@ -539,7 +539,7 @@ fn the_skull_surface_holds_every_node_inside_it_pushing_only_inwards_along_its_n
     let fm = &held.force_model;
     let mut pushing = 0;
     for (r, l) in fm.step_rows.iter().zip(&fm.step_lambda) {
-        if r.owner != fissure_engine::sim::rows::SKULL_OWNER {
+        if r.owner != fissure_engine::sim::core::rows::SKULL_OWNER {
             continue;
         }
         assert!(

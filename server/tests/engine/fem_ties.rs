@@ -384,8 +384,8 @@ fn a_contact_solve_after_others_equals_a_fresh_solvers_answer_on_the_same_rows()
 #[test]
 fn the_force_loops_solver_keeping_rows_across_frames_equals_a_full_solve_at_every_sample() {
     use fissure_engine::fem::CompliancePatch;
-    use fissure_engine::sim::local_model::{ForceModel, ForceSolver, SampleAnswer};
-    use fissure_engine::sim::rows::{self, Anchors, NO_TRIANGLE, Row, TIE_OWNER};
+    use fissure_engine::sim::core::local_model::{ForceModel, ForceSolver, SampleAnswer};
+    use fissure_engine::sim::core::rows::{self, Anchors, NO_TRIANGLE, Row, TIE_OWNER};
     use nalgebra::Point3;
     use std::sync::Arc;
 

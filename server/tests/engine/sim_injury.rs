@@ -1,4 +1,4 @@
-//! The injury measures a frame carries ([`fissure_engine::sim::injury`]),
+//! The injury measures a frame carries ([`fissure_engine::sim::core::injury`]),
 //! through the whole step:
 //!
 //! * a plate larger than a block's top, bottom fixed, `nu = 0`, pressed by
@@ -18,9 +18,9 @@
 
 use fissure_engine::fem::compliance::ColumnPolicy;
 use fissure_engine::scene::Scene;
-use fissure_engine::sim::engine::Model;
-use fissure_engine::sim::snapshot::Snapshot;
-use fissure_engine::sim::stepped::SteppedRunner;
+use fissure_engine::sim::core::engine::Model;
+use fissure_engine::sim::core::snapshot::Snapshot;
+use fissure_engine::sim::core::stepped::SteppedRunner;
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 use std::sync::Arc;
 

@@ -7,9 +7,9 @@
 use fissure_engine::fem::compliance::ColumnPolicy;
 use fissure_engine::fem::ties::{Rupture, TieKind};
 use fissure_engine::scene::Scene;
-use fissure_engine::sim::engine::{Model, StepEngine};
-use fissure_engine::sim::snapshot::TieCause;
-use fissure_engine::sim::stepped::home_pose;
+use fissure_engine::sim::core::engine::{Model, StepEngine};
+use fissure_engine::sim::core::snapshot::TieCause;
+use fissure_engine::sim::core::stepped::home_pose;
 use nalgebra::{Isometry3, Translation3, Vector3};
 use std::sync::Arc;
 
@@ -77,7 +77,11 @@ fn open(
     scene: &Scene,
     lift_m: f64,
     steps: usize,
-) -> (Vec<f64>, Vec<fissure_engine::sim::snapshot::TieEvent>, u32) {
+) -> (
+    Vec<f64>,
+    Vec<fissure_engine::sim::core::snapshot::TieEvent>,
+    u32,
+) {
     let model = model(scene);
     let mut engine =
         StepEngine::new(scene, model.clone(), ColumnPolicy::Compute, None, None).unwrap();
@@ -295,7 +299,7 @@ fn a_mirror_engine_has_the_others_ties_and_tears_none_itself() {
 /// nearest of all.
 #[test]
 fn a_tear_is_blamed_on_the_nearest_instrument_that_pushes() {
-    use fissure_engine::sim::engine::TieStage;
+    use fissure_engine::sim::core::engine::TieStage;
     let text = include_str!("../../scenes/sylvian.toml").replace("paper-48k", "coarse");
     let s = Scene::parse(
         &format!("{text}\n{}", trabeculae(0.2, "rupture_strain = 0.2")),

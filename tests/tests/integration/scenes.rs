@@ -1,7 +1,7 @@
 //! Every embedded scene loads and runs; what a scene declares is what is built.
 
 use fissure_engine::scene::{EMBEDDED, RoiSpec, Scene};
-use fissure_engine::sim::pose::RawPose;
+use fissure_engine::sim::core::pose::RawPose;
 use fissure_engine::sim::{Mode, SimOptions, Simulation};
 
 fn stepped() -> SimOptions {

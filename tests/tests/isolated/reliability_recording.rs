@@ -5,7 +5,7 @@
 //! alone in the process (the `isolated` binary runs one test at a time).
 
 use fissure_cli::client::report::{LostEntries, report};
-use fissure_engine::sim::snapshot::{Frame, InstrumentReaction, StepTimings};
+use fissure_engine::sim::core::snapshot::{Frame, InstrumentReaction, StepTimings};
 use fissure_proto::recording::{RecordingGap, RecordingGapExt, read_recording};
 use fissure_proto::v1 as pb;
 use fissure_server::recording::{QUEUE_CAPACITY, Recorder};

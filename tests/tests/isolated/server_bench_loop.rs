@@ -35,7 +35,7 @@ async fn bench_loop_reports_consistent_figures() -> anyhow::Result<()> {
     #[cfg(target_os = "linux")]
     assert_eq!(
         r.stall_probe_cpus,
-        fissure_engine::sim::priority::allowed_cpus().map_or(0, |c| c.len())
+        fissure_engine::sim::runtime::priority::allowed_cpus().map_or(0, |c| c.len())
     );
     assert!(r.stall_probe_cpus >= 1 || !cfg!(target_os = "linux"));
     if r.machine_stalls == 0 {

@@ -37,7 +37,7 @@ fn thread_policy(name: &str) -> Option<(u32, u32)> {
 #[cfg(target_os = "linux")]
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn force_loop_runs_realtime_where_permitted() -> anyhow::Result<()> {
-    use fissure_engine::sim::priority;
+    use fissure_engine::sim::runtime::priority;
     const SCHED_OTHER: u32 = 0;
     const SCHED_FIFO: u32 = 1;
     let _alone = crate::alone().await;

@@ -1,5 +1,5 @@
 //! What a session did to the brain, from its recording: each injury measure
-//! of the frames (the server's `sim::injury`) at its worst, scored
+//! of the frames (the server's `sim::core::injury`) at its worst, scored
 //! against the scene's thresholds (`[assessment]`, carried in the
 //! recording's header; the cited defaults for a recording without them),
 //! and the events a teacher looks for (ties cut and torn, vessels torn,

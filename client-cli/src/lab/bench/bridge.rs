@@ -29,7 +29,7 @@ use crate::client::bridge::{Bridge, FORCE_LEN, decode_force, encode_pose};
 use crate::client::replay::{connect, haptic_request};
 use anyhow::Context;
 use fissure_engine::scene::Scene;
-use fissure_engine::sim::stats::percentile;
+use fissure_engine::sim::runtime::stats::percentile;
 use fissure_engine::sim::{Mode, SimOptions, Simulation};
 use fissure_proto::v1 as pb;
 use fissure_server::{ServeOptions, serve};

@@ -23,8 +23,9 @@ use crate::client::replay::{connect, haptic_request};
 use crate::client::trajectory::{BUNDLED, Trajectory, Waypoint};
 use anyhow::{Context, bail};
 use fissure_engine::scene::{Scene, Traversal};
-use fissure_engine::sim::stats::percentile;
-use fissure_engine::sim::{Mode, SimOptions, Simulation, priority};
+use fissure_engine::sim::runtime::priority;
+use fissure_engine::sim::runtime::stats::percentile;
+use fissure_engine::sim::{Mode, SimOptions, Simulation};
 use fissure_proto::v1 as pb;
 use fissure_server::{ServeOptions, Transport};
 use std::sync::Arc;
@@ -50,12 +51,12 @@ pub struct LoopBenchArgs {
     /// of the clients' pose threads (a haptic device's servo loop is
     /// real-time); 0 asks for none. Where it is not permitted, both run at
     /// normal priority and the report says so.
-    #[arg(long, default_value_t = fissure_engine::sim::priority::DEFAULT_FORCE_LOOP_RT_PRIORITY,
+    #[arg(long, default_value_t = fissure_engine::sim::runtime::priority::DEFAULT_FORCE_LOOP_RT_PRIORITY,
           value_parser = clap::value_parser!(u8).range(0..=99))]
     pub rt_priority: u8,
     /// Real-time priority (SCHED_FIFO, 1-99) of the server's gRPC transport
     /// threads (`fissure-server --transport-rt-priority`); 0 asks for none.
-    #[arg(long, default_value_t = fissure_engine::sim::priority::DEFAULT_TRANSPORT_RT_PRIORITY,
+    #[arg(long, default_value_t = fissure_engine::sim::runtime::priority::DEFAULT_TRANSPORT_RT_PRIORITY,
           value_parser = clap::value_parser!(u8).range(0..=99))]
     pub transport_rt_priority: u8,
     /// How the CPU BVH walks each face's parallel rays (the scene's
@@ -83,8 +84,9 @@ impl Default for LoopBenchArgs {
             duration_s: 10.0,
             watchers: 4,
             rate_hz: 1000.0,
-            rt_priority: fissure_engine::sim::priority::DEFAULT_FORCE_LOOP_RT_PRIORITY,
-            transport_rt_priority: fissure_engine::sim::priority::DEFAULT_TRANSPORT_RT_PRIORITY,
+            rt_priority: fissure_engine::sim::runtime::priority::DEFAULT_FORCE_LOOP_RT_PRIORITY,
+            transport_rt_priority:
+                fissure_engine::sim::runtime::priority::DEFAULT_TRANSPORT_RT_PRIORITY,
             traversal: None,
             json: false,
         }

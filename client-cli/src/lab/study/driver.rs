@@ -30,9 +30,9 @@ use fissure_engine::collide::rays::bvh::Bvh;
 use fissure_engine::fem::compliance::ColumnPolicy;
 use fissure_engine::mesh::TetMesh;
 use fissure_engine::scene::RoiSpec;
-use fissure_engine::sim::engine::{Model, StepEngine};
-use fissure_engine::sim::force_loop::ForceLoop;
-use fissure_engine::sim::stepped::{Answer, StepDone, SteppedRunner};
+use fissure_engine::sim::core::engine::{Model, StepEngine};
+use fissure_engine::sim::core::force_loop::ForceLoop;
+use fissure_engine::sim::core::stepped::{Answer, StepDone, SteppedRunner};
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 use std::time::Instant;
 

@@ -59,7 +59,7 @@ struct Args {
     /// Real-time priority (SCHED_FIFO, 1-99) each force loop asks for; 0 asks
     /// for none. Needs CAP_SYS_NICE or an RLIMIT_RTPRIO allowance; without it
     /// the loops run at normal priority (logged once).
-    #[arg(long, default_value_t = fissure_engine::sim::priority::DEFAULT_FORCE_LOOP_RT_PRIORITY,
+    #[arg(long, default_value_t = fissure_engine::sim::runtime::priority::DEFAULT_FORCE_LOOP_RT_PRIORITY,
           value_parser = clap::value_parser!(u8).range(0..=99))]
     force_loop_rt_priority: u8,
     /// Real-time priority (SCHED_FIFO, 1-99) of the gRPC transport's threads,
@@ -67,7 +67,7 @@ struct Args {
     /// for none. Keep it below --force-loop-rt-priority. Same privileges as
     /// the force loops; without them the transport runs at normal priority
     /// (logged once).
-    #[arg(long, default_value_t = fissure_engine::sim::priority::DEFAULT_TRANSPORT_RT_PRIORITY,
+    #[arg(long, default_value_t = fissure_engine::sim::runtime::priority::DEFAULT_TRANSPORT_RT_PRIORITY,
           value_parser = clap::value_parser!(u8).range(0..=99))]
     transport_rt_priority: u8,
     /// Log filter (tracing's EnvFilter syntax), e.g. `info` or `fissure_server=debug`.

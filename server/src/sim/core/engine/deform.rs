@@ -2,12 +2,12 @@
 //! choice of the nodes a step's compliance patch covers, and the penalty
 //! measure of a row.
 use super::model::Model;
+use super::model::ModelError;
 use crate::collide::Nearby;
 use crate::fem::compliance::ColumnPolicy;
 use crate::fem::{self, CompliancePatch, ContactAnswer, ContactRow, DeformationSolver, RowKind};
 use crate::scene::Scene;
-use crate::sim::SimError;
-use crate::sim::rows::Row;
+use crate::sim::core::rows::Row;
 use nalgebra::Vector3;
 use std::sync::Arc;
 
@@ -108,7 +108,7 @@ impl Deformer {
         model: &Model,
         columns: ColumnPolicy,
         hook: Option<Arc<dyn Fn() + Send + Sync>>,
-    ) -> Result<Self, SimError> {
+    ) -> Result<Self, ModelError> {
         let strategy = scene.solver.strategy;
         let (material, tissues) = scene.material.to_fem();
         let mut options = fem::SolverOptions {
@@ -127,7 +127,7 @@ impl Deformer {
             .map(|p| [p.a, p.b])
             .collect();
         let mut solver = fem::build_solver(strategy, &model.mesh, material, &model.fixed, &options)
-            .map_err(SimError::Solver)?;
+            .map_err(ModelError::Solver)?;
         solver.set_column_policy(columns, hook);
         Ok(Self {
             solver,

@@ -10,10 +10,9 @@ use crate::mesh::{BoundarySurface, TetMesh};
 use crate::scene::{
     CollisionBackend, CollisionMethod, ContactGeometry, HistoryMode, ModelSpec, Region, Scene,
 };
-use crate::sim::SimError;
-use crate::sim::local_model::ForceModel;
-use crate::sim::rows::Anchors;
-use crate::sim::snapshot::{Frame, InstrumentReaction, Snapshot, StepTimings};
+use crate::sim::core::local_model::ForceModel;
+use crate::sim::core::rows::Anchors;
+use crate::sim::core::snapshot::{Frame, InstrumentReaction, Snapshot, StepTimings};
 use nalgebra::{Point3, Vector3};
 use std::sync::Arc;
 
@@ -73,7 +72,7 @@ pub struct RestContact {
 fn build_instrument(
     spec: &crate::scene::InstrumentSpec,
     max_depth_m: f64,
-) -> Result<Instrument, SimError> {
+) -> Result<Instrument, ModelError> {
     let plate = spec
         .shape
         .plate(spec.thickness_m, spec.width_m, spec.length_m);
@@ -84,7 +83,7 @@ fn build_instrument(
         tip_reach: spec.thickness_m.max(0.002),
     });
     let mut instrument =
-        Instrument::new(plate, layout, rim).map_err(|source| SimError::Instrument {
+        Instrument::new(plate, layout, rim).map_err(|source| ModelError::Instrument {
             name: spec.name.clone(),
             source,
         })?;
@@ -94,7 +93,7 @@ fn build_instrument(
 
 impl Model {
     /// Builds the mesh, the surface, the fixed set and the instruments.
-    pub fn build(scene: &Scene) -> Result<Self, SimError> {
+    pub fn build(scene: &Scene) -> Result<Self, ModelError> {
         scene.check_built(&scene.name)?;
         let mut landmarks = None;
         let mesh = match &scene.model {
@@ -117,7 +116,7 @@ impl Model {
                         radius_m: l.brain_stem.radius,
                     },
                     _ => {
-                        return Err(SimError::UnknownLandmark {
+                        return Err(ModelError::UnknownLandmark {
                             landmark: landmark.clone(),
                         });
                     }
@@ -143,7 +142,7 @@ impl Model {
                     },
                 };
                 let crop = fem::roi::crop(&mesh, at, roi.distance_m, &fixed)
-                    .map_err(SimError::RegionOfInterest)?;
+                    .map_err(ModelError::RegionOfInterest)?;
                 tracing::info!(
                     tets = crop.mesh.tets.len(),
                     of = mesh.tets.len(),
@@ -158,7 +157,7 @@ impl Model {
             }
         };
         if fixed.is_empty() {
-            return Err(SimError::Floating);
+            return Err(ModelError::Floating);
         }
         let surface = mesh.boundary();
         let mut rest_surface = Vec::new();
@@ -334,7 +333,7 @@ impl Model {
                 instruments,
                 StepTimings::default(),
                 0.0,
-                crate::sim::motion::RigidPart::default(),
+                crate::sim::core::motion::RigidPart::default(),
             )
             .with_ties(self.tie_counts(&[])),
         )
@@ -342,8 +341,11 @@ impl Model {
 
     /// The ties of a frame with tie `i` in state `states[i]` (intact where
     /// `states` is shorter), no events.
-    pub fn tie_counts(&self, states: &[fem::ties::TieState]) -> crate::sim::snapshot::TieFrame {
-        let mut f = crate::sim::snapshot::TieFrame::default();
+    pub fn tie_counts(
+        &self,
+        states: &[fem::ties::TieState],
+    ) -> crate::sim::core::snapshot::TieFrame {
+        let mut f = crate::sim::core::snapshot::TieFrame::default();
         for (i, t) in self.ties.iter().enumerate() {
             if states.get(i).copied().unwrap_or_default() == fem::ties::TieState::Intact {
                 match t.kind {
@@ -356,4 +358,44 @@ impl Model {
         }
         f
     }
+}
+
+/// Errors of building a simulation.
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    /// The scene asks for a part this build lacks.
+    #[error("building the model: {0}")]
+    Scene(#[from] crate::scene::SceneError),
+    /// The phantom preset could not be generated.
+    #[error("building the model: {0}")]
+    Phantom(#[from] crate::mesh::phantom::PhantomError),
+    /// The model file could not be read.
+    #[error("building the model: {0}")]
+    ModelFile(#[from] crate::mesh::io::ModelFileError),
+    /// An instrument of the scene could not be built.
+    #[error("building the model: instrument {name:?}: {source}")]
+    Instrument {
+        name: String,
+        source: crate::collide::tool::instrument::InstrumentError,
+    },
+    /// A fixed region names a landmark the model does not have.
+    #[error(
+        "building the model: the model has no landmark named {landmark:?} (the phantom has \"brain-stem\")"
+    )]
+    UnknownLandmark { landmark: String },
+    /// The region of interest could not be cropped.
+    #[error("building the model: region of interest: {0}")]
+    RegionOfInterest(#[source] crate::fem::SolveError),
+    /// No node lies in the fixed regions.
+    #[error("building the model: no node lies in the fixed region(s); the model would float")]
+    Floating,
+    /// The elastic foundation's regions could not be resolved.
+    #[error("building the model: {0}")]
+    Foundation(#[from] crate::scene::region::RegionError),
+    /// The scene's ties could not be placed.
+    #[error("building the model: {0}")]
+    Ties(#[from] crate::scene::ties::TieError),
+    /// The solver could not be set up.
+    #[error("setting up the solver: {0}")]
+    Solver(#[source] crate::fem::SolveError),
 }

@@ -151,7 +151,7 @@ impl SteppedRunner {
         scene: &Scene,
         model: Arc<Model>,
         columns: crate::fem::compliance::ColumnPolicy,
-    ) -> Result<Self, super::SimError> {
+    ) -> Result<Self, super::engine::ModelError> {
         let engine = StepEngine::new(scene, model.clone(), columns, None, None)?;
         let loops = (0..scene.instruments.len())
             .map(|i| ForceLoop::new(scene, &model, i, None))

@@ -61,7 +61,7 @@
 use crate::fem::RowKind;
 use crate::mesh::{BoundarySurface, TetMesh};
 use crate::scene::assessment::AssessmentSpec;
-use crate::sim::rows::Row;
+use crate::sim::core::rows::Row;
 use nalgebra::{Matrix3, Point3, Unit, Vector3};
 use rayon::prelude::*;
 

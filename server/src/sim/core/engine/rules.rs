@@ -5,7 +5,7 @@ use super::model::Model;
 use crate::collide::contact::ContactOutput;
 use crate::fem::{self, ContactRow, RowKind};
 use crate::scene::{ContactLaw, Scene};
-use crate::sim::rows::{self, Anchors, FreePositions, Row, SKULL_OWNER};
+use crate::sim::core::rows::{self, Anchors, FreePositions, Row, SKULL_OWNER};
 use nalgebra::{Isometry3, Point3, Vector3};
 
 /// How a scene's contact law makes rows.

@@ -12,7 +12,6 @@
 //! makes the contact rows, [`deform`] is the deformation stage; this module
 //! composes them into the step ([`StepEngine`]).
 
-use super::SimError;
 use super::injury::{InjuryGeometry, InjuryStage};
 use super::local_model::ForceModel;
 use super::rows::{self, Anchors, FreePositions, Row};
@@ -38,7 +37,7 @@ pub mod rules;
 pub mod ties;
 
 pub use deform::{Deformer, PatchNodes, penalty};
-pub use model::{Model, RestContact};
+pub use model::{Model, ModelError, RestContact};
 pub use query::{ContactQuery, SurfaceBvhs, detect_options, ray_backend, scene_bvh};
 pub use rules::{RowRule, SkullRows};
 pub use ties::{TEAR_ROUNDS, TieCuts, TieStage, TiesAtStep};
@@ -133,7 +132,7 @@ impl StepEngine {
         columns: ColumnPolicy,
         hook: Option<Arc<dyn Fn() + Send + Sync>>,
         backend: Option<Box<dyn RayBackend>>,
-    ) -> Result<Self, SimError> {
+    ) -> Result<Self, ModelError> {
         let mut deformer = Deformer::new(scene, &model, columns, hook)?;
         let tie_springs = !model.ties.is_empty() && deformer.set_tie_springs(&Default::default());
         // The ties' rows are in every step's problem and their nodes in

@@ -13,8 +13,8 @@
 
 use super::Model;
 use crate::fem::ties::{TieRows, TieState};
-use crate::sim::rows::{self, NO_TRIANGLE, Row, TIE_OWNER};
-use crate::sim::snapshot::{TieCause, TieEvent, TieFrame};
+use crate::sim::core::rows::{self, NO_TRIANGLE, Row, TIE_OWNER};
+use crate::sim::core::snapshot::{TieCause, TieEvent, TieFrame};
 use nalgebra::{Point3, Vector3};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};

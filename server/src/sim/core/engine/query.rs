@@ -9,7 +9,7 @@ use crate::collide::rays::brute::BruteForce;
 use crate::collide::rays::bvh::{Bvh, BvhView};
 use crate::collide::{RayBackend, contact};
 use crate::scene::{CollisionBackend, CollisionMethod, ContactGeometry, ContactLaw, Scene};
-use crate::sim::snapshot::Snapshot;
+use crate::sim::core::snapshot::Snapshot;
 use faer::Par;
 use nalgebra::{Isometry3, Point3};
 use std::sync::Arc;

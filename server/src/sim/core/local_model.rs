@@ -78,7 +78,7 @@ pub struct ForceModel {
     /// The step's force and torque on each instrument (N, N m).
     pub step_force: Vec<(Vector3<f64>, Vector3<f64>)>,
     /// The ties at the step and the blades' cuts since (scenes with ties).
-    pub ties: Option<Arc<crate::sim::engine::TiesAtStep>>,
+    pub ties: Option<Arc<crate::sim::core::engine::TiesAtStep>>,
 }
 
 impl ForceModel {

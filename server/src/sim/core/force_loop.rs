@@ -57,7 +57,7 @@ pub struct ForceLoop {
     vertices: Vec<u32>,
     last_good: (Vector3<f64>, Vector3<f64>),
     /// A blade's pose at the last query, the surface its edge swept since,
-    /// and the ties' workspace ([`crate::sim::engine::TiesAtStep::adjust`]).
+    /// and the ties' workspace ([`crate::sim::core::engine::TiesAtStep::adjust`]).
     last_pose: Option<Isometry3<f64>>,
     swept: Vec<[nalgebra::Point3<f64>; 3]>,
     removed: Vec<f64>,
