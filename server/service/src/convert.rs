@@ -49,11 +49,7 @@ fn quat(q: [f64; 4]) -> pb::Quaternion {
 /// The constitutive model a strategy solves (`Material.model`): the linear
 /// strategies share one, each nonlinear one names its own.
 fn material_model(strategy: Strategy) -> &'static str {
-    match strategy {
-        Strategy::Direct | Strategy::Compliance => "linear",
-        Strategy::Corotational => "corotational",
-        Strategy::NeoHookean => "neo-hookean",
-    }
+    strategy.kind().material_model
 }
 
 /// The description of a loaded scene.

@@ -1271,9 +1271,32 @@ impl Compliance {
     }
 }
 
+/// The `compliance` strategy ([`super::StrategyKind`]).
+pub const KIND: super::StrategyKind = super::StrategyKind {
+    name: "compliance",
+    label: "lin",
+    linear: true,
+    material_model: "linear",
+    build: |model, options| {
+        // The skull tests every surface node each round
+        // (`skull::SkullSolver`): a narrower recovery gives it the surface.
+        let recover = if options.skull.is_some() && options.recover != Recover::All {
+            Recover::Surface
+        } else {
+            options.recover.clone()
+        };
+        let mut c = Compliance::new(model, recover)?;
+        c.set_parallelism(options.parallelism);
+        if let Some(n) = options.cache_nodes {
+            c.set_cache_limit(n);
+        }
+        Ok(Box::new(c))
+    },
+};
+
 impl DeformationSolver for Compliance {
     fn name(&self) -> &'static str {
-        "compliance"
+        KIND.name
     }
 
     fn cache_bytes(&self) -> usize {

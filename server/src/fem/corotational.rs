@@ -635,9 +635,25 @@ impl Corotational {
     }
 }
 
+/// The `corotational` strategy ([`super::StrategyKind`]).
+pub const KIND: super::StrategyKind = super::StrategyKind {
+    name: "corotational",
+    label: "corot",
+    linear: false,
+    material_model: "corotational",
+    build: |model, options| {
+        let mut c = Corotational::new(model, options.iterative)?;
+        c.set_parallelism(options.parallelism);
+        if let Some(n) = options.cache_nodes {
+            c.set_cache_limit(n);
+        }
+        Ok(Box::new(c))
+    },
+};
+
 stepping_solver!(
     Corotational,
-    "corotational",
+    KIND.name,
     [lin.model()]
     fn compliance_patch(&mut self, nodes: &[u32], patch: &mut CompliancePatch) -> bool {
         self.tangent_patch(nodes, patch)

@@ -167,9 +167,18 @@ impl Direct {
     }
 }
 
+/// The `direct` strategy ([`super::StrategyKind`]).
+pub const KIND: super::StrategyKind = super::StrategyKind {
+    name: "direct",
+    label: "lin-direct",
+    linear: true,
+    material_model: "linear",
+    build: |model, _| Ok(Box::new(Direct::new(model)?)),
+};
+
 stepping_solver!(
     Direct,
-    "direct",
+    KIND.name,
     [model]
     fn takes_loads(&self) -> bool {
         true

@@ -14,7 +14,7 @@
 /// name, `[$($model)+]` the path from `self` to its [`model::Model`] (what
 /// answers `n_nodes()`); the strategy's other trait items follow.
 macro_rules! stepping_solver {
-    ($ty:ty, $name:literal, [$($model:tt)+] $($extra:tt)*) => {
+    ($ty:ty, $name:expr, [$($model:tt)+] $($extra:tt)*) => {
         impl $crate::fem::DeformationSolver for $ty {
             fn name(&self) -> &'static str {
                 $name
@@ -358,14 +358,20 @@ impl Strategy {
         Self::NeoHookean,
     ];
 
+    /// What the strategy's own file declares of it (the one place a
+    /// strategy is registered besides its variant).
+    pub fn kind(self) -> &'static StrategyKind {
+        match self {
+            Self::Direct => &direct::KIND,
+            Self::Compliance => &compliance::KIND,
+            Self::Corotational => &corotational::KIND,
+            Self::NeoHookean => &neo_hookean::KIND,
+        }
+    }
+
     /// The scene-file name.
     pub fn name(self) -> &'static str {
-        match self {
-            Self::Direct => "direct",
-            Self::Compliance => "compliance",
-            Self::Corotational => "corotational",
-            Self::NeoHookean => "neo-hookean",
-        }
+        self.kind().name
     }
 
     /// Whether its elasticity is linear (small strain about the rest
@@ -373,12 +379,36 @@ impl Strategy {
     /// foundation folded into the stiffness once and a contact linearized
     /// about the rest shape.
     pub fn is_linear(self) -> bool {
-        match self {
-            Self::Direct | Self::Compliance => true,
-            Self::Corotational | Self::NeoHookean => false,
-        }
+        self.kind().linear
     }
 }
+
+/// What the engine, the service and the study know of a solver strategy,
+/// declared as a `KIND` constant beside the strategy's solver in its own
+/// file. A new strategy is its file (the solver, its
+/// [`DeformationSolver`] implementation and its `KIND`) plus its
+/// [`Strategy`] variant with the arm of [`Strategy::kind`]; the scene's
+/// checks, the service's `Material.model` and the study's labels read the
+/// kind, so nothing else changes.
+#[derive(Debug)]
+pub struct StrategyKind {
+    /// The scene-file name (`solver.strategy`).
+    pub name: &'static str,
+    /// The short label of the study's configurations.
+    pub label: &'static str,
+    /// Linear elasticity about the rest shape ([`Strategy::is_linear`]).
+    pub linear: bool,
+    /// The constitutive law reported as `SceneDescription.material.model`:
+    /// the linear strategies share `linear`, a nonlinear one names its own.
+    pub material_model: &'static str,
+    /// Builds the solver on `model` (fixed nodes, tissues, element and
+    /// foundation already applied by [`build_solver`]).
+    pub build: BuildSolver,
+}
+
+/// How a [`StrategyKind`] builds its solver.
+pub type BuildSolver =
+    fn(model::Model, &SolverOptions) -> Result<Box<dyn DeformationSolver>, SolveError>;
 
 impl std::str::FromStr for Strategy {
     type Err = SolveError;
@@ -524,32 +554,7 @@ pub fn build_solver(
     if !strategy.is_linear() && !options.tie_pairs.is_empty() {
         model.couple_pairs(&options.tie_pairs)?;
     }
-    let solver: Box<dyn DeformationSolver> = match strategy {
-        Strategy::Direct => Box::new(direct::Direct::new(model)?),
-        Strategy::Compliance => {
-            let recover = if options.skull.is_some() && options.recover != compliance::Recover::All
-            {
-                compliance::Recover::Surface
-            } else {
-                options.recover.clone()
-            };
-            let mut c = compliance::Compliance::new(model, recover)?;
-            c.set_parallelism(options.parallelism);
-            if let Some(n) = options.cache_nodes {
-                c.set_cache_limit(n);
-            }
-            Box::new(c)
-        }
-        Strategy::Corotational => {
-            let mut c = corotational::Corotational::new(model, options.iterative)?;
-            c.set_parallelism(options.parallelism);
-            if let Some(n) = options.cache_nodes {
-                c.set_cache_limit(n);
-            }
-            Box::new(c)
-        }
-        Strategy::NeoHookean => Box::new(neo_hookean::NeoHookean::new(model, options.iterative)?),
-    };
+    let solver = (strategy.kind().build)(model, options)?;
     match options.skull {
         None => Ok(solver),
         Some(s) => {
@@ -560,6 +565,38 @@ pub fn build_solver(
                 mesh.nodes.clone(),
                 candidates,
             )?))
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::blocks::cube;
+
+    /// Each strategy is what its kind says: the scene name reads back to it,
+    /// the solver built for it reports that name, and no two strategies
+    /// share a name or a study label.
+    #[test]
+    fn each_strategy_builds_the_solver_its_kind_names() {
+        let mesh = cube(0.01, 2);
+        let fixed: Vec<u32> = (0..mesh.nodes.len() as u32)
+            .filter(|&n| mesh.nodes[n as usize].z < 1e-12)
+            .collect();
+        let material = Material {
+            youngs_modulus_pa: 3000.0,
+            poisson_ratio: 0.45,
+        };
+        for s in Strategy::ALL {
+            let kind = s.kind();
+            assert_eq!(kind.name.parse::<Strategy>().unwrap(), s);
+            let solver =
+                build_solver(s, &mesh, material, &fixed, &SolverOptions::default()).unwrap();
+            assert_eq!(solver.name(), kind.name, "{s:?}");
+            for t in Strategy::ALL.into_iter().filter(|&t| t != s) {
+                assert_ne!(t.kind().name, kind.name);
+                assert_ne!(t.kind().label, kind.label);
+            }
         }
     }
 }

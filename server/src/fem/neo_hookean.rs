@@ -434,9 +434,18 @@ impl NeoHookean {
     }
 }
 
+/// The `neo-hookean` strategy ([`super::StrategyKind`]).
+pub const KIND: super::StrategyKind = super::StrategyKind {
+    name: "neo-hookean",
+    label: "neoh",
+    linear: false,
+    material_model: "neo-hookean",
+    build: |model, options| Ok(Box::new(NeoHookean::new(model, options.iterative)?)),
+};
+
 stepping_solver!(
     NeoHookean,
-    "neo-hookean",
+    KIND.name,
     [model]
     fn compliance_patch(&mut self, nodes: &[u32], patch: &mut CompliancePatch) -> bool {
         self.tangent_patch(nodes, patch)

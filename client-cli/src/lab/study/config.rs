@@ -129,12 +129,7 @@ impl Config {
             "paper-34k" => "34k",
             other => other,
         };
-        let strategy = match self.strategy {
-            Strategy::Compliance => "lin",
-            Strategy::Direct => "lin-direct",
-            Strategy::Corotational => "corot",
-            Strategy::NeoHookean => "neoh",
-        };
+        let strategy = self.strategy.kind().label;
         let mut l = format!("{preset}/{strategy}");
         if !self.strategy.is_linear() {
             l.push_str(&format!("/tol{:.0e}", self.tolerance));
