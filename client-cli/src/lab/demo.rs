@@ -23,7 +23,7 @@ use crate::client::trajectory::{BUNDLED, Trajectory};
 use crate::client::watch::ColourBy;
 use anyhow::{Context, bail};
 use fissure_engine::scene::Scene;
-use fissure_engine::sim::stats::percentile;
+use fissure_engine::sim::runtime::stats::percentile;
 use fissure_engine::sim::{Mode, SimOptions, Simulation};
 use fissure_proto::v1 as pb;
 use fissure_server::recording::ToFile;
@@ -439,6 +439,12 @@ struct Pictures {
 impl Pictures {
     /// Writes the VTU series, the snapshots, the force plots and the GIF;
     /// returns the files written.
+    ///
+    /// The frames go through the same [`FrameSink`]s as `fissure watch`'s.
+    /// The demo has the whole run before it writes, so a first pass makes
+    /// the choices that need it (one colour scale for the run, the "during"
+    /// frame, the GIF's stride), then a second pushes every frame through
+    /// the sinks.
     fn write(
         &self,
         scene: &pb::SceneDescription,
@@ -446,12 +452,15 @@ impl Pictures {
         frames: &[pb::DeformationFrame],
         forces: &[(String, Vec<ForceRow>)],
     ) -> anyhow::Result<Vec<PathBuf>> {
-        use crate::client::render::anim::{GifOptions, save_gif};
-        use crate::client::render::plot::{InstrumentForces, force_plot};
+        use crate::client::render::plot::{InstrumentForces, force_plot, nice_range};
         use crate::client::watch::{
-            FrameRenderer, SessionView, VtuSeries, caption_of, gif_delay_cs,
+            FrameRenderer, FrameSink, GifBuffer, GifSink, PngPick, PngSink, SessionView, Snapshot,
+            VtuSink,
         };
-        let bar = ProgressBar::new((frames.len() + 8) as u64);
+        let Some(last) = frames.len().checked_sub(1) else {
+            return Ok(Vec::new());
+        };
+        let bar = ProgressBar::new((frames.len() + forces.len() + 1) as u64);
         if self.quiet {
             bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
         }
@@ -461,7 +470,6 @@ impl Pictures {
                 .progress_chars("=> "),
         );
         bar.set_prefix("pictures");
-        let mut files = Vec::new();
         let mut view = SessionView::new(scene, surface);
         view.colour_by = self.colour_by;
         if let Some(a) = self.azimuth_deg {
@@ -470,45 +478,63 @@ impl Pictures {
         if let Some(e) = self.elevation_deg {
             view.camera.elevation_deg = e;
         }
-        // VTU series, one per frame received.
-        let dir = self.out.join("vtu");
-        std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
-        let mut series = VtuSeries::new(&dir, "surface");
-        bar.set_message("VTU series");
-        for f in frames {
-            files.push(series.write(&view, f)?);
-            bar.inc(1);
-        }
-        files.push(series.finish()?);
-        // One colour scale for every picture: the run's largest value of
-        // what the colour shows.
+        // First pass, the choices over the whole run: one colour scale for
+        // every picture (the run's largest value of what the colour shows);
+        // the "during" snapshot, the first frame at half that peak; the
+        // GIF's stride, which thins the frames evenly to `--gif-frames`.
         let peak_mm = frames
             .iter()
             .map(|f| self.colour_by.peak_mm(f))
             .fold(0.0, f64::max);
-        let range_mm = crate::client::render::plot::nice_range(0.0, peak_mm.max(0.1), 5).1;
-        // Snapshots: the first frame, the first frame at half the peak
-        // displacement, the last frame.
-        bar.set_message("snapshots");
-        let mut renderer = FrameRenderer::new(self.width, self.height)?;
+        let range_mm = nice_range(0.0, peak_mm.max(0.1), 5).1;
         let during = frames
             .iter()
-            .find(|f| self.colour_by.peak_mm(f) >= 0.5 * peak_mm)
-            .unwrap_or(&frames[frames.len() / 2]);
-        for (name, label, frame) in [
-            ("snapshot-1-before.png", "before", &frames[0]),
-            ("snapshot-2-during.png", "during", during),
-            ("snapshot-3-after.png", "after", &frames[frames.len() - 1]),
-        ] {
-            let mut caption = caption_of(&scene.name, frame, range_mm);
-            caption.title = format!("{} \u{2014} {label}", caption.title);
-            let path = self.out.join(name);
-            view.render(&mut renderer, frame, &caption)?
-                .save_png(&path)?;
-            files.push(path);
+            .position(|f| self.colour_by.peak_mm(f) >= 0.5 * peak_mm)
+            .unwrap_or(frames.len() / 2);
+        let stride = frames.len().div_ceil(self.gif_frames.max(2)).max(1);
+        // Second pass: every frame through the sinks. The VTU series, one
+        // per frame received, in `vtu/`; the snapshots before, during and
+        // after; the animation at most 640 px wide.
+        let dir = self.out.join("vtu");
+        std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+        let snapshot = |index: usize, file: &str, label: &str| Snapshot {
+            index,
+            file: file.into(),
+            label: label.into(),
+        };
+        let (gw, gh) = if self.width > 640 {
+            (640, (self.height * 640 / self.width).max(240))
+        } else {
+            (self.width, self.height)
+        };
+        let mut sinks: [Box<dyn FrameSink>; 3] = [
+            Box::new(VtuSink::new(&dir, "surface", true)),
+            Box::new(PngSink::new(
+                &self.out,
+                FrameRenderer::new(self.width, self.height)?,
+                PngPick::Chosen(vec![
+                    snapshot(0, "snapshot-1-before.png", "before"),
+                    snapshot(during, "snapshot-2-during.png", "during"),
+                    snapshot(last, "snapshot-3-after.png", "after"),
+                ]),
+            )),
+            Box::new(GifSink::new(
+                self.out.join("session.gif"),
+                FrameRenderer::new(gw, gh)?,
+                GifBuffer::every(stride as u64, frames.len() as u64),
+            )),
+        ];
+        bar.set_message("VTU series, snapshots, animation frames");
+        for f in frames {
+            for sink in &mut sinks {
+                sink.frame(&view, f, range_mm)?;
+            }
             bar.inc(1);
         }
-        // Force plots.
+        let [series, snapshots, animation] = sinks;
+        let mut files = series.finish(&view)?;
+        files.extend(snapshots.finish(&view)?);
+        // Force plots (not frames: the demo's own).
         bar.set_message("force plots");
         for (name, rows) in forces {
             let ins = InstrumentForces {
@@ -527,43 +553,9 @@ impl Pictures {
             files.push(path);
             bar.inc(1);
         }
-        // The animation: evenly thinned frames at most 640 px wide.
         bar.set_message("animation");
-        let stride = frames.len().div_ceil(self.gif_frames.max(2)).max(1);
-        let (gw, gh) = if self.width > 640 {
-            (640, (self.height * 640 / self.width).max(240))
-        } else {
-            (self.width, self.height)
-        };
-        let mut gif_renderer = FrameRenderer::new(gw, gh)?;
-        let mut images = Vec::new();
-        let picked: Vec<&pb::DeformationFrame> = frames
-            .iter()
-            .step_by(stride)
-            .chain(frames.last().filter(|_| (frames.len() - 1) % stride != 0))
-            .collect();
-        for f in &picked {
-            images.push(view.render(
-                &mut gif_renderer,
-                f,
-                &caption_of(&scene.name, f, range_mm),
-            )?);
-        }
-        let dt = if frames.len() > 1 {
-            (frames[frames.len() - 1].sim_time_s - frames[0].sim_time_s) / (frames.len() - 1) as f64
-        } else {
-            0.04
-        };
-        let path = self.out.join("session.gif");
-        save_gif(
-            &images,
-            &path,
-            &GifOptions {
-                delay_cs: gif_delay_cs(dt * stride as f64),
-                ..Default::default()
-            },
-        )?;
-        files.push(path);
+        files.extend(animation.finish(&view)?);
+        bar.inc(1);
         bar.finish_and_clear();
         Ok(files)
     }

@@ -1,32 +1,50 @@
 //! The frames of a session's animated GIF, kept within a bound by taking
-//! every `stride`-th frame (the stride doubles when the buffer fills).
+//! every `stride`-th frame: a fixed stride when the number of frames is
+//! known in advance (the demo), else a stride that doubles when the buffer
+//! fills (the watcher).
 
 use crate::client::render::Image;
 
-/// GIF frames with a bound on their number: past `2 * cap` every other one
-/// is dropped and the stride doubles, so the kept frames stay evenly spaced.
+/// GIF frames taken every `stride`-th offered frame. Made with
+/// [`GifBuffer::new`], the number stays bounded: past `2 * cap` every other
+/// one is dropped and the stride doubles, so the kept frames stay evenly
+/// spaced. Made with [`GifBuffer::every`], the stride is fixed and the last
+/// of the announced frames is kept too.
 #[derive(Debug, Default)]
 pub struct GifBuffer {
-    cap: usize,
+    /// The bound of a doubling stride (`None`: a fixed stride).
+    cap: Option<usize>,
     stride: u64,
     seen: u64,
+    /// Index of the last frame that will be offered, when known.
+    last: Option<u64>,
     frames: Vec<Image>,
 }
 
 impl GifBuffer {
-    /// At most about `cap` frames (at least 2).
+    /// At most about `cap` frames (at least 2) of a stream of unknown
+    /// length.
     pub fn new(cap: usize) -> Self {
         Self {
-            cap: cap.max(2),
+            cap: Some(cap.max(2)),
             stride: 1,
-            seen: 0,
-            frames: Vec::new(),
+            ..Self::default()
+        }
+    }
+
+    /// Every `stride`-th of `count` frames (the first included), and the
+    /// last of them.
+    pub fn every(stride: u64, count: u64) -> Self {
+        Self {
+            stride: stride.max(1),
+            last: count.checked_sub(1),
+            ..Self::default()
         }
     }
 
     /// Whether the next offered frame will be kept (render it only then).
     pub fn wants_next(&self) -> bool {
-        self.seen % self.stride == 0
+        self.seen % self.stride == 0 || self.last == Some(self.seen)
     }
 
     /// Offers the next frame (`None` when it was not rendered because
@@ -34,7 +52,7 @@ impl GifBuffer {
     pub fn push(&mut self, img: Option<Image>) {
         if let (true, Some(img)) = (self.wants_next(), img) {
             self.frames.push(img);
-            if self.frames.len() >= 2 * self.cap {
+            if self.cap.is_some_and(|cap| self.frames.len() >= 2 * cap) {
                 let mut k = 0;
                 self.frames.retain(|_| {
                     k += 1;
@@ -82,5 +100,33 @@ mod tests {
         assert!(g.frames().len() < 20 && g.frames().len() >= 10);
         // 1000 frames with stride s keep ceil(1000 / s) minus the dropped.
         assert_eq!(g.frames().len() as u64, 1000_u64.div_ceil(g.stride()));
+    }
+
+    /// A fixed stride over a known count keeps every `stride`-th frame from
+    /// the first, and the last: evenly spaced but for the last gap, at most
+    /// `ceil(count / stride) + 1` frames.
+    #[test]
+    fn a_fixed_stride_keeps_the_first_the_last_and_every_strideth() {
+        let img = Image::new(2, 2, [0; 3]).unwrap();
+        for count in 1..60_u64 {
+            for stride in 1..8_u64 {
+                let mut g = GifBuffer::every(stride, count);
+                let mut kept = Vec::new();
+                for i in 0..count {
+                    let want = g.wants_next();
+                    if want {
+                        kept.push(i);
+                    }
+                    g.push(want.then(|| img.clone()));
+                }
+                let mut expected: Vec<u64> = (0..count).step_by(stride as usize).collect();
+                if (count - 1) % stride != 0 {
+                    expected.push(count - 1);
+                }
+                assert_eq!(kept, expected, "count {count}, stride {stride}");
+                assert_eq!(g.frames().len(), kept.len());
+                assert_eq!(g.stride(), stride);
+            }
+        }
     }
 }

@@ -21,6 +21,10 @@
 //! current and says how many frames it skipped ([`WatchReport::skipped`])
 //! instead of falling behind.
 //!
+//! The three kinds of file are [`FrameSink`]s ([`sink`]), the outputs this
+//! command shares with `fissure demo`: each kept frame goes through them in
+//! turn, with the colour scale of the moment.
+//!
 //! The pictures are drawn by [`crate::client::render::frame::FrameRenderer`], the
 //! one frame renderer of the demo, the watcher and the tests;
 //! [`SessionView`] holds what a session's pictures need (rest surface,
@@ -31,6 +35,7 @@
 //! that the tissue reads as tissue and the deformation stands out.
 
 mod gif;
+pub mod sink;
 pub(crate) mod view;
 mod vtu;
 
@@ -38,10 +43,10 @@ pub use crate::client::render::frame::{
     ARROWS, CameraPreset, Caption, FrameRenderer, STEEL, STEEL_CONTACT, TISSUE_MAP, tissue_colour,
 };
 pub use gif::{GifBuffer, gif_delay_cs};
+pub use sink::{FrameSink, GifSink, PngPick, PngSink, Snapshot, VtuSink};
 pub use view::{ColourBy, SessionView, caption_of, plate, pose_of};
 pub use vtu::{VtuSeries, pvd};
 
-use crate::client::render::anim;
 use crate::client::replay::connect;
 use anyhow::Context;
 use fissure_proto::v1 as pb;
@@ -204,10 +209,25 @@ pub async fn run(args: &WatchArgs) -> anyhow::Result<WatchReport> {
         .await
         .context("Watch")?
         .into_inner();
-    let mut renderer = FrameRenderer::new(args.width, args.height)?;
-    let mut gif_renderer = FrameRenderer::new(args.width.min(640), args.height.min(427))?;
-    let mut series = VtuSeries::new(&args.out, "surface");
-    let mut gif = GifBuffer::new(args.gif_frames);
+    // The files, in the order they are listed: the pictures, the VTU
+    // series' index, the GIF.
+    let mut sinks: Vec<Box<dyn FrameSink>> = vec![Box::new(PngSink::new(
+        &args.out,
+        FrameRenderer::new(args.width, args.height)?,
+        if args.png_all {
+            PngPick::All
+        } else {
+            PngPick::FirstAndLast
+        },
+    ))];
+    if !args.no_vtu {
+        sinks.push(Box::new(VtuSink::new(&args.out, "surface", false)));
+    }
+    sinks.push(Box::new(GifSink::new(
+        args.out.join("session.gif"),
+        FrameRenderer::new(args.width.min(640), args.height.min(427))?,
+        GifBuffer::new(args.gif_frames),
+    )));
     let (slot, mut latest) = tokio::sync::watch::channel(None);
     let receiver = tokio::spawn(receive(stream, slot));
     let mut report = WatchReport {
@@ -222,8 +242,6 @@ pub async fn run(args: &WatchArgs) -> anyhow::Result<WatchReport> {
     let mut live = crate::client::report::assess::LiveAlerts::new(thresholds);
     let mut assessor = crate::client::report::assess::Assessor::new(thresholds, true);
     let mut max_mm: f64 = 0.0;
-    let mut last: Option<pb::DeformationFrame> = None;
-    let mut times = Vec::new();
     let deadline = args
         .duration_s
         .map(|d| Instant::now() + Duration::from_secs_f64(d.max(0.0)));
@@ -267,24 +285,9 @@ pub async fn run(args: &WatchArgs) -> anyhow::Result<WatchReport> {
         report.kept += 1;
         max_mm = max_mm.max(args.colour_by.peak_mm(&frame));
         let range_mm = args.range_mm.unwrap_or(max_mm.max(0.1));
-        let caption = caption_of(&scene.name, &frame, range_mm);
-        if !args.no_vtu {
-            series.write(&view, &frame)?;
+        for sink in &mut sinks {
+            sink.frame(&view, &frame, range_mm)?;
         }
-        if args.png_all || report.kept == 1 {
-            let path = args.out.join(format!("frame-{:06}.png", frame.frame));
-            view.render(&mut renderer, &frame, &caption)?
-                .save_png(&path)?;
-            report.files.push(path);
-        }
-        let img = if gif.wants_next() {
-            Some(view.render(&mut gif_renderer, &frame, &caption)?)
-        } else {
-            None
-        };
-        gif.push(img);
-        times.push(frame.sim_time_s);
-        last = Some(frame);
         if args.max_frames.is_some_and(|m| report.kept >= m) {
             ended = Some(WatchEnd::MaxFrames);
         }
@@ -298,38 +301,8 @@ pub async fn run(args: &WatchArgs) -> anyhow::Result<WatchReport> {
             .await
             .unwrap_or_else(|e| WatchEnd::Failed(e.to_string())),
     };
-    if let Some(frame) = &last {
-        if !args.png_all && report.kept > 1 {
-            let range_mm = args.range_mm.unwrap_or(max_mm.max(0.1));
-            let path = args.out.join(format!("frame-{:06}.png", frame.frame));
-            view.render(
-                &mut renderer,
-                frame,
-                &caption_of(&scene.name, frame, range_mm),
-            )?
-            .save_png(&path)?;
-            report.files.push(path);
-        }
-    }
-    if !series.is_empty() {
-        report.files.push(series.finish()?);
-    }
-    if !gif.frames().is_empty() {
-        let dt = if times.len() > 1 {
-            (times[times.len() - 1] - times[0]) / (times.len() - 1) as f64
-        } else {
-            0.04
-        };
-        let path = args.out.join("session.gif");
-        anim::save_gif(
-            gif.frames(),
-            &path,
-            &anim::GifOptions {
-                delay_cs: gif_delay_cs(dt * gif.stride() as f64),
-                ..Default::default()
-            },
-        )?;
-        report.files.push(path);
+    for sink in sinks {
+        report.files.extend(sink.finish(&view)?);
     }
     if report.received > 0 {
         print!(
@@ -351,7 +324,7 @@ pub async fn run(args: &WatchArgs) -> anyhow::Result<WatchReport> {
         report.received,
         report.kept,
         report.skipped,
-        series.len(),
+        if args.no_vtu { 0 } else { report.kept },
         args.out.display()
     );
     for f in &report.files {
