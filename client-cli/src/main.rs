@@ -117,6 +117,12 @@ enum Bench {
         /// Timed steps per row.
         #[arg(long, default_value_t = 5)]
         steps: usize,
+        /// Also run each linear row with an elastic foundation of this
+        /// stiffness, Pa/m, on the outer triangles beyond 25 mm of the top
+        /// centre (the bundled scenes use 1.145e10), beside the stem-only
+        /// row on the same contact set, with their ratio.
+        #[arg(long)]
+        foundation_pa_per_m: Option<f64>,
         /// Print JSON rows instead of a table.
         #[arg(long)]
         json: bool,
@@ -339,14 +345,26 @@ fn main() -> anyhow::Result<()> {
                 strategy,
                 element,
                 steps,
+                foundation_pa_per_m,
                 json,
             } => {
-                use fissure_cli::lab::bench::fem::{FemBenchOptions, print, run_fem_bench};
+                use fissure_cli::lab::bench::fem::{
+                    FemBenchOptions, Support, print, run_fem_bench,
+                };
                 let mut opts = FemBenchOptions {
                     contact_counts: contacts,
                     steps,
                     ..Default::default()
                 };
+                if let Some(k) = foundation_pa_per_m {
+                    anyhow::ensure!(
+                        k.is_finite() && k > 0.0,
+                        "--foundation-pa-per-m: a stiffness per area must be finite and > 0 Pa/m (got {k})"
+                    );
+                    opts.supports.push(Support::Foundation {
+                        stiffness_pa_per_m: k,
+                    });
+                }
                 if !strategy.is_empty() {
                     opts.strategies = strategy
                         .iter()

@@ -7,8 +7,18 @@
 //! steps at increasing indentation depth; `ms_per_step` is their mean.
 //! The linear strategies run with each element formulation asked for
 //! (`tet4`, `tet4-nodal-pressure`), side by side in one run.
+//!
+//! Supports ([`Support`]): the fixed bottom alone (`stem`), and with
+//! `--foundation-pa-per-m K` also an elastic foundation of `K` on every
+//! outer triangle farther than [`FOUNDATION_OPEN_M`] from the top centre
+//! (the craniotomy window the contact set lies in), as the bundled scenes
+//! hold the brain. The two run side by side on the same contact set, so
+//! their ratio is the foundation's own cost per step (it changes values of
+//! `K`, not its pattern), apart from the contact set a scene's support
+//! leads to.
 
 use fissure_engine::fem::compliance::Recover;
+use fissure_engine::fem::foundation::Foundation;
 use fissure_engine::fem::{
     Element, Material, Par, Prescribed, SolverOptions, Strategy, build_solver,
 };
@@ -36,7 +46,38 @@ pub struct FemBenchOptions {
     pub parallelism: Par,
     /// Element formulations (the nonlinear strategies take `tet4` only).
     pub elements: Vec<Element>,
+    /// Supports, side by side (a foundation needs a linear strategy).
+    pub supports: Vec<Support>,
 }
+
+/// How the benchmark's mesh is held.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Support {
+    /// The bottom nodes fixed (2 % of the height), as the brain stem.
+    Stem,
+    /// The bottom fixed and an elastic foundation of this stiffness, Pa/m,
+    /// on the outer triangles away from the top ([`FOUNDATION_OPEN_M`]).
+    Foundation {
+        /// Normal stiffness per area, Pa/m.
+        stiffness_pa_per_m: f64,
+    },
+}
+
+impl Support {
+    /// The row label.
+    pub fn label(self) -> String {
+        match self {
+            Self::Stem => "stem".into(),
+            Self::Foundation { stiffness_pa_per_m } => {
+                format!("foundation {stiffness_pa_per_m:.3e} Pa/m")
+            }
+        }
+    }
+}
+
+/// Radius of the foundation's opening about the top centre, m (the bundled
+/// scenes open a 25 mm sphere about the fissure's entry).
+pub const FOUNDATION_OPEN_M: f64 = 0.025;
 
 impl Default for FemBenchOptions {
     fn default() -> Self {
@@ -52,6 +93,7 @@ impl Default for FemBenchOptions {
             compliance_surface_too: true,
             parallelism: Par::rayon(0),
             elements: Element::ALL.to_vec(),
+            supports: vec![Support::Stem],
         }
     }
 }
@@ -69,10 +111,16 @@ pub struct Row {
     pub strategy: String,
     /// Element formulation.
     pub element: String,
+    /// Support ([`Support::label`]).
+    pub support: String,
     /// Contact vertices.
     pub contact_vertices: usize,
     /// Mean time per timed step, ms.
     pub ms_per_step: f64,
+    /// `ms_per_step` over the same row's on the stem alone (the same
+    /// strategy, element and contact set): the support's own cost; `None`
+    /// on the stem's rows.
+    pub over_stem: Option<f64>,
     /// The untimed warm-up step (new contact columns), ms.
     pub first_step_ms: f64,
     /// Building the solver (assembly, factorization), ms.
@@ -102,20 +150,34 @@ pub fn run_fem_bench(mesh: &TetMesh, preset_name: &str, opts: &FemBenchOptions) 
         let db = (mesh.nodes[b as usize] - top).norm();
         da.total_cmp(&db).then(a.cmp(&b))
     });
-    let mut variants: Vec<(Strategy, Element, Recover, String)> = Vec::new();
+    let open_faces = foundation_faces(mesh, top, FOUNDATION_OPEN_M);
+    let mut variants: Vec<(Strategy, Element, Recover, String, Support)> = Vec::new();
     for &s in &opts.strategies {
         for &e in &opts.elements {
             if e != Element::Tet4 && !s.is_linear() {
                 continue;
             }
-            variants.push((s, e, Recover::All, s.name().to_string()));
-            if s == Strategy::Compliance && opts.compliance_surface_too {
-                variants.push((s, e, Recover::Surface, "compliance-surface".into()));
+            for &support in &opts.supports {
+                if support != Support::Stem && !s.is_linear() {
+                    continue;
+                }
+                variants.push((s, e, Recover::All, s.name().to_string(), support));
+                if s == Strategy::Compliance && opts.compliance_surface_too {
+                    let label = "compliance-surface".to_string();
+                    variants.push((s, e, Recover::Surface, label, support));
+                }
             }
         }
     }
     let mut rows = Vec::new();
-    for (strategy, element, recover, label) in variants {
+    for (strategy, element, recover, label, support) in variants {
+        let foundation = match support {
+            Support::Stem => None,
+            Support::Foundation { stiffness_pa_per_m } => Some(Foundation {
+                stiffness_pa_per_m,
+                faces: open_faces.clone(),
+            }),
+        };
         let t0 = Instant::now();
         let solver = build_solver(
             strategy,
@@ -126,6 +188,7 @@ pub fn run_fem_bench(mesh: &TetMesh, preset_name: &str, opts: &FemBenchOptions) 
                 recover,
                 parallelism: opts.parallelism,
                 element,
+                foundation,
                 ..Default::default()
             },
         );
@@ -139,8 +202,10 @@ pub fn run_fem_bench(mesh: &TetMesh, preset_name: &str, opts: &FemBenchOptions) 
                     nodes: mesh.nodes.len(),
                     strategy: label.clone(),
                     element: element.name().into(),
+                    support: support.label(),
                     contact_vertices: 0,
                     ms_per_step: f64::NAN,
+                    over_stem: None,
                     first_step_ms: f64::NAN,
                     setup_ms,
                     iterations: 0.0,
@@ -201,8 +266,10 @@ pub fn run_fem_bench(mesh: &TetMesh, preset_name: &str, opts: &FemBenchOptions) 
                 nodes: mesh.nodes.len(),
                 strategy: label.clone(),
                 element: element.name().into(),
+                support: support.label(),
                 contact_vertices: m,
                 ms_per_step: if done > 0 { ms } else { f64::NAN },
+                over_stem: None,
                 first_step_ms,
                 setup_ms,
                 iterations: iters as f64 / done.max(1) as f64,
@@ -212,7 +279,45 @@ pub fn run_fem_bench(mesh: &TetMesh, preset_name: &str, opts: &FemBenchOptions) 
             });
         }
     }
+    set_over_stem(&mut rows);
     rows
+}
+
+/// The outer triangles of `mesh` (outward, volume node indices) whose
+/// centroid lies farther than `open_m` from `top`.
+fn foundation_faces(mesh: &TetMesh, top: Point3<f64>, open_m: f64) -> Vec<[u32; 3]> {
+    let s = mesh.boundary();
+    s.triangles
+        .iter()
+        .map(|t| t.map(|v| s.to_volume[v as usize]))
+        .filter(|f| {
+            let c = f
+                .iter()
+                .map(|&n| mesh.nodes[n as usize].coords)
+                .sum::<Vector3<f64>>()
+                / 3.0;
+            (Point3::from(c) - top).norm() > open_m
+        })
+        .collect()
+}
+
+/// Sets [`Row::over_stem`]: each row's time per step over the same
+/// (strategy, element, contact count) row's on the stem alone.
+fn set_over_stem(rows: &mut [Row]) {
+    for i in 0..rows.len() {
+        let r = &rows[i];
+        if r.support == Support::Stem.label() {
+            continue;
+        }
+        let stem = rows.iter().find(|s| {
+            s.support == Support::Stem.label()
+                && s.strategy == r.strategy
+                && s.element == r.element
+                && s.contact_vertices == r.contact_vertices
+        });
+        let over = stem.map(|s| r.ms_per_step / s.ms_per_step);
+        rows[i].over_stem = over;
+    }
 }
 
 /// Prints rows as a table, or as JSON when `json`.
@@ -225,27 +330,32 @@ pub fn print(rows: &[Row], json: bool) {
         return;
     }
     println!(
-        "{:<12} {:>7} {:<20} {:<20} {:>8} {:>11} {:>13} {:>10} {:>6} {:>7}  error",
+        "{:<12} {:>7} {:<20} {:<20} {:<28} {:>8} {:>11} {:>8} {:>13} {:>10} {:>6} {:>7}  error",
         "preset",
         "tets",
         "strategy",
         "element",
+        "support",
         "contact",
         "ms/step",
+        "/ stem",
         "first step ms",
         "setup ms",
         "iters",
         "threads"
     );
     for r in rows {
+        let ratio = r.over_stem.map_or("-".to_string(), |x| format!("{x:.2}"));
         println!(
-            "{:<12} {:>7} {:<20} {:<20} {:>8} {:>11.2} {:>13.2} {:>10.1} {:>6.1} {:>7}  {}",
+            "{:<12} {:>7} {:<20} {:<20} {:<28} {:>8} {:>11.2} {:>8} {:>13.2} {:>10.1} {:>6.1} {:>7}  {}",
             r.preset,
             r.tets,
             r.strategy,
             r.element,
+            r.support,
             r.contact_vertices,
             r.ms_per_step,
+            ratio,
             r.first_step_ms,
             r.setup_ms,
             r.iterations,
@@ -282,5 +392,56 @@ mod tests {
             assert!(r.error.is_none(), "{r:?}");
             assert!(r.ms_per_step.is_finite() && r.ms_per_step >= 0.0);
         }
+    }
+    /// With a foundation beside the stem, each linear row runs on both
+    /// supports at the same contact set and carries its ratio to the
+    /// stem's; a nonlinear strategy, which cannot take a foundation, runs
+    /// on the stem alone.
+    #[test]
+    fn a_foundation_runs_beside_the_stem_on_the_same_contact_set() {
+        let mesh = cuboid([0.06, 0.06, 0.03], [6, 6, 3]);
+        let opts = FemBenchOptions {
+            strategies: vec![Strategy::Compliance, Strategy::Corotational],
+            elements: vec![Element::Tet4],
+            compliance_surface_too: false,
+            contact_counts: vec![4],
+            steps: 1,
+            supports: vec![
+                Support::Stem,
+                Support::Foundation {
+                    stiffness_pa_per_m: 1e8,
+                },
+            ],
+            ..Default::default()
+        };
+        // The opening leaves the top's middle free and supports the rest.
+        let (lo, hi) = mesh.bounds();
+        let top = Point3::new(0.5 * (lo.x + hi.x), 0.5 * (lo.y + hi.y), hi.z);
+        let faces = foundation_faces(&mesh, top, FOUNDATION_OPEN_M);
+        let all = mesh.boundary().triangles.len();
+        assert!(
+            !faces.is_empty() && faces.len() < all,
+            "{} of {all}",
+            faces.len()
+        );
+        let rows = run_fem_bench(&mesh, "box", &opts);
+        let labels: Vec<(&str, &str)> = rows
+            .iter()
+            .map(|r| (r.strategy.as_str(), r.support.as_str()))
+            .collect();
+        assert_eq!(
+            labels,
+            [
+                ("compliance", "stem"),
+                ("compliance", "foundation 1.000e8 Pa/m"),
+                ("corotational", "stem"),
+            ]
+        );
+        for r in &rows {
+            assert!(r.error.is_none(), "{r:?}");
+        }
+        assert_eq!(rows[0].over_stem, None);
+        let over = rows[1].over_stem.expect("the foundation's row has a ratio");
+        assert_eq!(over, rows[1].ms_per_step / rows[0].ms_per_step);
     }
 }
