@@ -12,10 +12,11 @@
 //! `--foundation-pa-per-m K` also an elastic foundation of `K` on every
 //! outer triangle farther than [`FOUNDATION_OPEN_M`] from the top centre
 //! (the craniotomy window the contact set lies in), as the bundled scenes
-//! hold the brain. The two run side by side on the same contact set, so
-//! their ratio is the foundation's own cost per step (it changes values of
-//! `K`, not its pattern), apart from the contact set a scene's support
-//! leads to.
+//! hold the brain. The two run on the same contact set, one solver each,
+//! their timed steps alternating (so that a change in the machine's load
+//! falls on both alike): their ratio ([`Row::over_stem`]) is the
+//! foundation's own cost per step, apart from the larger contact set a
+//! held brain leads to in a scene.
 
 use fissure_engine::fem::compliance::Recover;
 use fissure_engine::fem::foundation::Foundation;
@@ -151,71 +152,75 @@ pub fn run_fem_bench(mesh: &TetMesh, preset_name: &str, opts: &FemBenchOptions) 
         da.total_cmp(&db).then(a.cmp(&b))
     });
     let open_faces = foundation_faces(mesh, top, FOUNDATION_OPEN_M);
-    let mut variants: Vec<(Strategy, Element, Recover, String, Support)> = Vec::new();
+    let mut variants: Vec<(Strategy, Element, Recover, String)> = Vec::new();
     for &s in &opts.strategies {
         for &e in &opts.elements {
             if e != Element::Tet4 && !s.is_linear() {
                 continue;
             }
-            for &support in &opts.supports {
-                if support != Support::Stem && !s.is_linear() {
-                    continue;
-                }
-                variants.push((s, e, Recover::All, s.name().to_string(), support));
-                if s == Strategy::Compliance && opts.compliance_surface_too {
-                    let label = "compliance-surface".to_string();
-                    variants.push((s, e, Recover::Surface, label, support));
-                }
+            variants.push((s, e, Recover::All, s.name().to_string()));
+            if s == Strategy::Compliance && opts.compliance_surface_too {
+                variants.push((s, e, Recover::Surface, "compliance-surface".into()));
             }
         }
     }
+    let row = |label: &str, element: Element, support: Support| Row {
+        preset: preset_name.into(),
+        tets: mesh.tets.len(),
+        nodes: mesh.nodes.len(),
+        strategy: label.into(),
+        element: element.name().into(),
+        support: support.label(),
+        contact_vertices: 0,
+        ms_per_step: f64::NAN,
+        over_stem: None,
+        first_step_ms: f64::NAN,
+        setup_ms: f64::NAN,
+        iterations: 0.0,
+        steps: 0,
+        threads: opts.parallelism.degree(),
+        error: None,
+    };
     let mut rows = Vec::new();
-    for (strategy, element, recover, label, support) in variants {
-        let foundation = match support {
-            Support::Stem => None,
-            Support::Foundation { stiffness_pa_per_m } => Some(Foundation {
-                stiffness_pa_per_m,
-                faces: open_faces.clone(),
-            }),
-        };
-        let t0 = Instant::now();
-        let solver = build_solver(
-            strategy,
-            mesh,
-            opts.material,
-            &fixed,
-            &SolverOptions {
-                recover,
-                parallelism: opts.parallelism,
-                element,
-                foundation,
-                ..Default::default()
-            },
-        );
-        let setup_ms = t0.elapsed().as_secs_f64() * 1e3;
-        let mut solver = match solver {
-            Ok(s) => s,
-            Err(e) => {
-                rows.push(Row {
-                    preset: preset_name.into(),
-                    tets: mesh.tets.len(),
-                    nodes: mesh.nodes.len(),
-                    strategy: label.clone(),
-                    element: element.name().into(),
-                    support: support.label(),
-                    contact_vertices: 0,
-                    ms_per_step: f64::NAN,
-                    over_stem: None,
-                    first_step_ms: f64::NAN,
-                    setup_ms,
-                    iterations: 0.0,
-                    steps: 0,
-                    threads: opts.parallelism.degree(),
-                    error: Some(e.to_string()),
-                });
+    for (strategy, element, recover, label) in variants {
+        // One solver per support; their timed steps alternate, so that a
+        // change in the machine's load falls on every support alike.
+        let mut solvers = Vec::new();
+        for &support in &opts.supports {
+            if support != Support::Stem && !strategy.is_linear() {
                 continue;
             }
-        };
+            let foundation = match support {
+                Support::Stem => None,
+                Support::Foundation { stiffness_pa_per_m } => Some(Foundation {
+                    stiffness_pa_per_m,
+                    faces: open_faces.clone(),
+                }),
+            };
+            let t0 = Instant::now();
+            let solver = build_solver(
+                strategy,
+                mesh,
+                opts.material,
+                &fixed,
+                &SolverOptions {
+                    recover: recover.clone(),
+                    parallelism: opts.parallelism,
+                    element,
+                    foundation,
+                    ..Default::default()
+                },
+            );
+            let setup_ms = t0.elapsed().as_secs_f64() * 1e3;
+            match solver {
+                Ok(solver) => solvers.push((support, solver, setup_ms)),
+                Err(e) => rows.push(Row {
+                    setup_ms,
+                    error: Some(e.to_string()),
+                    ..row(&label, element, support)
+                }),
+            }
+        }
         let steps = if strategy == Strategy::NeoHookean {
             opts.steps.min(2)
         } else {
@@ -224,59 +229,58 @@ pub fn run_fem_bench(mesh: &TetMesh, preset_name: &str, opts: &FemBenchOptions) 
         .max(1);
         for &m in &opts.contact_counts {
             let m = m.min(surface.len());
-            let contact = &surface[..m];
-            let mut pres: Vec<Prescribed> = contact
+            let total = steps + 1;
+            // Every contact vertex pressed to `d` along -z.
+            let pressed = |d: f64| -> Vec<Prescribed> {
+                surface[..m]
+                    .iter()
+                    .map(|&node| Prescribed {
+                        node,
+                        displacement: Vector3::new(0.0, 0.0, -d),
+                    })
+                    .collect()
+            };
+            let mut out: Vec<Row> = solvers
                 .iter()
-                .map(|&node| Prescribed {
-                    node,
-                    displacement: Vector3::zeros(),
+                .map(|(support, _, setup_ms)| Row {
+                    contact_vertices: m,
+                    setup_ms: *setup_ms,
+                    ..row(&label, element, *support)
                 })
                 .collect();
-            let set_depth = |pres: &mut Vec<Prescribed>, d: f64| {
-                for p in pres.iter_mut() {
-                    p.displacement = Vector3::new(0.0, 0.0, -d);
-                }
-            };
-            let total = steps + 1;
-            set_depth(&mut pres, opts.depth_m / total as f64);
-            let t1 = Instant::now();
-            let first = solver.solve(&pres).map(|s| s.iterations);
-            let first_step_ms = t1.elapsed().as_secs_f64() * 1e3;
-            let mut error = first.err().map(|e| e.to_string());
-            let mut iters = 0u64;
-            let t2 = Instant::now();
-            let mut done = 0;
-            if error.is_none() {
-                for k in 0..steps {
-                    set_depth(&mut pres, opts.depth_m * (k + 2) as f64 / total as f64);
-                    match solver.solve(&pres) {
-                        Ok(s) => iters += s.iterations as u64,
-                        Err(e) => {
-                            error = Some(e.to_string());
-                            break;
-                        }
+            let first = pressed(opts.depth_m / total as f64);
+            for ((_, solver, _), r) in solvers.iter_mut().zip(&mut out) {
+                let t1 = Instant::now();
+                let result = solver.solve(&first).map(|s| s.iterations);
+                r.first_step_ms = t1.elapsed().as_secs_f64() * 1e3;
+                r.error = result.err().map(|e| e.to_string());
+            }
+            let mut spent_s = vec![0.0; out.len()];
+            let mut iters = vec![0u64; out.len()];
+            for k in 0..steps {
+                let pres = pressed(opts.depth_m * (k + 2) as f64 / total as f64);
+                for (i, ((_, solver, _), r)) in solvers.iter_mut().zip(&mut out).enumerate() {
+                    if r.error.is_some() {
+                        continue;
                     }
-                    done += 1;
+                    let t2 = Instant::now();
+                    match solver.solve(&pres) {
+                        Ok(sol) => {
+                            iters[i] += sol.iterations as u64;
+                            spent_s[i] += t2.elapsed().as_secs_f64();
+                            r.steps += 1;
+                        }
+                        Err(e) => r.error = Some(e.to_string()),
+                    }
                 }
             }
-            let ms = t2.elapsed().as_secs_f64() * 1e3 / done.max(1) as f64;
-            rows.push(Row {
-                preset: preset_name.into(),
-                tets: mesh.tets.len(),
-                nodes: mesh.nodes.len(),
-                strategy: label.clone(),
-                element: element.name().into(),
-                support: support.label(),
-                contact_vertices: m,
-                ms_per_step: if done > 0 { ms } else { f64::NAN },
-                over_stem: None,
-                first_step_ms,
-                setup_ms,
-                iterations: iters as f64 / done.max(1) as f64,
-                steps: done,
-                threads: opts.parallelism.degree(),
-                error,
-            });
+            for (i, r) in out.iter_mut().enumerate() {
+                if r.steps > 0 {
+                    r.ms_per_step = spent_s[i] * 1e3 / r.steps as f64;
+                    r.iterations = iters[i] as f64 / r.steps as f64;
+                }
+            }
+            rows.extend(out);
         }
     }
     set_over_stem(&mut rows);
