@@ -126,29 +126,33 @@ pub fn fold_into(model: &mut Model, foundation: &Foundation) -> Result<(), Solve
     Ok(())
 }
 
+/// The outer triangles of `mesh` (volume node indices, outward) whose
+/// centroid satisfies `keep`: a foundation's faces chosen by place.
+pub fn outer_faces_where(
+    mesh: &crate::mesh::TetMesh,
+    keep: impl Fn(Point3<f64>) -> bool,
+) -> Vec<[u32; 3]> {
+    let s = mesh.boundary();
+    s.triangles
+        .iter()
+        .map(|t| t.map(|v| s.to_volume[v as usize]))
+        .filter(|f| {
+            let c = f
+                .iter()
+                .map(|&n| mesh.nodes[n as usize].coords)
+                .sum::<Vector3<f64>>()
+                / 3.0;
+            keep(Point3::from(c))
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::fem::{AxisSupport, Material, Prescribed, SolverOptions, Strategy, build_solver};
     use crate::mesh::TetMesh;
     use crate::mesh::blocks::cuboid;
-
-    /// The outer faces of `mesh` whose centroid satisfies `keep`.
-    fn faces_where(mesh: &TetMesh, keep: impl Fn(Point3<f64>) -> bool) -> Vec<[u32; 3]> {
-        let s = mesh.boundary();
-        s.triangles
-            .iter()
-            .map(|t| t.map(|v| s.to_volume[v as usize]))
-            .filter(|f| {
-                let c = f
-                    .iter()
-                    .map(|&n| mesh.nodes[n as usize].coords)
-                    .sum::<Vector3<f64>>()
-                    / 3.0;
-                keep(Point3::from(c))
-            })
-            .collect()
-    }
 
     /// A foundation on `faces`, and rollers that take away the rigid
     /// motions a normal-only support on one plane leaves (`compliance`
@@ -247,7 +251,7 @@ mod tests {
         assert_eq!(mesh.nodes[0], Point3::origin());
         let along_x = node_at(&mesh, Point3::new(a, 0.0, 0.0));
         for k in [1e4, 1e5, 1e6] {
-            let bottom = faces_where(&mesh, |c| c.z < 1e-12);
+            let bottom = outer_faces_where(&mesh, |c| c.z < 1e-12);
             for strategy in [Strategy::Direct, Strategy::Compliance] {
                 let mut solver = build_solver(
                     strategy,
@@ -295,7 +299,7 @@ mod tests {
                 displacement: Vector3::new(0.0, 0.0, -d),
             })
             .collect();
-        let bottom = faces_where(&mesh, |c| c.z < 1e-12);
+        let bottom = outer_faces_where(&mesh, |c| c.z < 1e-12);
         let mut solver = build_solver(
             Strategy::Compliance,
             &mesh,

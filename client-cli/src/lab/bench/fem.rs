@@ -19,7 +19,7 @@
 //! held brain leads to in a scene.
 
 use fissure_engine::fem::compliance::Recover;
-use fissure_engine::fem::foundation::Foundation;
+use fissure_engine::fem::foundation::{Foundation, outer_faces_where};
 use fissure_engine::fem::{
     Element, Material, Par, Prescribed, SolverOptions, Strategy, build_solver,
 };
@@ -287,22 +287,10 @@ pub fn run_fem_bench(mesh: &TetMesh, preset_name: &str, opts: &FemBenchOptions) 
     rows
 }
 
-/// The outer triangles of `mesh` (outward, volume node indices) whose
-/// centroid lies farther than `open_m` from `top`.
+/// The outer triangles of `mesh` whose centroid lies farther than
+/// `open_m` from `top`.
 fn foundation_faces(mesh: &TetMesh, top: Point3<f64>, open_m: f64) -> Vec<[u32; 3]> {
-    let s = mesh.boundary();
-    s.triangles
-        .iter()
-        .map(|t| t.map(|v| s.to_volume[v as usize]))
-        .filter(|f| {
-            let c = f
-                .iter()
-                .map(|&n| mesh.nodes[n as usize].coords)
-                .sum::<Vector3<f64>>()
-                / 3.0;
-            (Point3::from(c) - top).norm() > open_m
-        })
-        .collect()
+    outer_faces_where(mesh, |c| (c - top).norm() > open_m)
 }
 
 /// Sets [`Row::over_stem`]: each row's time per step over the same
