@@ -63,6 +63,17 @@ pub struct LoopBenchArgs {
     /// `collision.traversal` unless given): `bundled` or `per-ray`.
     #[arg(long, value_parser = parse_traversal)]
     pub traversal: Option<Traversal>,
+    /// Also run this scene (an embedded name or a scene file with bundled
+    /// trajectories) as the baseline, alternating with `--scene` run for run
+    /// (baseline first), and print the ratios of `--scene` over it: each
+    /// round's pair of runs gives a ratio (a change in the machine's load
+    /// falls on both), and the median over the rounds is reported.
+    #[arg(long)]
+    pub baseline_scene: Option<String>,
+    /// Rounds of the paired runs with `--baseline-scene` (each round runs
+    /// both scenes for `--duration-s`).
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=100))]
+    pub rounds: u32,
     /// Print JSON instead of a table.
     #[arg(long)]
     pub json: bool,
@@ -88,6 +99,8 @@ impl Default for LoopBenchArgs {
             transport_rt_priority:
                 fissure_engine::sim::runtime::priority::DEFAULT_TRANSPORT_RT_PRIORITY,
             traversal: None,
+            baseline_scene: None,
+            rounds: 3,
             json: false,
         }
     }
@@ -690,13 +703,127 @@ pub fn table(r: &LoopBenchReport) -> String {
     s
 }
 
+/// A scene against a baseline scene (`--baseline-scene`): the median over
+/// the rounds of each round's ratio, scene over baseline (`None` where a
+/// baseline figure was 0 in some round).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct LoopRatios {
+    /// The scene measured.
+    pub scene: String,
+    /// The baseline it is divided by.
+    pub baseline: String,
+    /// Rounds (pairs of runs).
+    pub rounds: usize,
+    /// Deformation step, median.
+    pub deform_step_p50: Option<f64>,
+    /// Deformation step, 99th percentile.
+    pub deform_step_p99: Option<f64>,
+    /// Server force computation, median.
+    pub server_force_p50: Option<f64>,
+    /// Server force computation, 99th percentile.
+    pub server_force_p99: Option<f64>,
+    /// Model age, maximum.
+    pub model_age_max: Option<f64>,
+}
+
+/// The median of each round's ratio `scene / baseline` of the figures
+/// `pairs` holds as `(baseline, scene)` runs.
+pub fn ratios(pairs: &[(LoopBenchReport, LoopBenchReport)]) -> LoopRatios {
+    let median_ratio = |f: fn(&LoopBenchReport) -> f64| -> Option<f64> {
+        let mut r: Vec<f64> = pairs
+            .iter()
+            .map(|(b, s)| (f(b) > 0.0).then(|| f(s) / f(b)))
+            .collect::<Option<_>>()?;
+        if r.is_empty() {
+            return None;
+        }
+        r.sort_by(f64::total_cmp);
+        let m = r.len() / 2;
+        Some(if r.len() % 2 == 1 {
+            r[m]
+        } else {
+            0.5 * (r[m - 1] + r[m])
+        })
+    };
+    let name = |i: usize| -> String {
+        pairs
+            .first()
+            .map(|p| if i == 0 { &p.0.scene } else { &p.1.scene })
+            .cloned()
+            .unwrap_or_default()
+    };
+    LoopRatios {
+        scene: name(1),
+        baseline: name(0),
+        rounds: pairs.len(),
+        deform_step_p50: median_ratio(|r| r.deform_step_p50_ms),
+        deform_step_p99: median_ratio(|r| r.deform_step_p99_ms),
+        server_force_p50: median_ratio(|r| r.server_force_p50_us),
+        server_force_p99: median_ratio(|r| r.server_force_p99_us),
+        model_age_max: median_ratio(|r| r.model_age_max_ms),
+    }
+}
+
+/// The ratios as a table.
+pub fn ratios_table(r: &LoopRatios) -> String {
+    let f = |v: Option<f64>| v.map_or_else(|| "-".to_owned(), |v| format!("{v:.2}"));
+    format!(
+        "{} over {} (median of {} paired rounds)\n\
+         deformation step p50 {}, p99 {}; server force p50 {}, p99 {}; model age max {}\n",
+        r.scene,
+        r.baseline,
+        r.rounds,
+        f(r.deform_step_p50),
+        f(r.deform_step_p99),
+        f(r.server_force_p50),
+        f(r.server_force_p99),
+        f(r.model_age_max)
+    )
+}
+
+/// What `--baseline-scene` prints as JSON: every run, then the ratios.
+#[derive(Debug, serde::Serialize)]
+struct PairedReport {
+    runs: Vec<LoopBenchReport>,
+    ratios: LoopRatios,
+}
+
 /// Runs the benchmark and prints JSON or a table.
 pub async fn main(args: &LoopBenchArgs) -> anyhow::Result<()> {
-    let report = run(args).await?;
+    let Some(baseline) = &args.baseline_scene else {
+        let report = run(args).await?;
+        if args.json {
+            println!("{}", serde_json::to_string_pretty(&report)?);
+        } else {
+            print!("{}", table(&report));
+        }
+        return Ok(());
+    };
+    let base_args = LoopBenchArgs {
+        scene: baseline.clone(),
+        ..args.clone()
+    };
+    let mut pairs = Vec::new();
+    for round in 1..=args.rounds {
+        let b = run(&base_args)
+            .await
+            .with_context(|| format!("round {round}, baseline scene {baseline:?}"))?;
+        let s = run(args)
+            .await
+            .with_context(|| format!("round {round}, scene {:?}", args.scene))?;
+        if !args.json {
+            println!("round {round} of {}", args.rounds);
+            print!("{}\n{}\n", table(&b), table(&s));
+        }
+        pairs.push((b, s));
+    }
+    let r = ratios(&pairs);
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
+        let runs = pairs.into_iter().flat_map(|(b, s)| [b, s]).collect();
+        let out = PairedReport { runs, ratios: r };
+        println!("{}", serde_json::to_string_pretty(&out)?);
     } else {
-        print!("{}", table(&report));
+        print!("{}", ratios_table(&r));
     }
     Ok(())
 }
@@ -704,6 +831,35 @@ pub async fn main(args: &LoopBenchArgs) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn ratios_are_the_median_of_each_rounds_pair() {
+        let run = |scene: &str, step_p99: f64, force_p99: f64| LoopBenchReport {
+            scene: scene.to_owned(),
+            deform_step_p50_ms: 10.0,
+            deform_step_p99_ms: step_p99,
+            server_force_p99_us: force_p99,
+            ..Default::default()
+        };
+        // The machine slows down over the rounds: the pairs keep the ratio.
+        let pairs = vec![
+            (run("base", 20.0, 100.0), run("ties", 40.0, 150.0)),
+            (run("base", 40.0, 200.0), run("ties", 120.0, 300.0)),
+            (run("base", 80.0, 400.0), run("ties", 200.0, 1200.0)),
+        ];
+        let r = ratios(&pairs);
+        assert_eq!(
+            (r.scene.as_str(), r.baseline.as_str(), r.rounds),
+            ("ties", "base", 3)
+        );
+        assert_eq!(r.deform_step_p99, Some(2.5)); // of 2, 3, 2.5
+        assert_eq!(r.server_force_p99, Some(1.5)); // of 1.5, 1.5, 3
+        assert_eq!(r.deform_step_p50, Some(1.0));
+        // A baseline figure of 0 gives no ratio; an even count, the middle two's mean.
+        assert_eq!(r.server_force_p50, None);
+        assert_eq!(ratios(&pairs[..2]).deform_step_p99, Some(2.5));
+        assert_eq!(ratios(&[]).deform_step_p99, None);
+    }
 
     #[test]
     fn ping_pong_walks_forwards_then_back() {
