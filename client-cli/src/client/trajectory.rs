@@ -117,6 +117,19 @@ pub const BUNDLED: &[(&str, &str, &str, &str)] = &[
         "right",
         include_str!("../../trajectories/sylvian-open-right.csv"),
     ),
+    // The opening above, on the 204k-tetrahedron mesh of the same phantom.
+    (
+        "sylvian-204k-open-left",
+        "sylvian-204k",
+        "left",
+        include_str!("../../trajectories/sylvian-open-left.csv"),
+    ),
+    (
+        "sylvian-204k-open-right",
+        "sylvian-204k",
+        "right",
+        include_str!("../../trajectories/sylvian-open-right.csv"),
+    ),
     (
         "sylvian-expert-left",
         "sylvian",

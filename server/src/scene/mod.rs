@@ -23,6 +23,10 @@ use std::path::{Path, PathBuf};
 pub const EMBEDDED: &[(&str, &str)] = &[
     ("sylvian", include_str!("../../scenes/sylvian.toml")),
     (
+        "sylvian-204k",
+        include_str!("../../scenes/sylvian-204k.toml"),
+    ),
+    (
         "sylvian-arachnoid",
         include_str!("../../scenes/sylvian-arachnoid.toml"),
     ),

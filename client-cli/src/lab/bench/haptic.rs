@@ -1314,6 +1314,13 @@ mod tests {
                 vec![pair("spatula", "sylvian-arachnoid-careless-spatula")]
             ]
         );
+        assert_eq!(
+            of("sylvian-204k"),
+            vec![vec![
+                pair("left", "sylvian-204k-open-left"),
+                pair("right", "sylvian-204k-open-right")
+            ]]
+        );
         assert_eq!(of("v-valley").len(), 2);
         assert_eq!(of("u-valley").len(), 1);
         assert_eq!(of("interhemispheric").len(), 1);
