@@ -117,19 +117,6 @@ pub const BUNDLED: &[(&str, &str, &str, &str)] = &[
         "right",
         include_str!("../../trajectories/sylvian-open-right.csv"),
     ),
-    // The opening above, on the 204k-tetrahedron mesh of the same phantom.
-    (
-        "sylvian-204k-open-left",
-        "sylvian-204k",
-        "left",
-        include_str!("../../trajectories/sylvian-open-left.csv"),
-    ),
-    (
-        "sylvian-204k-open-right",
-        "sylvian-204k",
-        "right",
-        include_str!("../../trajectories/sylvian-open-right.csv"),
-    ),
     (
         "sylvian-expert-left",
         "sylvian",
@@ -153,6 +140,19 @@ pub const BUNDLED: &[(&str, &str, &str, &str)] = &[
         "sylvian",
         "right",
         include_str!("../../trajectories/sylvian-careless-right.csv"),
+    ),
+    // The `sylvian-open` pair, on the 204k-tetrahedron mesh of the same phantom.
+    (
+        "sylvian-204k-open-left",
+        "sylvian-204k",
+        "left",
+        include_str!("../../trajectories/sylvian-open-left.csv"),
+    ),
+    (
+        "sylvian-204k-open-right",
+        "sylvian-204k",
+        "right",
+        include_str!("../../trajectories/sylvian-open-right.csv"),
     ),
     (
         "cube-press-left",

@@ -135,6 +135,11 @@ pub struct LoopBenchReport {
     pub samples_sent: u64,
     /// Force samples received.
     pub samples_answered: u64,
+    /// Of those, the ones flagged `SAFETY_FLAG_COLUMNS_PENDING`: a vertex
+    /// the instrument touched had no compliance computed yet, and its part
+    /// of the force was a penalty estimate (first contact before the
+    /// background columns arrive).
+    pub samples_pending: u64,
     /// Samples whose answer came after the next tick was due, or never.
     pub missed_samples: u64,
     /// Of those, the ones whose round trip alone was longer than a tick
@@ -198,6 +203,8 @@ struct Answer {
     server_us: f64,
     model_age_s: f64,
     contact_count: u32,
+    /// Flagged COLUMNS_PENDING: part of the force is a penalty estimate.
+    pending: bool,
     rejected: bool,
 }
 
@@ -433,6 +440,8 @@ async fn drive(
                             server_us: s.server_compute_us,
                             model_age_s: s.model_age_s,
                             contact_count: s.contact_count,
+                            pending: s.safety_flags & fissure_engine::sim::flags::COLUMNS_PENDING
+                                != 0,
                             rejected: s.rejection.is_some(),
                         });
                     }
@@ -538,6 +547,7 @@ async fn drive(
     let mut missed_by_round_trip = 0u64;
     let mut missed_outside_stalls = 0u64;
     let mut answered = 0u64;
+    let mut pending = 0u64;
     let mut sent_total = 0u64;
     let (mut age_max, mut contact_max) = (0.0f64, 0u32);
     for (sent, answers) in sent_all.iter().zip(&answers_all) {
@@ -556,6 +566,7 @@ async fn drive(
             match a {
                 Some(a) => {
                     answered += 1;
+                    pending += a.pending as u64;
                     rtt.push(a.arrived.saturating_duration_since(at).as_secs_f64() * 1e6);
                     server.push(a.server_us);
                     age_max = age_max.max(a.model_age_s);
@@ -595,6 +606,7 @@ async fn drive(
         realtime: realtime.load(Ordering::Relaxed),
         samples_sent: sent_total,
         samples_answered: answered,
+        samples_pending: pending,
         missed_samples: missed,
         missed_by_round_trip,
         missed_outside_stalls,
@@ -673,7 +685,8 @@ pub fn table(r: &LoopBenchReport) -> String {
     ));
     s.push_str(&row("round trip", r.rtt_p50_us, r.rtt_p99_us, r.rtt_max_us));
     s.push_str(&format!(
-        "\nsamples sent {}, answered {}, missed {} (answer after the next tick or never; \
+        "\nsamples sent {}, answered {} ({} with a penalty estimate: compliance pending), \
+         missed {} (answer after the next tick or never; \
          {} of them by a round trip over one period, {} outside machine stalls)\n\
          machine: {} stalls (stall probes on {} CPUs woke over {:.0} us late), max {:.0} us\n\
          client send lag p99 {:.1} us\n\
@@ -682,6 +695,7 @@ pub fn table(r: &LoopBenchReport) -> String {
          model age max {:.1} ms, contact count max {}\n",
         r.samples_sent,
         r.samples_answered,
+        r.samples_pending,
         r.missed_samples,
         r.missed_by_round_trip,
         r.missed_outside_stalls,
