@@ -16,6 +16,7 @@ async fn bench_loop_reports_consistent_figures() -> anyhow::Result<()> {
         transport_rt_priority: 0,
         traversal: Some(fissure_engine::scene::Traversal::PerRay),
         json: true,
+        ..Default::default()
     };
     let r = run(&args).await?;
     assert_eq!(r.scene, "cube");
@@ -28,6 +29,7 @@ async fn bench_loop_reports_consistent_figures() -> anyhow::Result<()> {
     // Every tick sent a pose and every pose was answered (late or not).
     assert_eq!(r.samples_sent, 2000);
     assert_eq!(r.samples_answered, 2000);
+    assert!(r.samples_pending <= r.samples_answered);
     assert!(r.missed_samples <= r.samples_sent);
     assert!(r.missed_by_round_trip <= r.missed_samples);
     assert!(r.missed_outside_stalls <= r.missed_samples);
