@@ -759,16 +759,13 @@ pub fn ratios(pairs: &[(LoopBenchReport, LoopBenchReport)]) -> LoopRatios {
             0.5 * (r[m - 1] + r[m])
         })
     };
-    let name = |i: usize| -> String {
-        pairs
-            .first()
-            .map(|p| if i == 0 { &p.0.scene } else { &p.1.scene })
-            .cloned()
-            .unwrap_or_default()
-    };
+    let (baseline, scene) = pairs
+        .first()
+        .map(|(b, s)| (b.scene.clone(), s.scene.clone()))
+        .unwrap_or_default();
     LoopRatios {
-        scene: name(1),
-        baseline: name(0),
+        scene,
+        baseline,
         rounds: pairs.len(),
         deform_step_p50: median_ratio(|r| r.deform_step_p50_ms),
         deform_step_p99: median_ratio(|r| r.deform_step_p99_ms),
