@@ -21,6 +21,7 @@
 //! r_j` runs over row blocks (in parallel under the caller's [`Par`]).
 
 use super::assembly::node_vec;
+use super::column_queue::{SharedQueue, Urgency};
 use super::constraint::{Constraint, StepRows};
 use super::contact::{self, CompliancePatch, ContactAnswer, ContactRow, SharedBlocks};
 use super::factor::{SharedFactor, SparseLlt};
@@ -35,6 +36,8 @@ use nalgebra::{DMatrix, Vector3};
 use std::sync::{Arc, mpsc};
 
 const NONE: u32 = u32::MAX;
+/// [`Compliance::asked`]: not asked of the worker.
+const NOT_ASKED: u8 = u8::MAX;
 
 /// When a contact solve or a compliance patch needs the columns of a node
 /// that are not cached.
@@ -52,19 +55,32 @@ pub enum ColumnPolicy {
 }
 
 /// A thread that solves for columns of `K0^-1` in the background: it takes
-/// lists of nodes and returns each node's three full columns.
+/// nodes from a [`SharedQueue`], most urgent first, and returns each node's
+/// three full columns.
 struct ColumnWorker {
-    tx: Option<mpsc::Sender<Vec<u32>>>,
+    queue: Arc<SharedQueue>,
     rx: mpsc::Receiver<(u32, Vec<f64>)>,
     handle: Option<std::thread::JoinHandle<()>>,
 }
 
-/// Nodes a background solve takes at once (48 right-hand sides).
-const WORKER_BATCH: usize = 16;
+/// Nodes a background solve takes at once (48 right-hand sides) for a row
+/// or the patch, and for nodes ahead of contact: the smaller batch bounds
+/// how long an urgent node waits behind a batch already being solved.
+fn worker_batch(urgency: Urgency) -> usize {
+    match urgency {
+        Urgency::Row | Urgency::Patch => 16,
+        Urgency::Ahead => 8,
+    }
+}
 
 impl ColumnWorker {
-    fn spawn(factor: SharedFactor, on_start: Option<Arc<dyn Fn() + Send + Sync>>) -> Option<Self> {
-        let (tx, jobs) = mpsc::channel::<Vec<u32>>();
+    fn spawn(
+        factor: SharedFactor,
+        n_nodes: usize,
+        on_start: Option<Arc<dyn Fn() + Send + Sync>>,
+    ) -> Option<Self> {
+        let queue = Arc::new(SharedQueue::new(n_nodes));
+        let jobs = queue.clone();
         let (done, rx) = mpsc::channel();
         let handle = std::thread::Builder::new()
             .name("compliance-columns".into())
@@ -73,28 +89,30 @@ impl ColumnWorker {
                     f();
                 }
                 let n_dofs = factor.nrows();
-                while let Ok(nodes) = jobs.recv() {
-                    for chunk in nodes.chunks(WORKER_BATCH) {
-                        let ncols = 3 * chunk.len();
-                        let mut block = vec![0.0; n_dofs * ncols];
-                        for (k, &n) in chunk.iter().enumerate() {
-                            for a in 0..3 {
-                                block[(3 * k + a) * n_dofs + 3 * n as usize + a] = 1.0;
-                            }
+                let mut chunk = Vec::new();
+                while jobs.wait_take(worker_batch, &mut chunk).is_some() {
+                    let ncols = 3 * chunk.len();
+                    let mut block = vec![0.0; n_dofs * ncols];
+                    for (k, &n) in chunk.iter().enumerate() {
+                        for a in 0..3 {
+                            block[(3 * k + a) * n_dofs + 3 * n as usize + a] = 1.0;
                         }
-                        factor.solve_many(&mut block, ncols);
-                        for (k, &n) in chunk.iter().enumerate() {
-                            let cols = block[3 * k * n_dofs..3 * (k + 1) * n_dofs].to_vec();
-                            if done.send((n, cols)).is_err() {
-                                return;
-                            }
+                    }
+                    factor.solve_many(&mut block, ncols);
+                    // Before the hand-back, so that a node evicted after
+                    // it can be asked again.
+                    jobs.finish(&chunk);
+                    for (k, &n) in chunk.iter().enumerate() {
+                        let cols = block[3 * k * n_dofs..3 * (k + 1) * n_dofs].to_vec();
+                        if done.send((n, cols)).is_err() {
+                            return;
                         }
                     }
                 }
             })
             .ok()?;
         Some(Self {
-            tx: Some(tx),
+            queue,
             rx,
             handle: Some(handle),
         })
@@ -103,7 +121,9 @@ impl ColumnWorker {
 
 impl Drop for ColumnWorker {
     fn drop(&mut self) {
-        self.tx = None;
+        // The worker finishes the batch it is solving and stops; what still
+        // waits is dropped.
+        self.queue.close();
         if let Some(h) = self.handle.take() {
             let _ = h.join();
         }
@@ -180,6 +200,8 @@ pub struct Compliance {
     stamp: u64,
     cache_limit: usize,
     missing: Vec<u32>,
+    /// [`Self::ask`]'s nodes to send (reused).
+    todo: Vec<u32>,
     par: Par,
     rows: StepRows,
     cmat: Mat<f64>,
@@ -200,8 +222,9 @@ pub struct Compliance {
     policy: ColumnPolicy,
     worker: Option<ColumnWorker>,
     worker_start: Option<Arc<dyn Fn() + Send + Sync>>,
-    /// Per node: asked of the worker, not received yet.
-    asked: Vec<bool>,
+    /// Per node: the highest [`Urgency`] it was asked of the worker at (as
+    /// `u8`), not received yet; [`NOT_ASKED`] otherwise.
+    asked: Vec<u8>,
     /// Per node: listed in `missing` (deduplication).
     listed: Vec<bool>,
     /// Nodes declared shared by every patch, their blocks once built, and
@@ -341,6 +364,7 @@ impl Compliance {
             stamp: 0,
             cache_limit: default_cache_limit(rec_nodes.len()),
             missing: Vec::new(),
+            todo: Vec::new(),
             par: Par::Seq,
             cmat: Mat::zeros(0, 0),
             chol_buf: MemBuffer::new(llt::factor::cholesky_in_place_scratch::<f64>(
@@ -375,7 +399,7 @@ impl Compliance {
             policy: ColumnPolicy::Compute,
             worker: None,
             worker_start: None,
-            asked: vec![false; n_nodes],
+            asked: vec![NOT_ASKED; n_nodes],
             listed: vec![false; n_nodes],
             share: Vec::new(),
             shared: None,
@@ -498,7 +522,7 @@ impl Compliance {
     fn fill_cache(&mut self) {
         let nodes = std::mem::take(&mut self.rows.nodes);
         self.stamp += 1;
-        self.use_columns(&nodes, ColumnPolicy::Compute);
+        self.use_columns(&nodes, ColumnPolicy::Compute, Urgency::Row);
         self.rows.nodes = nodes;
     }
 
@@ -515,7 +539,7 @@ impl Compliance {
         self.worker_start = on_worker_start;
         if policy == ColumnPolicy::Compute {
             self.worker = None;
-            self.asked.fill(false);
+            self.asked.fill(NOT_ASKED);
         }
     }
 
@@ -528,7 +552,7 @@ impl Compliance {
         let n_dofs = self.model.pattern.n_dofs;
         let n3 = self.nrec3();
         for (n, cols) in got {
-            self.asked[n as usize] = false;
+            self.asked[n as usize] = NOT_ASKED;
             if self.cache_slot[n as usize] != NONE {
                 continue;
             }
@@ -549,37 +573,38 @@ impl Compliance {
         }
     }
 
-    /// Asks the background worker for the columns of `nodes` (not cached,
-    /// not asked yet).
-    fn ask(&mut self, nodes: &[u32]) {
-        let todo: Vec<u32> = nodes
-            .iter()
-            .copied()
-            .filter(|&n| self.cache_slot[n as usize] == NONE && !self.asked[n as usize])
-            .collect();
-        if todo.is_empty() {
+    /// Asks the background worker for the columns of `nodes` at `urgency`
+    /// (those not cached and not asked at that urgency or above yet).
+    fn ask(&mut self, nodes: &[u32], urgency: Urgency) {
+        let level = urgency as u8;
+        self.todo.clear();
+        self.todo.extend(nodes.iter().copied().filter(|&n| {
+            let a = self.asked[n as usize];
+            self.cache_slot[n as usize] == NONE && (a == NOT_ASKED || a < level)
+        }));
+        if self.todo.is_empty() {
             return;
         }
         if self.worker.is_none() {
-            self.worker = ColumnWorker::spawn(self.factor.share(), self.worker_start.clone());
+            self.worker = ColumnWorker::spawn(
+                self.factor.share(),
+                self.model.n_nodes(),
+                self.worker_start.clone(),
+            );
         }
-        let sent = self
-            .worker
-            .as_ref()
-            .and_then(|w| w.tx.as_ref())
-            .is_some_and(|tx| tx.send(todo.clone()).is_ok());
-        if sent {
-            for n in todo {
-                self.asked[n as usize] = true;
+        if let Some(w) = &self.worker {
+            w.queue.ask(&self.todo, urgency);
+            for &n in &self.todo {
+                self.asked[n as usize] = level;
             }
         }
     }
 
     /// Marks `nodes` as used by the current step (call after bumping
     /// `stamp` once per step) and makes their columns available: solved now
-    /// ([`ColumnPolicy::Compute`]), or asked of the worker
+    /// ([`ColumnPolicy::Compute`]), or asked of the worker at `urgency`
     /// ([`ColumnPolicy::Defer`]; those stay uncached on return).
-    fn use_columns(&mut self, nodes: &[u32], policy: ColumnPolicy) {
+    fn use_columns(&mut self, nodes: &[u32], policy: ColumnPolicy, urgency: Urgency) {
         self.receive_columns();
         self.missing.clear();
         for &n in nodes {
@@ -602,7 +627,7 @@ impl Compliance {
             return;
         }
         if policy == ColumnPolicy::Defer {
-            self.ask(&missing);
+            self.ask(&missing, urgency);
             self.missing = missing;
             return;
         }
@@ -1014,7 +1039,7 @@ impl Compliance {
         }
         self.stamp += 1;
         let nodes = std::mem::take(&mut self.c_nodes);
-        self.use_columns(&nodes, self.policy);
+        self.use_columns(&nodes, self.policy, Urgency::Row);
         self.c_nodes = nodes;
         // Rows whose nodes all have their columns take part; the others wait.
         // Rows with their own compliance (ties) come first: they are the same
@@ -1186,7 +1211,7 @@ impl Compliance {
         }
         let nodes = std::mem::take(&mut self.share);
         // Under the patch's stamp: the patch's own columns stay.
-        self.use_columns(&nodes, self.policy);
+        self.use_columns(&nodes, self.policy, Urgency::Patch);
         if nodes.iter().all(|&n| self.cache_slot[n as usize] != NONE) {
             let s = nodes.len();
             let s3 = 3 * s;
@@ -1227,7 +1252,7 @@ impl Compliance {
         for &n in &distinct {
             self.listed[n as usize] = false;
         }
-        self.use_columns(&distinct, self.policy);
+        self.use_columns(&distinct, self.policy, Urgency::Patch);
         self.build_shared();
         patch.nodes.clear();
         patch.shared = self.shared.clone();
@@ -1380,7 +1405,7 @@ impl DeformationSolver for Compliance {
                 .copied()
                 .filter(|&n| (n as usize) < self.model.n_nodes() && self.rec_of[n as usize] != NONE)
                 .collect();
-            self.ask(&nodes);
+            self.ask(&nodes, Urgency::Ahead);
         }
     }
 }

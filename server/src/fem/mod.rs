@@ -56,6 +56,7 @@ macro_rules! stepping_solver {
 }
 
 pub mod assembly;
+pub mod column_queue;
 pub mod compliance;
 pub mod constraint;
 pub mod contact;
