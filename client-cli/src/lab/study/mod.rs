@@ -31,6 +31,7 @@
 
 pub mod compare;
 pub mod config;
+pub mod convergence;
 pub mod driver;
 pub mod merge;
 pub mod output;
@@ -249,6 +250,9 @@ pub struct Plan {
     pub dt_s: f64,
     /// Stability sweep.
     pub stability: stability::Sweep,
+    /// The reference physics on successively finer meshes, coarsest first
+    /// ([`convergence`]).
+    pub convergence: Vec<Config>,
 }
 
 impl Plan {
@@ -280,6 +284,10 @@ impl Plan {
                 rate_hz: 50.0,
                 dt_s: 0.1,
                 stability: stability::Sweep::quick(),
+                // Neo-Hookean runs cost seconds a step in the dev profile
+                // the CI test runs: the quick study has no convergence part
+                // (its arithmetic is a unit test of [`convergence`]).
+                convergence: Vec::new(),
             }
         } else {
             let base = Config::baseline();
@@ -346,6 +354,7 @@ impl Plan {
                 rate_hz: 200.0,
                 dt_s: 0.05,
                 stability: stability::Sweep::full(),
+                convergence: convergence::levels(&base),
             }
         }
     }
@@ -362,6 +371,9 @@ pub struct StudyResult {
     pub stability: Vec<stability::StabilityRow>,
     /// Stability checks.
     pub checks: Vec<stability::Check>,
+    /// Convergence of the reference over the mesh levels (two levels at
+    /// least).
+    pub convergence: Option<convergence::Convergence>,
     /// Wall time of the runs, s (their sum, wherever they ran).
     pub total_s: f64,
     /// Nominal window, s; force rate, Hz; deformation interval, s.
