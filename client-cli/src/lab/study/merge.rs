@@ -17,7 +17,9 @@
 
 use super::plan::{Role, StudyPlan};
 use super::record::{FailureRecord, RunRecord};
-use super::{Plan, Row, StudyError, StudyResult, compare, convergence, output, stability};
+use super::{
+    Plan, Row, StudyError, StudyResult, compare, convergence, incompressible, output, stability,
+};
 use serde::Serialize;
 use std::path::Path;
 
@@ -77,12 +79,17 @@ pub fn merge(dir: &Path, out: &Path, allow_missing: bool) -> Result<StudyResult,
     let mut plots = Vec::new();
     let mut total_s = 0.0;
     let mut levels = Vec::new();
+    let mut nu_runs = Vec::new();
     for (run, rec) in plan.runs.iter().zip(&records) {
         let Some(rec) = rec else { continue };
         total_s += rec.wall_s;
         if run.role == Role::Convergence {
             plots.push((run.config.label.clone(), rec.result.forces_for_plot()));
             levels.push(&rec.result);
+            continue;
+        }
+        if run.role == Role::Incompressible {
+            nu_runs.push(&rec.result);
             continue;
         }
         let errors = match (reference, &region) {
@@ -102,7 +109,7 @@ pub fn merge(dir: &Path, out: &Path, allow_missing: bool) -> Result<StudyResult,
                 grid.push(row);
             }
             Role::Stability => stab.push(row),
-            Role::Convergence => {}
+            Role::Convergence | Role::Incompressible => {}
         }
     }
     let (stability, checks) = stability::evaluate(&Plan::new(plan.quick).stability, stab);
@@ -112,6 +119,9 @@ pub fn merge(dir: &Path, out: &Path, allow_missing: bool) -> Result<StudyResult,
         stability,
         checks,
         convergence: (levels.len() >= 2).then(|| convergence::evaluate(&levels)),
+        incompressible: (!nu_runs.is_empty())
+            .then(|| incompressible::evaluate(&levels, &nu_runs))
+            .flatten(),
         total_s,
         window_s: plan.window_s,
         rate_hz: plan.rate_hz,

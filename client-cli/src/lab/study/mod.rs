@@ -33,6 +33,7 @@ pub mod compare;
 pub mod config;
 pub mod convergence;
 pub mod driver;
+pub mod incompressible;
 pub mod merge;
 pub mod output;
 pub mod plan;
@@ -253,6 +254,9 @@ pub struct Plan {
     /// The reference physics on successively finer meshes, coarsest first
     /// ([`convergence`]).
     pub convergence: Vec<Config>,
+    /// Poisson's ratio towards incompressibility on the finest level, both
+    /// elements ([`incompressible`]).
+    pub incompressible: Vec<Config>,
 }
 
 impl Plan {
@@ -288,6 +292,7 @@ impl Plan {
                 // the CI test runs: the quick study has no convergence part
                 // (its arithmetic is a unit test of [`convergence`]).
                 convergence: Vec::new(),
+                incompressible: Vec::new(),
             }
         } else {
             let base = Config::baseline();
@@ -355,6 +360,7 @@ impl Plan {
                 dt_s: 0.05,
                 stability: stability::Sweep::full(),
                 convergence: convergence::levels(&base),
+                incompressible: incompressible::configs(&convergence::levels(&base)),
             }
         }
     }
@@ -374,6 +380,8 @@ pub struct StudyResult {
     /// Convergence of the reference over the mesh levels (two levels at
     /// least).
     pub convergence: Option<convergence::Convergence>,
+    /// Poisson's ratio towards incompressibility on the finest level.
+    pub incompressible: Option<incompressible::Incompressible>,
     /// Wall time of the runs, s (their sum, wherever they ran).
     pub total_s: f64,
     /// Nominal window, s; force rate, Hz; deformation interval, s.

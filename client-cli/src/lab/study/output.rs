@@ -12,6 +12,7 @@
 //!   configuration on one plot.
 
 use super::convergence::{Convergence, Richardson};
+use super::incompressible::Incompressible;
 use super::stability::StabilityRow;
 use super::{Row, StudyError, StudyResult};
 use crate::client::render::plot::{
@@ -207,6 +208,9 @@ pub fn markdown(res: &StudyResult) -> String {
     if let Some(c) = &res.convergence {
         convergence_markdown(&mut md, c);
     }
+    if let Some(n) = &res.incompressible {
+        incompressible_markdown(&mut md, n);
+    }
     if !res.stability.is_empty() {
         let _ = writeln!(md, "### Stability at the extremes\n");
         let _ = writeln!(
@@ -328,6 +332,74 @@ fn convergence_markdown(md: &mut String, c: &Convergence) {
         "- [{}] the final net force changes by under {}% between the last two levels on both spatulas\n",
         if c.met { "x" } else { " " },
         c.criterion_pct
+    );
+}
+
+fn incompressible_markdown(md: &mut String, n: &Incompressible) {
+    let _ = writeln!(
+        md,
+        "### Towards incompressibility on the finest level ({})\n",
+        n.finest
+    );
+    let _ = writeln!(
+        md,
+        "F: both spatulas' final net force magnitudes summed; R = F(nu) / F(0.45).\n"
+    );
+    let _ = write!(md, "| nu |");
+    for e in &n.elements {
+        let _ = write!(md, " {0} F (N) | {0} R | {0} failed steps |", e.element);
+    }
+    let _ = writeln!(md);
+    let _ = writeln!(md, "|---:|{}", "---:|---:|---:|".repeat(n.elements.len()));
+    let f = |v: Option<f64>, d: usize| v.map_or("-".to_string(), |v| format!("{v:.d$}"));
+    for (i, nu) in n.nus.iter().enumerate() {
+        let _ = write!(md, "| {nu} |");
+        for e in &n.elements {
+            let _ = write!(
+                md,
+                " {} | {} | {} |",
+                f(e.force_n[i], 4),
+                f(e.ratio[i], 3),
+                e.failed_steps[i].map_or("-".into(), |s| s.to_string())
+            );
+        }
+        let _ = writeln!(md);
+    }
+    let _ = writeln!(
+        md,
+        "\nNodal-pressure R({}) per level:\n",
+        n.nus[n.nus.len() - 1]
+    );
+    for (label, h, r) in &n.limit_by_level {
+        let _ = writeln!(md, "- {label} (h {h:.3} mm): {r:.4}");
+    }
+    if let Some(r) = &n.richardson {
+        let text = match *r {
+            Richardson::Asymptotic {
+                order,
+                limit,
+                finest_error_pct,
+            } => format!(
+                "order {order:.2}, limit {limit:.4} (finest level {finest_error_pct:.2}% from it)"
+            ),
+            Richardson::NotAsymptotic { change_ratio } => format!(
+                "not in the asymptotic range (change ratio {change_ratio:.3}): the finest level's value stands for the limit"
+            ),
+        };
+        let _ = writeln!(md, "- Richardson over the levels: {text}");
+    }
+    let _ = writeln!(
+        md,
+        "- converged nearly incompressible R: {}; the finest level's R deviates by {} (tet4) and {} (nodal pressure)",
+        f(n.converged_ratio, 4),
+        n.deviation_pct[0].map_or("-".into(), |d| format!("{d:.1}%")),
+        n.deviation_pct[1].map_or("-".into(), |d| format!("{d:.1}%")),
+    );
+    let _ = writeln!(
+        md,
+        "- [{}] nodal pressure within {}% of the converged answer\n",
+        if n.met { "x" } else { " " },
+        n.tolerance_pct
     );
 }
 

@@ -45,6 +45,9 @@ pub enum Role {
     Stability,
     /// A level of the reference's mesh convergence.
     Convergence,
+    /// A run of the Poisson's ratio sweep towards incompressibility on the
+    /// finest level.
+    Incompressible,
 }
 
 /// One run of the plan.
@@ -81,7 +84,8 @@ pub struct StudyPlan {
     /// The shared inputs every run reads, relative to the study folder.
     pub inputs: Inputs,
     /// The runs, in order: the reference and the grid, the convergence
-    /// levels (coarsest first), then the stability sweep.
+    /// levels (coarsest first) and the incompressibility sweep, then the
+    /// stability sweep.
     pub runs: Vec<PlannedRun>,
 }
 
@@ -103,11 +107,13 @@ pub struct PlanOptions {
     /// Skip the stability sweep.
     #[arg(long)]
     pub no_stability: bool,
-    /// Skip the convergence of the reference over the mesh levels.
+    /// Skip the convergence of the reference over the mesh levels and the
+    /// incompressibility sweep on the finest level.
     #[arg(long)]
     pub no_convergence: bool,
-    /// Only the convergence of the reference over the mesh levels (no grid,
-    /// no stability sweep).
+    /// Only the convergence of the reference over the mesh levels and the
+    /// incompressibility sweep on the finest level (no grid, no stability
+    /// sweep).
     #[arg(long, conflicts_with = "no_convergence")]
     pub convergence_only: bool,
 }
@@ -149,6 +155,11 @@ impl StudyPlan {
                 plan.convergence
                     .iter()
                     .map(|c| (Role::Convergence, c.clone(), grid_spec, true)),
+            );
+            runs.extend(
+                plan.incompressible
+                    .iter()
+                    .map(|c| (Role::Incompressible, c.clone(), grid_spec, false)),
             );
         }
         if !options.no_stability && !options.convergence_only {
