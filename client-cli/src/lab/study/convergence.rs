@@ -118,7 +118,7 @@ pub fn richardson(h: [f64; 3], f: [f64; 3]) -> Richardson {
     let (d01, d12) = (f[0] - f[1], f[1] - f[2]);
     let change_ratio = d01 / d12;
     let not = Richardson::NotAsymptotic { change_ratio };
-    if !(change_ratio.is_finite() && change_ratio > 0.0) || !(h[0] > h[1] && h[1] > h[2]) {
+    if !(change_ratio.is_finite() && change_ratio > 0.0 && h[0] > h[1] && h[1] > h[2]) {
         return not;
     }
     let g = |p: f64| (h[0].powf(p) - h[1].powf(p)) / (h[1].powf(p) - h[2].powf(p));
