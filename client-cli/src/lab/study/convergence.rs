@@ -33,9 +33,16 @@
 //! `(F0 - F1) / (F1 - F2) = (h0^p - h1^p) / (h1^p - h2^p)` (bisection: the
 //! right side increases with `p` from `ln(h0/h1) / ln(h1/h2)` at `p -> 0`);
 //! then `C = (F1 - F2) / (h1^p - h2^p)` and `F_inf = F2 - C h2^p`. When the
-//! changes differ in sign (not monotone) or the ratio is below the `p -> 0`
-//! bound (changes not shrinking fast enough for any positive order), the
-//! levels are not in the asymptotic range and no limit is given.
+//! changes differ in sign (not monotone), the ratio is below the `p -> 0`
+//! bound (changes not shrinking fast enough for any positive order), or the
+//! order exceeds [`MAX_ORDER`], the levels are not in the asymptotic range
+//! and no limit is given.
+//!
+//! **Two-level estimates** ([`extrapolate`]): with an assumed order `p`,
+//! the last two levels give `F_inf = F2 + (F2 - F1) / ((h1 / h2)^p - 1)`;
+//! the report gives them for `p = 1` and `p = 2` (the orders P1 elements
+//! reach for reactions and displacements), a bracket of the finest level's
+//! discretisation error when the three-level order is not usable.
 
 use super::compare;
 use super::config::{Config, Support};
@@ -48,6 +55,15 @@ use serde::Serialize;
 /// Largest change of the final net force between the last two levels for
 /// the reference to count as converged, %.
 pub const FORCE_CRITERION_PCT: f64 = 1.0;
+
+/// Largest observed order accepted as asymptotic: P1 tetrahedra converge
+/// displacements at `O(h^2)` and reactions at `O(h)` to `O(h^2)`; an order
+/// above twice the displacement order says the levels differ in more than
+/// `h` (grading, mesher), not that they converge that fast.
+pub const MAX_ORDER: f64 = 4.0;
+
+/// The assumed orders of the two-level estimates.
+pub const ASSUMED_ORDERS: [f64; 2] = [1.0, 2.0];
 
 /// Relative residual tolerance the reference's configuration names (the
 /// linear `compliance` strategy solves directly and does not read it).
@@ -104,12 +120,21 @@ pub enum Richardson {
         /// `|F2 - F_inf| / |F_inf|` of the finest level, %.
         finest_error_pct: f64,
     },
-    /// The changes are not monotone, or shrink too slowly for any positive
-    /// order: not in the asymptotic range.
+    /// The changes are not monotone, shrink too slowly for any positive
+    /// order, or give an order above [`MAX_ORDER`]: not in the asymptotic
+    /// range.
     NotAsymptotic {
         /// `(F0 - F1) / (F1 - F2)`.
         change_ratio: f64,
+        /// The order those changes would give, when one exists.
+        order: Option<f64>,
     },
+}
+
+/// The limit `F2 + (F2 - F1) / ((h1 / h2)^p - 1)` of `f = [F1, F2]` at
+/// sizes `h = [h1, h2]` (`h1 > h2`) for an assumed order `p`.
+pub fn extrapolate(h: [f64; 2], f: [f64; 2], p: f64) -> f64 {
+    f[1] + (f[1] - f[0]) / ((h[0] / h[1]).powf(p) - 1.0)
 }
 
 /// Richardson extrapolation of `f` measured at sizes `h` (coarsest first,
@@ -117,7 +142,10 @@ pub enum Richardson {
 pub fn richardson(h: [f64; 3], f: [f64; 3]) -> Richardson {
     let (d01, d12) = (f[0] - f[1], f[1] - f[2]);
     let change_ratio = d01 / d12;
-    let not = Richardson::NotAsymptotic { change_ratio };
+    let not = Richardson::NotAsymptotic {
+        change_ratio,
+        order: None,
+    };
     if !(change_ratio.is_finite() && change_ratio > 0.0 && h[0] > h[1] && h[1] > h[2]) {
         return not;
     }
@@ -136,6 +164,12 @@ pub fn richardson(h: [f64; 3], f: [f64; 3]) -> Richardson {
         }
     }
     let p = 0.5 * (lo + hi);
+    if p > MAX_ORDER {
+        return Richardson::NotAsymptotic {
+            change_ratio,
+            order: Some(p),
+        };
+    }
     let c = d12 / (h[1].powf(p) - h[2].powf(p));
     let limit = f[2] - c * h[2].powf(p);
     Richardson::Asymptotic {
@@ -190,6 +224,17 @@ pub struct Change {
     pub points: usize,
 }
 
+/// The two-level estimate for one assumed order.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct TwoLevel {
+    /// The assumed order `p`.
+    pub order: f64,
+    /// Extrapolated final net force per spatula, N.
+    pub limit_n: [f64; 2],
+    /// The finest level's final net force from it, per spatula, %.
+    pub finest_error_pct: [f64; 2],
+}
+
 /// The convergence of the reference over the levels.
 #[derive(Debug, Clone, Serialize)]
 pub struct Convergence {
@@ -202,6 +247,9 @@ pub struct Convergence {
     pub richardson_final: Option<[Richardson; 2]>,
     /// The same of the peak net force.
     pub richardson_peak: Option<[Richardson; 2]>,
+    /// Two-level estimates of the final net force from the last two levels,
+    /// one per [`ASSUMED_ORDERS`].
+    pub two_level: Vec<TwoLevel>,
     /// [`FORCE_CRITERION_PCT`].
     pub criterion_pct: f64,
     /// Whether the final net force of both spatulas changes by under the
@@ -273,7 +321,28 @@ pub fn evaluate(runs: &[&RunResult]) -> Convergence {
             .iter()
             .all(|&p| p < FORCE_CRITERION_PCT)
     });
+    let two_level = match levels.len().checked_sub(2).map(|s| &levels[s..]) {
+        Some([a, b]) => ASSUMED_ORDERS
+            .iter()
+            .map(|&p| {
+                let limit_n = [0, 1].map(|i| {
+                    extrapolate(
+                        [a.h_mm, b.h_mm],
+                        [a.final_force_n[i], b.final_force_n[i]],
+                        p,
+                    )
+                });
+                TwoLevel {
+                    order: p,
+                    limit_n,
+                    finest_error_pct: [0, 1].map(|i| change_pct(b.final_force_n[i], limit_n[i])),
+                }
+            })
+            .collect(),
+        _ => Vec::new(),
+    };
     Convergence {
+        two_level,
         richardson_final: rich(|l| l.final_force_n),
         richardson_peak: rich(|l| l.peak_force_n),
         levels,
@@ -318,6 +387,16 @@ mod tests {
     }
 
     #[test]
+    fn two_level_extrapolation_is_exact_for_the_assumed_order() {
+        let f = |h: f64| 0.11 + 0.002 * h.powi(2);
+        let h = [2.85, 1.79];
+        let limit = extrapolate(h, h.map(f), 2.0);
+        assert!((limit - 0.11).abs() < 1e-14, "{limit}");
+        // The wrong order misses it.
+        assert!((extrapolate(h, h.map(f), 1.0) - 0.11).abs() > 1e-3);
+    }
+
+    #[test]
     fn richardson_refuses_non_monotone_or_stalling_sequences() {
         // The changes differ in sign.
         assert!(matches!(
@@ -328,7 +407,13 @@ mod tests {
         // bound of the ratio is 1).
         assert!(matches!(
             richardson([4.0, 2.0, 1.0], [1.0, 1.1, 1.25]),
-            Richardson::NotAsymptotic { change_ratio } if (change_ratio - 2.0 / 3.0).abs() < 1e-9
+            Richardson::NotAsymptotic { change_ratio, order: None } if (change_ratio - 2.0 / 3.0).abs() < 1e-9
+        ));
+        // Changes shrinking by 2^10 on halving sizes: order 10, above
+        // MAX_ORDER.
+        assert!(matches!(
+            richardson([4.0, 2.0, 1.0], [1.0, 1.0 + 1024e-6, 1.0 + 1025e-6]),
+            Richardson::NotAsymptotic { order: Some(p), .. } if (p - 10.0).abs() < 1e-6
         ));
         // No change at the last level: the ratio is infinite.
         assert!(matches!(

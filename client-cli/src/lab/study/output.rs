@@ -265,8 +265,12 @@ fn richardson_text(r: &Richardson) -> String {
         } => format!(
             "order {order:.2}, limit {limit:.4} N (finest level {finest_error_pct:.2}% from it)"
         ),
-        Richardson::NotAsymptotic { change_ratio } => format!(
-            "not in the asymptotic range (change ratio (F0-F1)/(F1-F2) = {change_ratio:.3})"
+        Richardson::NotAsymptotic {
+            change_ratio,
+            order,
+        } => format!(
+            "not in the asymptotic range (change ratio (F0-F1)/(F1-F2) = {change_ratio:.3}{})",
+            order.map_or(String::new(), |p| format!(", order {p:.1}"))
         ),
     }
 }
@@ -327,6 +331,13 @@ fn convergence_markdown(md: &mut String, c: &Convergence) {
             );
         }
     }
+    for t in &c.two_level {
+        let _ = writeln!(
+            md,
+            "- two levels, assumed order {}: limit L {:.4} N, R {:.4} N (finest level {:.2}% / {:.2}% from it)",
+            t.order, t.limit_n[0], t.limit_n[1], t.finest_error_pct[0], t.finest_error_pct[1]
+        );
+    }
     let _ = writeln!(
         md,
         "- [{}] the final net force changes by under {}% between the last two levels on both spatulas\n",
@@ -382,8 +393,12 @@ fn incompressible_markdown(md: &mut String, n: &Incompressible) {
             } => format!(
                 "order {order:.2}, limit {limit:.4} (finest level {finest_error_pct:.2}% from it)"
             ),
-            Richardson::NotAsymptotic { change_ratio } => format!(
-                "not in the asymptotic range (change ratio {change_ratio:.3}): the finest level's value stands for the limit"
+            Richardson::NotAsymptotic {
+                change_ratio,
+                order,
+            } => format!(
+                "not in the asymptotic range (change ratio {change_ratio:.3}{}): the finest level's value stands for the limit",
+                order.map_or(String::new(), |p| format!(", order {p:.1}"))
             ),
         };
         let _ = writeln!(md, "- Richardson over the levels: {text}");
