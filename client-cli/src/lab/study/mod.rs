@@ -11,6 +11,14 @@
 //!   projection beside the frictionless default). Every run is compared with
 //!   the **reference**, the finest preset with `neo-hookean` at a tight
 //!   tolerance and frictionless contact ([`compare`]).
+//! * **Convergence of the reference** ([`convergence`]): the reference
+//!   physics of the product's scene (frictionless contact, the elastic
+//!   foundation, the `tet4-nodal-pressure` element, linear elasticity) on
+//!   paper-34k, paper-48k and the 204k level (paper-48k, proven mesher):
+//!   force and displacement changes between levels and a Richardson
+//!   estimate; and Poisson's ratio towards incompressibility on the 204k
+//!   level with both elements ([`incompressible`]). The full study plans
+//!   them (`--convergence-only`: only them); the quick one does not.
 //! * **Stability**: Poisson's ratio, Young's modulus and spatula speed swept
 //!   to their extremes ([`stability`]); each run reports whether it stayed
 //!   finite, the worst element volume ratio `min det F`, the solver
