@@ -4,7 +4,9 @@
 //! of the stability sweep.
 
 use fissure_engine::fem::{Element, Strategy};
-use fissure_engine::scene::{CollisionMethod, ContactLaw, Scene, SceneError};
+use fissure_engine::scene::{
+    CollisionMethod, ContactLaw, DEFAULT_CSF_GAP_M, Scene, SceneError, SkullSpec, SkullSurfaceSpec,
+};
 use serde::{Deserialize, Serialize};
 
 /// Where and how rays are cast.
@@ -41,6 +43,11 @@ pub enum Support {
     /// The brain stem fixed and the scene's elastic foundation as bundled
     /// (the product's default).
     Foundation,
+    /// The brain stem fixed and a rigid skull: the outer surface offset
+    /// outward by the default CSF gap (1.5 mm), open where the scene's
+    /// foundation is open (the craniotomy window, the fissure's walls), in
+    /// place of the foundation.
+    SkullSurface,
 }
 
 impl Support {
@@ -49,6 +56,7 @@ impl Support {
         match self {
             Self::Stem => "stem",
             Self::Foundation => "foundation",
+            Self::SkullSurface => "skull-surface",
         }
     }
 }
@@ -214,8 +222,20 @@ impl Config {
         // foundation of fixed stiffness would make the force no longer
         // linear in E (one of the study's checks). The reference keeps the
         // scene's foundation.
-        if self.support == Support::Stem {
-            scene.foundation = None;
+        match self.support {
+            Support::Stem => scene.foundation = None,
+            Support::Foundation => {}
+            Support::SkullSurface => {
+                let open = scene.foundation.take().map(|f| f.open).unwrap_or_default();
+                scene.skull = Some(SkullSpec {
+                    containing: None,
+                    excluding: None,
+                    surface: Some(SkullSurfaceSpec {
+                        csf_gap_m: DEFAULT_CSF_GAP_M,
+                        open,
+                    }),
+                });
+            }
         }
         scene.model = fissure_engine::scene::ModelSpec::Phantom {
             preset: self.preset.clone(),
@@ -236,5 +256,49 @@ impl Config {
         }
         scene.validate("study")?;
         Ok(scene)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn each_support_edits_the_scene_it_names() {
+        let with = |support| {
+            Config {
+                support,
+                ..Config::baseline()
+            }
+            .labelled()
+        };
+        let stem = with(Support::Stem);
+        assert_eq!(stem.label, Config::baseline().label);
+        let scene = stem.scene().expect("the stem scene");
+        assert!(scene.foundation.is_none() && scene.skull.is_none());
+        let f = with(Support::Foundation);
+        assert!(f.label.ends_with("/foundation"), "{}", f.label);
+        let bundled = Scene::load("sylvian").expect("bundled").0.foundation;
+        assert_eq!(f.scene().expect("the foundation scene").foundation, bundled);
+        let k = with(Support::SkullSurface);
+        assert!(k.label.ends_with("/skull-surface"), "{}", k.label);
+        let scene = k.scene().expect("the skull-surface scene");
+        assert!(scene.foundation.is_none());
+        let surface = scene
+            .skull
+            .and_then(|s| s.surface)
+            .expect("a skull surface");
+        assert_eq!(surface.csf_gap_m, DEFAULT_CSF_GAP_M);
+        assert_eq!(Some(surface.open), bundled.map(|b| b.open));
+    }
+
+    #[test]
+    fn an_old_configuration_reads_as_stem_held_on_the_graded_mesh() {
+        let mut json = serde_json::to_value(Config::baseline()).expect("serialises");
+        let map = json.as_object_mut().expect("an object");
+        map.remove("support");
+        map.remove("proven");
+        let back: Config = serde_json::from_value(json).expect("reads without the new fields");
+        assert_eq!(back, Config::baseline());
     }
 }
