@@ -4,7 +4,9 @@
 //! of the stability sweep.
 
 use fissure_engine::fem::{Element, Strategy};
-use fissure_engine::scene::{CollisionMethod, ContactLaw, Scene, SceneError};
+use fissure_engine::scene::{
+    CollisionMethod, ContactLaw, DEFAULT_CSF_GAP_M, Scene, SceneError, SkullSpec, SkullSurfaceSpec,
+};
 use serde::{Deserialize, Serialize};
 
 /// Where and how rays are cast.
@@ -26,6 +28,35 @@ impl Backend {
             Self::CpuBvh => "cpu-bvh",
             Self::CpuBrute => "cpu-brute",
             Self::GpuBvh => "gpu-bvh",
+        }
+    }
+}
+
+/// How the brain is held.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Support {
+    /// The brain stem fixed only (the scene's foundation removed): the
+    /// grid's support, under which the force is linear in E.
+    #[default]
+    Stem,
+    /// The brain stem fixed and the scene's elastic foundation as bundled
+    /// (the product's default).
+    Foundation,
+    /// The brain stem fixed and a rigid skull: the outer surface offset
+    /// outward by the default CSF gap (1.5 mm), open where the scene's
+    /// foundation is open (the craniotomy window, the fissure's walls), in
+    /// place of the foundation.
+    SkullSurface,
+}
+
+impl Support {
+    /// Name as in the table.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Stem => "stem",
+            Self::Foundation => "foundation",
+            Self::SkullSurface => "skull-surface",
         }
     }
 }
@@ -69,6 +100,14 @@ pub struct Config {
         deserialize_with = "de_element"
     )]
     pub element: Element,
+    /// How the brain is held (`stem` unless a run names another).
+    #[serde(default)]
+    pub support: Support,
+    /// Mesh the preset with the proven mesher (the whole surface at the
+    /// preset's finest spacing: paper-48k becomes the 204k-tetrahedron
+    /// level).
+    #[serde(default)]
+    pub proven: bool,
 }
 
 fn ser_element<S: serde::Serializer>(e: &Element, ser: S) -> Result<S::Ok, S::Error> {
@@ -117,6 +156,8 @@ impl Config {
             time_scale: 1.0,
             contact_law: ContactLaw::Frictionless,
             element: Element::Tet4,
+            support: Support::Stem,
+            proven: false,
         }
         .labelled()
     }
@@ -124,10 +165,12 @@ impl Config {
     /// Sets the label from the fields (only the ones that differ from the
     /// baseline's material and speed are named).
     pub fn labelled(mut self) -> Self {
-        let preset = match self.preset.as_str() {
-            "paper-48k" => "48k",
-            "paper-34k" => "34k",
-            other => other,
+        let preset = match (self.preset.as_str(), self.proven) {
+            ("paper-48k", false) => "48k".to_string(),
+            ("paper-48k", true) => "204k".to_string(),
+            ("paper-34k", false) => "34k".to_string(),
+            (other, false) => other.to_string(),
+            (other, true) => format!("{other}-proven"),
         };
         let strategy = self.strategy.kind().label;
         let mut l = format!("{preset}/{strategy}");
@@ -159,6 +202,9 @@ impl Config {
         if self.time_scale != 1.0 {
             l.push_str(&format!("/x{:.3}", self.time_scale));
         }
+        if self.support != Support::Stem {
+            l.push_str(&format!("/{}", self.support.name()));
+        }
         self.label = l;
         self
     }
@@ -172,13 +218,28 @@ impl Config {
     /// configuration.
     pub fn scene_in(&self, source: &str) -> Result<Scene, SceneError> {
         let (mut scene, _) = Scene::load(source)?;
-        // Held at the brain stem only, as the study was measured: a
+        // The grid is held at the brain stem only, as it was measured: a
         // foundation of fixed stiffness would make the force no longer
-        // linear in E (one of the study's checks).
-        scene.foundation = None;
+        // linear in E (one of the study's checks). The reference keeps the
+        // scene's foundation.
+        match self.support {
+            Support::Stem => scene.foundation = None,
+            Support::Foundation => {}
+            Support::SkullSurface => {
+                let open = scene.foundation.take().map(|f| f.open).unwrap_or_default();
+                scene.skull = Some(SkullSpec {
+                    containing: None,
+                    excluding: None,
+                    surface: Some(SkullSurfaceSpec {
+                        csf_gap_m: DEFAULT_CSF_GAP_M,
+                        open,
+                    }),
+                });
+            }
+        }
         scene.model = fissure_engine::scene::ModelSpec::Phantom {
             preset: self.preset.clone(),
-            proven: false,
+            proven: self.proven,
         };
         scene.material.youngs_modulus_pa = self.youngs_pa;
         scene.material.poisson_ratio = self.nu;
@@ -195,5 +256,49 @@ impl Config {
         }
         scene.validate("study")?;
         Ok(scene)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn each_support_edits_the_scene_it_names() {
+        let with = |support| {
+            Config {
+                support,
+                ..Config::baseline()
+            }
+            .labelled()
+        };
+        let stem = with(Support::Stem);
+        assert_eq!(stem.label, Config::baseline().label);
+        let scene = stem.scene().expect("the stem scene");
+        assert!(scene.foundation.is_none() && scene.skull.is_none());
+        let f = with(Support::Foundation);
+        assert!(f.label.ends_with("/foundation"), "{}", f.label);
+        let bundled = Scene::load("sylvian").expect("bundled").0.foundation;
+        assert_eq!(f.scene().expect("the foundation scene").foundation, bundled);
+        let k = with(Support::SkullSurface);
+        assert!(k.label.ends_with("/skull-surface"), "{}", k.label);
+        let scene = k.scene().expect("the skull-surface scene");
+        assert!(scene.foundation.is_none());
+        let surface = scene
+            .skull
+            .and_then(|s| s.surface)
+            .expect("a skull surface");
+        assert_eq!(surface.csf_gap_m, DEFAULT_CSF_GAP_M);
+        assert_eq!(Some(surface.open), bundled.map(|b| b.open));
+    }
+
+    #[test]
+    fn an_old_configuration_reads_as_stem_held_on_the_graded_mesh() {
+        let mut json = serde_json::to_value(Config::baseline()).expect("serialises");
+        let map = json.as_object_mut().expect("an object");
+        map.remove("support");
+        map.remove("proven");
+        let back: Config = serde_json::from_value(json).expect("reads without the new fields");
+        assert_eq!(back, Config::baseline());
     }
 }

@@ -17,7 +17,9 @@
 
 use super::plan::{Role, StudyPlan};
 use super::record::{FailureRecord, RunRecord};
-use super::{Plan, Row, StudyError, StudyResult, compare, output, stability};
+use super::{
+    Plan, Row, StudyError, StudyResult, compare, convergence, incompressible, output, stability,
+};
 use serde::Serialize;
 use std::path::Path;
 
@@ -76,9 +78,20 @@ pub fn merge(dir: &Path, out: &Path, allow_missing: bool) -> Result<StudyResult,
     let mut stab = Vec::new();
     let mut plots = Vec::new();
     let mut total_s = 0.0;
+    let mut levels = Vec::new();
+    let mut nu_runs = Vec::new();
     for (run, rec) in plan.runs.iter().zip(&records) {
         let Some(rec) = rec else { continue };
         total_s += rec.wall_s;
+        if run.role == Role::Convergence {
+            plots.push((run.config.label.clone(), rec.result.forces_for_plot()));
+            levels.push(&rec.result);
+            continue;
+        }
+        if run.role == Role::Incompressible {
+            nu_runs.push(&rec.result);
+            continue;
+        }
         let errors = match (reference, &region) {
             (Some(refr), Some(region)) if run.role != Role::Stability => {
                 Some(compare::compare(&refr.result, region, &rec.result))
@@ -96,6 +109,7 @@ pub fn merge(dir: &Path, out: &Path, allow_missing: bool) -> Result<StudyResult,
                 grid.push(row);
             }
             Role::Stability => stab.push(row),
+            Role::Convergence | Role::Incompressible => {}
         }
     }
     let (stability, checks) = stability::evaluate(&Plan::new(plan.quick).stability, stab);
@@ -104,6 +118,10 @@ pub fn merge(dir: &Path, out: &Path, allow_missing: bool) -> Result<StudyResult,
         grid,
         stability,
         checks,
+        convergence: (levels.len() >= 2).then(|| convergence::evaluate(&levels)),
+        incompressible: (!nu_runs.is_empty())
+            .then(|| incompressible::evaluate(&levels, &nu_runs))
+            .flatten(),
         total_s,
         window_s: plan.window_s,
         rate_hz: plan.rate_hz,

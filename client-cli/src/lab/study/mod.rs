@@ -11,6 +11,14 @@
 //!   projection beside the frictionless default). Every run is compared with
 //!   the **reference**, the finest preset with `neo-hookean` at a tight
 //!   tolerance and frictionless contact ([`compare`]).
+//! * **Convergence of the reference** ([`convergence`]): the reference
+//!   physics of the product's scene (frictionless contact, the elastic
+//!   foundation, the `tet4-nodal-pressure` element, linear elasticity) on
+//!   paper-34k, paper-48k and the 204k level (paper-48k, proven mesher):
+//!   force and displacement changes between levels and a Richardson
+//!   estimate; and Poisson's ratio towards incompressibility on the 204k
+//!   level with both elements ([`incompressible`]). The full study plans
+//!   them (`--convergence-only`: only them); the quick one does not.
 //! * **Stability**: Poisson's ratio, Young's modulus and spatula speed swept
 //!   to their extremes ([`stability`]); each run reports whether it stayed
 //!   finite, the worst element volume ratio `min det F`, the solver
@@ -31,7 +39,9 @@
 
 pub mod compare;
 pub mod config;
+pub mod convergence;
 pub mod driver;
+pub mod incompressible;
 pub mod merge;
 pub mod output;
 pub mod plan;
@@ -249,6 +259,12 @@ pub struct Plan {
     pub dt_s: f64,
     /// Stability sweep.
     pub stability: stability::Sweep,
+    /// The reference physics on successively finer meshes, coarsest first
+    /// ([`convergence`]).
+    pub convergence: Vec<Config>,
+    /// Poisson's ratio towards incompressibility on the finest level, both
+    /// elements ([`incompressible`]).
+    pub incompressible: Vec<Config>,
 }
 
 impl Plan {
@@ -280,6 +296,11 @@ impl Plan {
                 rate_hz: 50.0,
                 dt_s: 0.1,
                 stability: stability::Sweep::quick(),
+                // Neo-Hookean runs cost seconds a step in the dev profile
+                // the CI test runs: the quick study has no convergence part
+                // (its arithmetic is a unit test of [`convergence`]).
+                convergence: Vec::new(),
+                incompressible: Vec::new(),
             }
         } else {
             let base = Config::baseline();
@@ -346,6 +367,8 @@ impl Plan {
                 rate_hz: 200.0,
                 dt_s: 0.05,
                 stability: stability::Sweep::full(),
+                convergence: convergence::levels(&base),
+                incompressible: incompressible::configs(&convergence::levels(&base)),
             }
         }
     }
@@ -362,6 +385,11 @@ pub struct StudyResult {
     pub stability: Vec<stability::StabilityRow>,
     /// Stability checks.
     pub checks: Vec<stability::Check>,
+    /// Convergence of the reference over the mesh levels (two levels at
+    /// least).
+    pub convergence: Option<convergence::Convergence>,
+    /// Poisson's ratio towards incompressibility on the finest level.
+    pub incompressible: Option<incompressible::Incompressible>,
     /// Wall time of the runs, s (their sum, wherever they ran).
     pub total_s: f64,
     /// Nominal window, s; force rate, Hz; deformation interval, s.

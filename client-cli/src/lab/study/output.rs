@@ -1,6 +1,8 @@
 //! Outputs of the study: CSV, a markdown report, PNG plots.
 //!
 //! * `grid.csv`, `stability.csv`: one row per run (units in the headers);
+//!   `convergence.csv`: one row per mesh level of the reference, with the
+//!   change into it from the coarser level;
 //! * `study.md`: the tables and the stability checks;
 //! * `error-vs-step-time.png`: RMS surface error against time per deformation
 //!   step, the Pareto front marked; `force-error-vs-step-time.png` likewise
@@ -9,6 +11,8 @@
 //!   configuration; `forces-all.png`: the left spatula's |F| of every
 //!   configuration on one plot.
 
+use super::convergence::{Convergence, Richardson};
+use super::incompressible::Incompressible;
 use super::stability::StabilityRow;
 use super::{Row, StudyError, StudyResult};
 use crate::client::render::plot::{
@@ -201,6 +205,12 @@ pub fn markdown(res: &StudyResult) -> String {
             );
         }
     }
+    if let Some(c) = &res.convergence {
+        convergence_markdown(&mut md, c);
+    }
+    if let Some(n) = &res.incompressible {
+        incompressible_markdown(&mut md, n);
+    }
     if !res.stability.is_empty() {
         let _ = writeln!(md, "### Stability at the extremes\n");
         let _ = writeln!(
@@ -244,6 +254,203 @@ pub fn markdown(res: &StudyResult) -> String {
         }
     }
     md
+}
+
+fn richardson_text(r: &Richardson) -> String {
+    match *r {
+        Richardson::Asymptotic {
+            order,
+            limit,
+            finest_error_pct,
+        } => format!(
+            "order {order:.2}, limit {limit:.4} N (finest level {finest_error_pct:.2}% from it)"
+        ),
+        Richardson::NotAsymptotic {
+            change_ratio,
+            order,
+        } => format!(
+            "not in the asymptotic range (change ratio (F0-F1)/(F1-F2) = {change_ratio:.3}{})",
+            order.map_or(String::new(), |p| format!(", order {p:.1}"))
+        ),
+    }
+}
+
+fn convergence_markdown(md: &mut String, c: &Convergence) {
+    let _ = writeln!(md, "### Convergence of the reference over the mesh\n");
+    let _ = writeln!(
+        md,
+        "| level | tets | nodes | h (mm) | final force L / R (N) | peak force L / R (N) | ms/step | iterations (mean) | failed steps |"
+    );
+    let _ = writeln!(md, "|---|---:|---:|---:|---:|---:|---:|---:|---:|");
+    for l in &c.levels {
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {:.3} | {:.4} / {:.4} | {:.4} / {:.4} | {:.0} | {:.2} | {} |",
+            l.label,
+            l.tets,
+            l.nodes,
+            l.h_mm,
+            l.final_force_n[0],
+            l.final_force_n[1],
+            l.peak_force_n[0],
+            l.peak_force_n[1],
+            l.ms_per_step,
+            l.iterations_mean,
+            l.failed_steps,
+        );
+    }
+    let _ = writeln!(
+        md,
+        "\n| from | to | final force change L / R (%) | peak force change L / R (%) | displacement difference RMS / max (mm) | finer level's largest displacement (mm) | region points |"
+    );
+    let _ = writeln!(md, "|---|---|---:|---:|---:|---:|---:|");
+    for ch in &c.changes {
+        let _ = writeln!(
+            md,
+            "| {} | {} | {:.2} / {:.2} | {:.2} / {:.2} | {:.3} / {:.3} | {:.2} | {} |",
+            ch.from,
+            ch.to,
+            ch.final_force_change_pct[0],
+            ch.final_force_change_pct[1],
+            ch.peak_force_change_pct[0],
+            ch.peak_force_change_pct[1],
+            ch.rms_mm,
+            ch.max_mm,
+            ch.ref_max_mm,
+            ch.points,
+        );
+    }
+    let _ = writeln!(md);
+    for (name, r) in [("final", &c.richardson_final), ("peak", &c.richardson_peak)] {
+        if let Some([l, r]) = r {
+            let _ = writeln!(
+                md,
+                "- Richardson, {name} net force: left {}; right {}",
+                richardson_text(l),
+                richardson_text(r)
+            );
+        }
+    }
+    for t in &c.two_level {
+        let _ = writeln!(
+            md,
+            "- two levels, assumed order {}: limit L {:.4} N, R {:.4} N (finest level {:.2}% / {:.2}% from it)",
+            t.order, t.limit_n[0], t.limit_n[1], t.finest_error_pct[0], t.finest_error_pct[1]
+        );
+    }
+    let _ = writeln!(
+        md,
+        "- [{}] the final net force changes by under {}% between the last two levels on both spatulas\n",
+        if c.met { "x" } else { " " },
+        c.criterion_pct
+    );
+}
+
+fn incompressible_markdown(md: &mut String, n: &Incompressible) {
+    let _ = writeln!(
+        md,
+        "### Towards incompressibility on the finest level ({})\n",
+        n.finest
+    );
+    let _ = writeln!(
+        md,
+        "F: both spatulas' final net force magnitudes summed; R = F(nu) / F(0.45).\n"
+    );
+    let _ = write!(md, "| nu |");
+    for e in &n.elements {
+        let _ = write!(md, " {0} F (N) | {0} R | {0} failed steps |", e.element);
+    }
+    let _ = writeln!(md);
+    let _ = writeln!(md, "|---:|{}", "---:|---:|---:|".repeat(n.elements.len()));
+    let f = |v: Option<f64>, d: usize| v.map_or("-".to_string(), |v| format!("{v:.d$}"));
+    for (i, nu) in n.nus.iter().enumerate() {
+        let _ = write!(md, "| {nu} |");
+        for e in &n.elements {
+            let _ = write!(
+                md,
+                " {} | {} | {} |",
+                f(e.force_n[i], 4),
+                f(e.ratio[i], 3),
+                e.failed_steps[i].map_or("-".into(), |s| s.to_string())
+            );
+        }
+        let _ = writeln!(md);
+    }
+    let _ = writeln!(
+        md,
+        "\nNodal-pressure R({}) per level:\n",
+        n.nus[n.nus.len() - 1]
+    );
+    for (label, h, r) in &n.limit_by_level {
+        let _ = writeln!(md, "- {label} (h {h:.3} mm): {r:.4}");
+    }
+    if let Some(r) = &n.richardson {
+        let text = match *r {
+            Richardson::Asymptotic {
+                order,
+                limit,
+                finest_error_pct,
+            } => format!(
+                "order {order:.2}, limit {limit:.4} (finest level {finest_error_pct:.2}% from it)"
+            ),
+            Richardson::NotAsymptotic {
+                change_ratio,
+                order,
+            } => format!(
+                "not in the asymptotic range (change ratio {change_ratio:.3}{}): the finest level's value stands for the limit",
+                order.map_or(String::new(), |p| format!(", order {p:.1}"))
+            ),
+        };
+        let _ = writeln!(md, "- Richardson over the levels: {text}");
+    }
+    let _ = writeln!(
+        md,
+        "- converged nearly incompressible R: {}; the finest level's R deviates by {} (tet4) and {} (nodal pressure)",
+        f(n.converged_ratio, 4),
+        n.deviation_pct[0].map_or("-".into(), |d| format!("{d:.1}%")),
+        n.deviation_pct[1].map_or("-".into(), |d| format!("{d:.1}%")),
+    );
+    let _ = writeln!(
+        md,
+        "- [{}] nodal pressure within {}% of the converged answer\n",
+        if n.met { "x" } else { " " },
+        n.tolerance_pct
+    );
+}
+
+const CONVERGENCE_HEADER: &str = "label,tets,nodes,h_mm,final_force_left_n,final_force_right_n,peak_force_left_n,peak_force_right_n,ms_per_step,iterations_mean,failed_steps,final_change_left_pct,final_change_right_pct,peak_change_left_pct,peak_change_right_pct,rms_diff_mm,max_diff_mm";
+
+fn convergence_csv(c: &Convergence) -> String {
+    let mut csv = String::from(CONVERGENCE_HEADER);
+    csv.push('\n');
+    for (i, l) in c.levels.iter().enumerate() {
+        // The change into this level from the coarser one (none for the first).
+        let ch = i.checked_sub(1).and_then(|j| c.changes.get(j));
+        let opt =
+            |v: Option<f64>, digits: usize| v.map_or(String::new(), |v| format!("{v:.digits$}"));
+        let _ = writeln!(
+            csv,
+            "{},{},{},{:.4},{:.6},{:.6},{:.6},{:.6},{:.1},{:.2},{},{},{},{},{},{},{}",
+            l.label,
+            l.tets,
+            l.nodes,
+            l.h_mm,
+            l.final_force_n[0],
+            l.final_force_n[1],
+            l.peak_force_n[0],
+            l.peak_force_n[1],
+            l.ms_per_step,
+            l.iterations_mean,
+            l.failed_steps,
+            opt(ch.map(|c| c.final_force_change_pct[0]), 3),
+            opt(ch.map(|c| c.final_force_change_pct[1]), 3),
+            opt(ch.map(|c| c.peak_force_change_pct[0]), 3),
+            opt(ch.map(|c| c.peak_force_change_pct[1]), 3),
+            opt(ch.map(|c| c.rms_mm), 4),
+            opt(ch.map(|c| c.max_mm), 4),
+        );
+    }
+    csv
 }
 
 fn pareto_plot(
@@ -321,6 +528,9 @@ pub fn write_all(
         )
         .save_png(&p)
         .map_err(|e| io_err(&p, e))?;
+    }
+    if let Some(c) = &res.convergence {
+        write(&dir.join("convergence.csv"), &convergence_csv(c))?;
     }
     if !forces.is_empty() {
         let mut all = LinePlot::new(

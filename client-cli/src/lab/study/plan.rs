@@ -43,6 +43,11 @@ pub enum Role {
     Grid,
     /// A run of the stability sweep.
     Stability,
+    /// A level of the reference's mesh convergence.
+    Convergence,
+    /// A run of the Poisson's ratio sweep towards incompressibility on the
+    /// finest level.
+    Incompressible,
 }
 
 /// One run of the plan.
@@ -78,7 +83,9 @@ pub struct StudyPlan {
     pub dt_s: f64,
     /// The shared inputs every run reads, relative to the study folder.
     pub inputs: Inputs,
-    /// The runs, in order: the reference and the grid, then the stability sweep.
+    /// The runs, in order: the reference and the grid, the convergence
+    /// levels (coarsest first) and the incompressibility sweep, then the
+    /// stability sweep.
     pub runs: Vec<PlannedRun>,
 }
 
@@ -100,6 +107,15 @@ pub struct PlanOptions {
     /// Skip the stability sweep.
     #[arg(long)]
     pub no_stability: bool,
+    /// Skip the convergence of the reference over the mesh levels and the
+    /// incompressibility sweep on the finest level.
+    #[arg(long)]
+    pub no_convergence: bool,
+    /// Only the convergence of the reference over the mesh levels and the
+    /// incompressibility sweep on the finest level (no grid, no stability
+    /// sweep).
+    #[arg(long, conflicts_with = "no_convergence")]
+    pub convergence_only: bool,
 }
 
 fn io_err(path: &Path, e: impl std::fmt::Display) -> StudyError {
@@ -126,7 +142,7 @@ impl StudyPlan {
             dt_s: plan.dt_s,
         };
         let mut runs: Vec<(Role, Config, ScenarioSpec, bool)> = Vec::new();
-        if !options.no_grid {
+        if !options.no_grid && !options.convergence_only {
             runs.push((Role::Reference, plan.reference.clone(), grid_spec, true));
             runs.extend(
                 plan.grid
@@ -134,7 +150,19 @@ impl StudyPlan {
                     .map(|c| (Role::Grid, c.clone(), grid_spec, true)),
             );
         }
-        if !options.no_stability {
+        if !options.no_convergence {
+            runs.extend(
+                plan.convergence
+                    .iter()
+                    .map(|c| (Role::Convergence, c.clone(), grid_spec, true)),
+            );
+            runs.extend(
+                plan.incompressible
+                    .iter()
+                    .map(|c| (Role::Incompressible, c.clone(), grid_spec, false)),
+            );
+        }
+        if !options.no_stability && !options.convergence_only {
             for (c, s) in plan.stability.configs(plan.dt_s)? {
                 runs.push((Role::Stability, c, s, false));
             }
