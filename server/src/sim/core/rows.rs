@@ -446,16 +446,17 @@ pub fn from_edges(edges: &[EdgeCandidate], inputs: &RowInputs<'_>, out: &mut Vec
     }
 }
 
-/// The point row half-way between `a` and `b`, two shapes' rows of one
-/// polygon corner (same key): weights and face point averaged, the gap
-/// recomputed at the free positions (fixed nodes left out as in
-/// [`from_edges`]). The step relaxes its contact geometry's fixed point
-/// with it (a corner's tissue point depends on the shape it pushes).
-pub fn midway(a: &Row, b: &Row, free: &FreePositions<'_>, fixed: &[bool]) -> Row {
+/// The point row a share `omega` of the way from `a` to `b` (`0`: `a`,
+/// `1`: `b`), two shapes' rows of one polygon corner (same key): weights
+/// and face point interpolated, the gap recomputed at the free positions
+/// (fixed nodes left out as in [`from_edges`]). The step relaxes its
+/// contact geometry's fixed point with it (a corner's tissue point depends
+/// on the shape it pushes; [`super::engine::relax`]).
+pub fn toward(a: &Row, b: &Row, omega: f64, free: &FreePositions<'_>, fixed: &[bool]) -> Row {
     let (tri, wa) = a.triangle;
     let wb = b.triangle.1;
-    let w = [0.0, 1.0, 2.0].map(|k: f64| 0.5 * (wa[k as usize] + wb[k as usize]));
-    let point = Point3::from(0.5 * (a.point.coords + b.point.coords));
+    let w = [0, 1, 2].map(|k| wa[k] + omega * (wb[k] - wa[k]));
+    let point = a.point + omega * (b.point - a.point);
     let (x, nodes, weights) = point_on(free, fixed, &tri, &w);
     let dir = b.row.dir;
     Row {

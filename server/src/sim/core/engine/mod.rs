@@ -33,6 +33,7 @@ pub type History = crate::collide::contact::history::History;
 pub mod deform;
 pub mod model;
 pub mod query;
+pub mod relax;
 pub mod rules;
 pub mod ties;
 
@@ -87,6 +88,10 @@ pub struct StepEngine {
     warm: Vec<f64>,
     extra: Vec<u32>,
     lambda: Vec<f64>,
+    /// The contact geometry's relaxation within the step.
+    relax: relax::Relaxation,
+    /// Its residuals of a round (reused).
+    residuals: Vec<(u64, [f64; 3])>,
 }
 
 impl std::fmt::Debug for StepEngine {
@@ -190,6 +195,8 @@ impl StepEngine {
             warm: Vec::new(),
             extra: Vec::new(),
             lambda: Vec::new(),
+            relax: relax::Relaxation::default(),
+            residuals: Vec::new(),
             model,
         })
     }
@@ -390,6 +397,7 @@ impl StepEngine {
         sim_time_s: f64,
     ) -> (Result<(), fem::SolveError>, Rounds) {
         let mut rounds = Rounds::default();
+        self.relax.reset();
         let tips = tips_of(&self.scene, poses);
         let result = 'tear: loop {
             let solved = loop {
@@ -459,6 +467,7 @@ impl StepEngine {
             self.rows.retain(|r| r.owner != rows::TIE_OWNER);
             self.ties_into_problem(model);
             self.warm_from(&old);
+            self.relax.reset();
         };
         (result, rounds)
     }
@@ -563,9 +572,10 @@ impl StepEngine {
     /// after the step's query) and, unless its instrument rows are the
     /// problem's (same keys, point weights within
     /// [`GEOMETRY_TOLERANCE`]), makes them the problem's, each point row
-    /// half-way to the problem's row of its key ([`rows::midway`]: a
-    /// corner's tissue point moves with the shape it pushes, and the plain
-    /// iteration can swing between two shapes); the skull's rows follow.
+    /// moved from the problem's row of its key toward the found one by
+    /// Aitken's relaxation ([`relax`], [`rows::toward`]: a corner's tissue
+    /// point moves with the shape it pushes, and the plain iteration can
+    /// swing between two shapes); the skull's rows follow.
     /// Returns whether the rows changed; `n_instrument_rows` counts the
     /// instrument rows at the front.
     fn search_solved(
@@ -599,18 +609,17 @@ impl StepEngine {
         let by_key: std::collections::HashMap<u64, usize> =
             old.iter().enumerate().map(|(i, r)| (r.key, i)).collect();
         let mut same = post.len() == old.len();
-        for r in post.iter_mut() {
+        self.residuals.clear();
+        for r in &post {
             match by_key.get(&r.key) {
                 Some(&i) => {
                     let o = &old[i];
                     if r.row.is_point() || o.row.is_point() {
-                        let dw = (0..3)
-                            .map(|k| (r.triangle.1[k] - o.triangle.1[k]).abs())
-                            .fold(0.0, f64::max);
-                        if dw > GEOMETRY_TOLERANCE {
+                        let dw = [0, 1, 2].map(|k| r.triangle.1[k] - o.triangle.1[k]);
+                        if dw.iter().any(|d| d.abs() > GEOMETRY_TOLERANCE) {
                             same = false;
-                            *r = rows::midway(o, r, &free, &model.fixed_mask);
                         }
+                        self.residuals.push((r.key, dw));
                     }
                 }
                 None => same = false,
@@ -618,6 +627,15 @@ impl StepEngine {
         }
         if same {
             return false;
+        }
+        let omega = self.relax.omega(&self.residuals);
+        for r in post.iter_mut() {
+            if let Some(&i) = by_key.get(&r.key) {
+                let o = &old[i];
+                if r.row.is_point() || o.row.is_point() {
+                    *r = rows::toward(o, r, omega, &free, &model.fixed_mask);
+                }
+            }
         }
         let old_lambda = self.multipliers_by_key();
         let skull: Vec<Row> = self.rows[*n_instrument_rows..].to_vec();
