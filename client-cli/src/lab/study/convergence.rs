@@ -107,6 +107,13 @@ pub fn element_size_m(volume_m3: f64, tets: usize) -> f64 {
     (volume_m3 / tets.max(1) as f64).cbrt()
 }
 
+/// The characteristic element size of a run's mesh, mm
+/// ([`element_size_m`] of the volume its rest surface encloses).
+pub fn level_size_mm(run: &RunResult) -> f64 {
+    let volume = enclosed_volume(&run.rest_surface, &run.triangles).abs();
+    element_size_m(volume, run.tets) * 1e3
+}
+
 /// The Richardson estimate from three levels.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 #[serde(tag = "status", rename_all = "kebab-case")]
@@ -273,19 +280,16 @@ fn change_pct(coarse: f64, fine: f64) -> f64 {
 pub fn evaluate(runs: &[&RunResult]) -> Convergence {
     let levels: Vec<Level> = runs
         .iter()
-        .map(|r| {
-            let volume = enclosed_volume(&r.rest_surface, &r.triangles).abs();
-            Level {
-                label: r.config.label.clone(),
-                tets: r.tets,
-                nodes: r.nodes,
-                h_mm: element_size_m(volume, r.tets) * 1e3,
-                final_force_n: [r.final_force(0).norm(), r.final_force(1).norm()],
-                peak_force_n: [peak(r, 0), peak(r, 1)],
-                ms_per_step: r.ms_per_step(),
-                iterations_mean: r.mean_iterations(),
-                failed_steps: r.failed_steps,
-            }
+        .map(|r| Level {
+            label: r.config.label.clone(),
+            tets: r.tets,
+            nodes: r.nodes,
+            h_mm: level_size_mm(r),
+            final_force_n: [r.final_force(0).norm(), r.final_force(1).norm()],
+            peak_force_n: [peak(r, 0), peak(r, 1)],
+            ms_per_step: r.ms_per_step(),
+            iterations_mean: r.mean_iterations(),
+            failed_steps: r.failed_steps,
         })
         .collect();
     let changes: Vec<Change> = runs

@@ -1,6 +1,7 @@
 //! Poisson's ratio towards incompressibility on the finest mesh, with both
 //! elements: the reference physics ([`convergence::reference_physics`]:
-//! frictionless contact, the scene's foundation, linear elasticity) on the 204k level at `nu` in [`NUS`], with `tet4` and with
+//! frictionless contact, the scene's foundation, linear elasticity) on the
+//! 204k level at `nu` in [`NUS`], with `tet4` and with
 //! `tet4-nodal-pressure`.
 //!
 //! The measure is the stiffening ratio `R(nu) = F(nu) / F(0.45)`, with `F`
@@ -20,7 +21,6 @@ use super::config::Config;
 use super::convergence::{self, Richardson};
 use super::driver::RunResult;
 use fissure_engine::fem::Element;
-use fissure_engine::mesh::enclosed_volume;
 use serde::Serialize;
 
 /// Poisson's ratios swept (0.45 is the nominal value).
@@ -144,11 +144,13 @@ pub fn evaluate(levels: &[&RunResult], runs: &[&RunResult]) -> Option<Incompress
         .iter()
         .filter_map(|l| {
             let np = Element::Tet4NodalPressure;
-            let f0 = total_force_n(find(&l.config, np, 0.45)?);
+            let f0 = total_force_n(find(&l.config, np, NUS[0])?);
             let f = total_force_n(find(&l.config, np, NU_LIMIT)?);
-            let volume = enclosed_volume(&l.rest_surface, &l.triangles).abs();
-            let h_mm = convergence::element_size_m(volume, l.tets) * 1e3;
-            Some((l.config.label.clone(), h_mm, f / f0))
+            Some((
+                l.config.label.clone(),
+                convergence::level_size_mm(l),
+                f / f0,
+            ))
         })
         .collect();
     let richardson = (limit_by_level.len() >= 3).then(|| {

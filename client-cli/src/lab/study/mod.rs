@@ -296,14 +296,16 @@ impl Plan {
                 rate_hz: 50.0,
                 dt_s: 0.1,
                 stability: stability::Sweep::quick(),
-                // Neo-Hookean runs cost seconds a step in the dev profile
-                // the CI test runs: the quick study has no convergence part
-                // (its arithmetic is a unit test of [`convergence`]).
+                // The levels' meshes (up to 204k tetrahedra) cost seconds a
+                // step in the dev profile the CI test runs: the quick study
+                // has no convergence part (its arithmetic is a unit test of
+                // [`convergence`]).
                 convergence: Vec::new(),
                 incompressible: Vec::new(),
             }
         } else {
             let base = Config::baseline();
+            let levels = convergence::levels(&base);
             let v = |f: &dyn Fn(&mut Config), sweep: &str| {
                 let mut c = base.clone();
                 f(&mut c);
@@ -367,8 +369,8 @@ impl Plan {
                 rate_hz: 200.0,
                 dt_s: 0.05,
                 stability: stability::Sweep::full(),
-                convergence: convergence::levels(&base),
-                incompressible: incompressible::configs(&convergence::levels(&base)),
+                incompressible: incompressible::configs(&levels),
+                convergence: levels,
             }
         }
     }

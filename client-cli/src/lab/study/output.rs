@@ -256,14 +256,16 @@ pub fn markdown(res: &StudyResult) -> String {
     md
 }
 
-fn richardson_text(r: &Richardson) -> String {
+/// A Richardson estimate in words; `unit` follows the limit (`" N"`, or
+/// empty for a ratio).
+fn richardson_text(r: &Richardson, unit: &str) -> String {
     match *r {
         Richardson::Asymptotic {
             order,
             limit,
             finest_error_pct,
         } => format!(
-            "order {order:.2}, limit {limit:.4} N (finest level {finest_error_pct:.2}% from it)"
+            "order {order:.2}, limit {limit:.4}{unit} (finest level {finest_error_pct:.2}% from it)"
         ),
         Richardson::NotAsymptotic {
             change_ratio,
@@ -326,8 +328,8 @@ fn convergence_markdown(md: &mut String, c: &Convergence) {
             let _ = writeln!(
                 md,
                 "- Richardson, {name} net force: left {}; right {}",
-                richardson_text(l),
-                richardson_text(r)
+                richardson_text(l, " N"),
+                richardson_text(r, " N")
             );
         }
     }
@@ -385,22 +387,10 @@ fn incompressible_markdown(md: &mut String, n: &Incompressible) {
         let _ = writeln!(md, "- {label} (h {h:.3} mm): {r:.4}");
     }
     if let Some(r) = &n.richardson {
-        let text = match *r {
-            Richardson::Asymptotic {
-                order,
-                limit,
-                finest_error_pct,
-            } => format!(
-                "order {order:.2}, limit {limit:.4} (finest level {finest_error_pct:.2}% from it)"
-            ),
-            Richardson::NotAsymptotic {
-                change_ratio,
-                order,
-            } => format!(
-                "not in the asymptotic range (change ratio {change_ratio:.3}{}): the finest level's value stands for the limit",
-                order.map_or(String::new(), |p| format!(", order {p:.1}"))
-            ),
-        };
+        let mut text = richardson_text(r, "");
+        if matches!(r, Richardson::NotAsymptotic { .. }) {
+            text.push_str(": the finest level's value stands for the limit");
+        }
         let _ = writeln!(md, "- Richardson over the levels: {text}");
     }
     let _ = writeln!(
