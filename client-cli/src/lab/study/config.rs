@@ -37,7 +37,7 @@ impl Backend {
 #[serde(rename_all = "kebab-case")]
 pub enum Support {
     /// The brain stem fixed only (the scene's foundation removed): the
-    /// grid's support, under which the force is linear in E.
+    /// stability sweep's support, under which the force is linear in E.
     #[default]
     Stem,
     /// The brain stem fixed and the scene's elastic foundation as bundled
@@ -93,6 +93,10 @@ pub struct Config {
     /// The contact law (the reference's is frictionless).
     #[serde(serialize_with = "ser_law")]
     pub contact_law: ContactLaw,
+    /// Coulomb's friction coefficient `mu` of the `coulomb` law (none for
+    /// the others).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub friction_coefficient: Option<f64>,
     /// The element formulation (`tet4` unless a run names another).
     #[serde(
         default,
@@ -155,6 +159,7 @@ impl Config {
             nu: 0.45,
             time_scale: 1.0,
             contact_law: ContactLaw::Frictionless,
+            friction_coefficient: None,
             element: Element::Tet4,
             support: Support::Stem,
             proven: false,
@@ -199,6 +204,9 @@ impl Config {
         if self.contact_law != ContactLaw::Frictionless {
             l.push_str(&format!("/{}", self.contact_law.name()));
         }
+        if let Some(mu) = self.friction_coefficient {
+            l.push_str(&format!("-mu{mu}"));
+        }
         if self.time_scale != 1.0 {
             l.push_str(&format!("/x{:.3}", self.time_scale));
         }
@@ -218,10 +226,10 @@ impl Config {
     /// configuration.
     pub fn scene_in(&self, source: &str) -> Result<Scene, SceneError> {
         let (mut scene, _) = Scene::load(source)?;
-        // The grid is held at the brain stem only, as it was measured: a
-        // foundation of fixed stiffness would make the force no longer
-        // linear in E (one of the study's checks). The reference keeps the
-        // scene's foundation.
+        // The stability sweep is held at the brain stem only: a foundation
+        // of fixed stiffness would make the force no longer linear in E
+        // (one of the study's checks). The reference and the grid's
+        // baseline keep the scene's foundation.
         match self.support {
             Support::Stem => scene.foundation = None,
             Support::Foundation => {}
@@ -247,6 +255,7 @@ impl Config {
         scene.solver.element = self.element;
         scene.solver.tolerance = self.tolerance;
         scene.contact.law = self.contact_law;
+        scene.contact.friction_coefficient = self.friction_coefficient;
         scene.collision.method = match self.backend {
             Backend::CpuBrute => CollisionMethod::Brute,
             _ => CollisionMethod::Bvh,

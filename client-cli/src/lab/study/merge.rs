@@ -18,7 +18,8 @@
 use super::plan::{Role, StudyPlan};
 use super::record::{FailureRecord, RunRecord};
 use super::{
-    Plan, Row, StudyError, StudyResult, compare, convergence, incompressible, output, stability,
+    Plan, Row, StudyError, StudyResult, compare, convergence, incompressible, output, rules,
+    stability,
 };
 use serde::Serialize;
 use std::path::Path;
@@ -75,6 +76,7 @@ pub fn merge(dir: &Path, out: &Path, allow_missing: bool) -> Result<StudyResult,
     let region = reference.map(|r| compare::region_vertices(&r.result));
     let mut reference_row = None;
     let mut grid = Vec::new();
+    let mut grid_runs = Vec::new();
     let mut stab = Vec::new();
     let mut plots = Vec::new();
     let mut total_s = 0.0;
@@ -106,15 +108,26 @@ pub fn merge(dir: &Path, out: &Path, allow_missing: bool) -> Result<StudyResult,
             }
             Role::Grid => {
                 plots.push((run.config.label.clone(), rec.result.forces_for_plot()));
+                grid_runs.push(&rec.result);
                 grid.push(row);
             }
             Role::Stability => stab.push(row),
             Role::Convergence | Role::Incompressible => {}
         }
     }
-    let (stability, checks) = stability::evaluate(&Plan::new(plan.quick).stability, stab);
+    let planned = Plan::new(plan.quick);
+    // The reference closes the levels when it is the finest of them.
+    if planned.reference_closes_convergence() && !levels.is_empty() {
+        if let Some(r) = reference {
+            levels.push(&r.result);
+        }
+    }
+    let (stability, checks) = stability::evaluate(&planned.stability, stab);
+    let pairs: Vec<_> = grid_runs.into_iter().zip(&grid).collect();
+    let contact_rules = rules::evaluate(&pairs);
     let result = StudyResult {
         reference: reference_row,
+        contact_rules,
         grid,
         stability,
         checks,

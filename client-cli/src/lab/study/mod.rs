@@ -2,21 +2,25 @@
 //! and stability at the extremes, on a fixed scripted scenario (the bundled
 //! Sylvian opening, both spatulas, stepped).
 //!
-//! * **Grid** (not a full factorial): a baseline (paper-48k, linear
-//!   `compliance`, 150 source nodes a face, whole brain, CPU BVH, 2 threads)
-//!   and one-dimension-at-a-time sweeps around it: mesh preset, strategy
-//!   (`corotational`, `neo-hookean`), solver tolerance, nodes a face, region
-//!   of interest, ray backend, threads, the element (the locking-free
-//!   `tet4-nodal-pressure` beside `tet4`) and the contact law (the paper's
-//!   projection beside the frictionless default). Every run is compared with
-//!   the **reference**, the finest preset with `neo-hookean` at a tight
-//!   tolerance and frictionless contact ([`compare`]).
+//! * **Grid** (not a full factorial): a baseline, the product's defaults
+//!   (paper-48k, linear `compliance`, `tet4`, frictionless contact, the
+//!   scene's elastic foundation, 150 source nodes a face, whole brain, CPU
+//!   BVH, 2 threads), and sweeps around it: mesh preset, the element (the
+//!   locking-free `tet4-nodal-pressure`), every contact law (frictionless,
+//!   Coulomb, the paper's projection) under every support (the foundation,
+//!   the rigid skull surface, the brain stem alone; [`rules`] compares each
+//!   law with its frictionless twin), strategy (`corotational`,
+//!   `neo-hookean`, held at the stem: the engine builds them without the
+//!   foundation only) and tolerance, nodes a face, region of interest, ray
+//!   backend, threads. Every run is compared with the **reference**, the
+//!   finest convergence level below ([`compare`]).
 //! * **Convergence of the reference** ([`convergence`]): the reference
 //!   physics of the product's scene (frictionless contact, the elastic
 //!   foundation, the `tet4-nodal-pressure` element, linear elasticity) on
 //!   paper-34k, paper-48k and the 204k level (paper-48k, proven mesher):
 //!   force and displacement changes between levels and a Richardson
-//!   estimate; and Poisson's ratio towards incompressibility on the 204k
+//!   estimate (the finest level is the grid's reference, run once); and
+//!   Poisson's ratio towards incompressibility on the 204k
 //!   level with both elements ([`incompressible`]). The full study plans
 //!   them (`--convergence-only`: only them); the quick one does not.
 //! * **Stability**: Poisson's ratio, Young's modulus and spatula speed swept
@@ -46,12 +50,13 @@ pub mod merge;
 pub mod output;
 pub mod plan;
 pub mod record;
+pub mod rules;
 pub mod runs;
 pub mod scenario;
 pub mod stability;
 
 use compare::Errors;
-use config::{Backend, Config};
+use config::{Backend, Config, Support};
 use driver::RunResult;
 use fissure_engine::fem::{Element, Strategy};
 use fissure_engine::scene::ContactLaw;
@@ -304,49 +309,81 @@ impl Plan {
                 incompressible: Vec::new(),
             }
         } else {
-            let base = Config::baseline();
-            let levels = convergence::levels(&base);
+            let levels = convergence::levels(&Config::baseline());
+            // The product's configuration, held as the bundled scene holds
+            // the brain (the foundation).
+            let base = Config {
+                support: Support::Foundation,
+                ..Config::baseline()
+            };
             let v = |f: &dyn Fn(&mut Config), sweep: &str| {
                 let mut c = base.clone();
                 f(&mut c);
                 c.sweep = sweep.into();
                 c.labelled()
             };
-            let reference = v(
-                &|c| {
-                    c.strategy = Strategy::NeoHookean;
-                    c.tolerance = 1e-9;
-                },
-                "reference",
-            );
-            let grid = vec![
+            // The nonlinear strategies evaluate their internal force from
+            // the stress, so the engine builds them without the foundation
+            // only: they are held at the stem, beside the linear strategy
+            // held there (the support sweep's `stem` run).
+            let stem = |f: &dyn Fn(&mut Config), sweep: &str| {
+                v(
+                    &|c| {
+                        c.support = Support::Stem;
+                        f(c);
+                    },
+                    sweep,
+                )
+            };
+            // The finest convergence level is the reference, run once.
+            let reference = Config {
+                sweep: "reference".into(),
+                ..levels[levels.len() - 1].clone()
+            };
+            let mut grid = vec![
                 v(&|_| {}, "baseline"),
                 v(&|c| c.preset = "coarse".into(), "preset"),
                 v(&|c| c.preset = "paper-34k".into(), "preset"),
-                v(&|c| c.strategy = Strategy::Corotational, "strategy"),
-                v(
+                v(&|c| c.element = Element::Tet4NodalPressure, "element"),
+            ];
+            // Contact rule x support: every law under every support (the
+            // baseline is frictionless on the foundation).
+            for support in [Support::Foundation, Support::SkullSurface, Support::Stem] {
+                for law in [
+                    ContactLaw::Frictionless,
+                    ContactLaw::Coulomb,
+                    ContactLaw::Paper,
+                ] {
+                    if support == Support::Foundation && law == ContactLaw::Frictionless {
+                        continue;
+                    }
+                    grid.push(v(
+                        &|c| {
+                            c.support = support;
+                            c.contact_law = law;
+                            c.friction_coefficient =
+                                (law == ContactLaw::Coulomb).then_some(COULOMB_MU);
+                        },
+                        "contact-support",
+                    ));
+                }
+            }
+            grid.extend([
+                stem(&|c| c.strategy = Strategy::Corotational, "strategy"),
+                stem(
                     &|c| {
                         c.strategy = Strategy::Corotational;
                         c.tolerance = 1e-3;
                     },
                     "tolerance",
                 ),
-                v(
-                    &|c| {
-                        c.strategy = Strategy::NeoHookean;
-                        c.tolerance = 1e-4;
-                    },
-                    "strategy",
-                ),
-                v(
+                stem(
                     &|c| {
                         c.strategy = Strategy::NeoHookean;
                         c.tolerance = 1e-6;
                     },
-                    "tolerance",
+                    "strategy",
                 ),
-                v(&|c| c.contact_law = ContactLaw::Paper, "contact"),
-                v(&|c| c.element = Element::Tet4NodalPressure, "element"),
                 v(&|c| c.nodes_per_face = 30, "nodes-per-face"),
                 v(&|c| c.nodes_per_face = 500, "nodes-per-face"),
                 v(&|c| c.roi_m = Some(0.03), "roi"),
@@ -354,14 +391,7 @@ impl Plan {
                 v(&|c| c.backend = Backend::CpuBrute, "backend"),
                 v(&|c| c.backend = Backend::GpuBvh, "backend"),
                 v(&|c| c.threads = 1, "threads"),
-                v(
-                    &|c| {
-                        c.preset = "coarse".into();
-                        c.strategy = Strategy::Corotational;
-                    },
-                    "preset",
-                ),
-            ];
+            ]);
             Self {
                 reference,
                 grid,
@@ -374,7 +404,24 @@ impl Plan {
             }
         }
     }
+
+    /// Whether the reference is the finest convergence level (the full
+    /// study): it is then run once, as the reference, and closes the
+    /// convergence's levels.
+    pub fn reference_closes_convergence(&self) -> bool {
+        self.convergence.last().is_some_and(|l| {
+            Config {
+                sweep: self.reference.sweep.clone(),
+                ..l.clone()
+            } == self.reference
+        })
+    }
 }
+
+/// Coulomb's friction coefficient of the study's `coulomb` runs: an assumed
+/// value for a wet steel spatula on the pia (a sensitivity case, not a
+/// measured one).
+pub const COULOMB_MU: f64 = 0.2;
 
 /// Everything a study produced.
 #[derive(Debug, Clone, Serialize)]
@@ -383,6 +430,8 @@ pub struct StudyResult {
     pub reference: Option<Row>,
     /// Grid rows.
     pub grid: Vec<Row>,
+    /// The contact laws beside their frictionless twins ([`rules`]).
+    pub contact_rules: Vec<rules::RuleRow>,
     /// Stability rows.
     pub stability: Vec<stability::StabilityRow>,
     /// Stability checks.

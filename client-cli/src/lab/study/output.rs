@@ -163,17 +163,17 @@ pub fn markdown(res: &StudyResult) -> String {
         );
         let _ = writeln!(
             md,
-            "| configuration | sweep | tets | ms/step | us/force sample | iterations (mean/max) | RMS err (mm) | max err (mm) | force err L (N, %) | force err R (N, %) | min det F | haptic local model |"
+            "| configuration | sweep | tets | ms/step | us/force sample | iterations (mean/max) | RMS err (mm) | max err (mm) | force err L (N, %) | force err R (N, %) | min det F | failed steps | haptic local model |"
         );
         let _ = writeln!(
             md,
-            "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|"
+            "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|"
         );
         for r in res.reference.iter().chain(&res.grid) {
             let e = r.errors.unwrap_or_default();
             let _ = writeln!(
                 md,
-                "| {}{} | {} | {} | {:.1} | {:.0} | {:.1} / {} | {:.3} | {:.3} | {:.3}, {:.1}% | {:.3}, {:.1}% | {:.3} | {} |",
+                "| {}{} | {} | {} | {:.1} | {:.0} | {:.1} / {} | {:.3} | {:.3} | {:.3}, {:.1}% | {:.3}, {:.1}% | {:.3} | {} | {} |",
                 r.config.label,
                 if r.backend_used.starts_with(r.config.backend.name()) {
                     String::new()
@@ -193,8 +193,31 @@ pub fn markdown(res: &StudyResult) -> String {
                 e.force_rms_n[1],
                 e.force_rms_pct[1],
                 r.min_det_f,
+                r.failed_steps,
                 if r.haptic_local_model { "yes" } else { "no" },
             );
+        }
+        let failed: Vec<&Row> = res
+            .reference
+            .iter()
+            .chain(&res.grid)
+            .filter(|r| r.failed_steps > 0)
+            .collect();
+        if !failed.is_empty() {
+            let _ = writeln!(
+                md,
+                "\nRuns with failed steps (each failed step keeps the last good state, so their errors measure the failure, not the configuration):\n"
+            );
+            for r in failed {
+                let _ = writeln!(
+                    md,
+                    "- {}: {} of {} steps; first: {}",
+                    r.config.label,
+                    r.failed_steps,
+                    r.steps,
+                    r.failure.as_deref().unwrap_or("-")
+                );
+            }
         }
         if let Some(r) = &res.reference {
             let e = r.errors.unwrap_or_default();
@@ -204,6 +227,9 @@ pub fn markdown(res: &StudyResult) -> String {
                 r.config.label, e.points, e.ref_max_mm, r.final_force_n[0], r.final_force_n[1]
             );
         }
+    }
+    if !res.contact_rules.is_empty() {
+        rules_markdown(&mut md, &res.contact_rules);
     }
     if let Some(c) = &res.convergence {
         convergence_markdown(&mut md, c);
@@ -254,6 +280,86 @@ pub fn markdown(res: &StudyResult) -> String {
         }
     }
     md
+}
+
+fn pct_pair(e: &Option<super::compare::Errors>) -> String {
+    e.map_or("-".into(), |e| {
+        format!("{:.1} / {:.1}", e.force_rms_pct[0], e.force_rms_pct[1])
+    })
+}
+
+fn mm_pair(e: &Option<super::compare::Errors>) -> String {
+    e.map_or("-".into(), |e| format!("{:.3} / {:.3}", e.rms_mm, e.max_mm))
+}
+
+fn rules_markdown(md: &mut String, rows: &[super::rules::RuleRow]) {
+    let _ = writeln!(
+        md,
+        "### The contact rule under each support
+"
+    );
+    let _ = writeln!(
+        md,
+        "Each law beside the frictionless run of the same configuration and support (its twin): the error against the twin is the rule's own; the error against the reference adds the mesh's and the support's. Force errors are RMS over the steps, % of the compared run's peak (left / right); displacement errors RMS / max, mm.\n"
+    );
+    let _ = writeln!(
+        md,
+        "| support | rule | ms/step | failed steps | final force L / R (N) | force err vs reference (%) | displ. err vs reference (mm) | force err vs frictionless twin (%) | displ. err vs twin (mm) |"
+    );
+    let _ = writeln!(md, "|---|---|---:|---:|---:|---:|---:|---:|---:|");
+    for r in rows {
+        let law = match r.friction_coefficient {
+            Some(mu) => format!("{} (mu {mu})", r.law),
+            None => r.law.to_string(),
+        };
+        let _ = writeln!(
+            md,
+            "| {} | {law} | {:.1} | {} | {:.4} / {:.4} | {} | {} | {} | {} |",
+            r.support,
+            r.ms_per_step,
+            r.failed_steps,
+            r.final_force_n[0],
+            r.final_force_n[1],
+            pct_pair(&r.vs_reference),
+            mm_pair(&r.vs_reference),
+            pct_pair(&r.vs_frictionless),
+            mm_pair(&r.vs_frictionless),
+        );
+    }
+    let paper: Vec<_> = rows.iter().filter(|r| r.law == "paper").collect();
+    if paper.is_empty() {
+        return;
+    }
+    let _ = writeln!(md, "\n### The paper rule's error\n");
+    let _ = writeln!(
+        md,
+        "The paper's projection (all three components of every paired triangle's vertices fixed on the face plane) against frictionless contact on the same mesh and support, and against the reference.\n"
+    );
+    let _ = writeln!(
+        md,
+        "| support | force err vs frictionless L / R (N) | (% of peak) | final force change L / R (%) | displ. err RMS / max (mm) | force err vs reference (%) |"
+    );
+    let _ = writeln!(md, "|---|---:|---:|---:|---:|---:|");
+    for r in paper {
+        let twin = r.vs_frictionless;
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {} | {} |",
+            r.support,
+            twin.map_or("-".into(), |e| format!(
+                "{:.4} / {:.4}",
+                e.force_rms_n[0], e.force_rms_n[1]
+            )),
+            pct_pair(&twin),
+            twin.map_or("-".into(), |e| format!(
+                "{:.1} / {:.1}",
+                e.final_force_pct[0], e.final_force_pct[1]
+            )),
+            mm_pair(&twin),
+            pct_pair(&r.vs_reference),
+        );
+    }
+    let _ = writeln!(md);
 }
 
 /// A Richardson estimate in words; `unit` follows the limit (`" N"`, or

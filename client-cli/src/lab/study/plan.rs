@@ -142,17 +142,25 @@ impl StudyPlan {
             dt_s: plan.dt_s,
         };
         let mut runs: Vec<(Role, Config, ScenarioSpec, bool)> = Vec::new();
-        if !options.no_grid && !options.convergence_only {
+        let grid = !options.no_grid && !options.convergence_only;
+        let convergence = !options.no_convergence && !plan.convergence.is_empty();
+        // The full study's reference is its finest convergence level: one
+        // run serves both.
+        let shared = plan.reference_closes_convergence();
+        if grid || (convergence && shared) {
             runs.push((Role::Reference, plan.reference.clone(), grid_spec, true));
+        }
+        if grid {
             runs.extend(
                 plan.grid
                     .iter()
                     .map(|c| (Role::Grid, c.clone(), grid_spec, true)),
             );
         }
-        if !options.no_convergence {
+        if convergence {
+            let coarser = plan.convergence.len() - usize::from(shared);
             runs.extend(
-                plan.convergence
+                plan.convergence[..coarser]
                     .iter()
                     .map(|c| (Role::Convergence, c.clone(), grid_spec, true)),
             );
@@ -385,6 +393,96 @@ mod tests {
         for (i, r) in plan.runs.iter().enumerate() {
             assert!(r.id.starts_with(&format!("{i:02}-")), "{}", r.id);
             assert_eq!(plan.runs.iter().filter(|o| o.id == r.id).count(), 1);
+        }
+    }
+
+    #[test]
+    fn the_full_reference_is_the_finest_level_planned_once_whatever_part_is_asked() {
+        let levels = Plan::new(false).convergence;
+        let finest = levels.last().expect("levels").clone();
+        let count =
+            |plan: &StudyPlan, role: Role| plan.runs.iter().filter(|r| r.role == role).count();
+        for (options, grid) in [
+            (PlanOptions::default(), true),
+            (
+                PlanOptions {
+                    convergence_only: true,
+                    ..PlanOptions::default()
+                },
+                false,
+            ),
+        ] {
+            let plan = StudyPlan::new(&options).expect("the full plan");
+            assert_eq!(plan.runs[0].role, Role::Reference);
+            assert_eq!(count(&plan, Role::Reference), 1);
+            let reference = &plan.runs[0].config;
+            assert_eq!(reference.label, finest.label);
+            assert_eq!(reference.sweep, "reference");
+            // The finest level is not planned again as a level.
+            assert_eq!(count(&plan, Role::Convergence), levels.len() - 1);
+            assert!(
+                plan.runs
+                    .iter()
+                    .filter(|r| r.role == Role::Convergence)
+                    .all(|r| r.config.label != finest.label)
+            );
+            assert_eq!(count(&plan, Role::Grid) > 0, grid);
+        }
+        // Without the convergence part the reference is still planned for
+        // the grid; without the grid nor the convergence, it is not.
+        let plan = StudyPlan::new(&PlanOptions {
+            no_convergence: true,
+            ..PlanOptions::default()
+        })
+        .expect("the grid alone");
+        assert_eq!(count(&plan, Role::Reference), 1);
+        assert_eq!(count(&plan, Role::Convergence), 0);
+        let plan = StudyPlan::new(&PlanOptions {
+            no_convergence: true,
+            no_grid: true,
+            ..PlanOptions::default()
+        })
+        .expect("the stability sweep alone");
+        assert_eq!(count(&plan, Role::Reference), 0);
+    }
+
+    #[test]
+    fn the_full_grid_crosses_every_contact_law_with_every_support() {
+        use super::super::config::Support;
+        use fissure_engine::scene::ContactLaw;
+        let plan = Plan::new(false);
+        for support in [Support::Foundation, Support::SkullSurface, Support::Stem] {
+            for law in [
+                ContactLaw::Frictionless,
+                ContactLaw::Coulomb,
+                ContactLaw::Paper,
+            ] {
+                let runs: Vec<_> = plan
+                    .grid
+                    .iter()
+                    .filter(|c| {
+                        c.support == support
+                            && c.contact_law == law
+                            && c.preset == "paper-48k"
+                            && c.strategy == fissure_engine::fem::Strategy::Compliance
+                            && c.element == fissure_engine::fem::Element::Tet4
+                            && c.nodes_per_face == 150
+                            && c.roi_m.is_none()
+                            && c.backend == super::super::config::Backend::CpuBvh
+                            && c.threads == 2
+                    })
+                    .collect();
+                assert_eq!(runs.len(), 1, "{support:?} x {law:?}");
+                assert_eq!(
+                    runs[0].friction_coefficient.is_some(),
+                    law == ContactLaw::Coulomb
+                );
+                runs[0].scene().expect("a valid scene");
+            }
+        }
+        let labels: Vec<_> = plan.grid.iter().map(|c| &c.label).collect();
+        for (i, l) in labels.iter().enumerate() {
+            assert!(!labels[..i].contains(l), "{l} twice");
         }
     }
 
