@@ -292,21 +292,31 @@ fn mm_pair(e: &Option<super::compare::Errors>) -> String {
     e.map_or("-".into(), |e| format!("{:.3} / {:.3}", e.rms_mm, e.max_mm))
 }
 
+/// A section's heading, its paragraph and a table's header row.
+fn table_head(md: &mut String, heading: &str, intro: &str, columns: &[&str], align: &str) {
+    let _ = writeln!(md, "{heading}\n\n{intro}\n");
+    let _ = writeln!(md, "| {} |", columns.join(" | "));
+    let _ = writeln!(md, "{align}");
+}
+
 fn rules_markdown(md: &mut String, rows: &[super::rules::RuleRow]) {
-    let _ = writeln!(
+    table_head(
         md,
-        "### The contact rule under each support
-"
+        "### The contact rule under each support",
+        "Each law beside the frictionless run of the same configuration and support (its twin): the error against the twin is the rule's own; the error against the reference adds the mesh's and the support's. Force errors are RMS over the steps, % of the compared run's peak (left / right); displacement errors RMS / max, mm.",
+        &[
+            "support",
+            "rule",
+            "ms/step",
+            "failed steps",
+            "final force L / R (N)",
+            "force err vs reference (%)",
+            "displ. err vs reference (mm)",
+            "force err vs frictionless twin (%)",
+            "displ. err vs twin (mm)",
+        ],
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|",
     );
-    let _ = writeln!(
-        md,
-        "Each law beside the frictionless run of the same configuration and support (its twin): the error against the twin is the rule's own; the error against the reference adds the mesh's and the support's. Force errors are RMS over the steps, % of the compared run's peak (left / right); displacement errors RMS / max, mm.\n"
-    );
-    let _ = writeln!(
-        md,
-        "| support | rule | ms/step | failed steps | final force L / R (N) | force err vs reference (%) | displ. err vs reference (mm) | force err vs frictionless twin (%) | displ. err vs twin (mm) |"
-    );
-    let _ = writeln!(md, "|---|---|---:|---:|---:|---:|---:|---:|---:|");
     for r in rows {
         let law = match r.friction_coefficient {
             Some(mu) => format!("{} (mu {mu})", r.law),
@@ -330,16 +340,21 @@ fn rules_markdown(md: &mut String, rows: &[super::rules::RuleRow]) {
     if paper.is_empty() {
         return;
     }
-    let _ = writeln!(md, "\n### The paper rule's error\n");
-    let _ = writeln!(
+    let _ = writeln!(md);
+    table_head(
         md,
-        "The paper's projection (all three components of every paired triangle's vertices fixed on the face plane) against frictionless contact on the same mesh and support, and against the reference.\n"
+        "### The paper rule's error",
+        "The paper's projection (all three components of every paired triangle's vertices fixed on the face plane) against frictionless contact on the same mesh and support, and against the reference.",
+        &[
+            "support",
+            "force err vs frictionless L / R (N)",
+            "(% of peak)",
+            "final force change L / R (%)",
+            "displ. err RMS / max (mm)",
+            "force err vs reference (%)",
+        ],
+        "|---|---:|---:|---:|---:|---:|",
     );
-    let _ = writeln!(
-        md,
-        "| support | force err vs frictionless L / R (N) | (% of peak) | final force change L / R (%) | displ. err RMS / max (mm) | force err vs reference (%) |"
-    );
-    let _ = writeln!(md, "|---|---:|---:|---:|---:|---:|");
     for r in paper {
         let twin = r.vs_frictionless;
         let _ = writeln!(
