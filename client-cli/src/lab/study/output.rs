@@ -47,17 +47,23 @@ pub fn slug(label: &str) -> String {
         .collect()
 }
 
-const GRID_HEADER: &str = "label,sweep,preset,strategy,tolerance,nodes_per_face,roi_mm,backend,threads,tets,nodes,steps,ms_per_step,collision_ms,us_per_sample,us_per_sample_p99,setup_ms,iterations_mean,iterations_max,min_det_f,finite,failed_steps,haptic_local_model,rms_err_mm,max_err_mm,ref_max_mm,force_err_left_n,force_err_left_pct,force_err_right_n,force_err_right_pct,final_force_err_left_pct,final_force_err_right_pct,final_force_left_n,final_force_right_n,mean_match_mm";
+const GRID_HEADER: &str = "label,sweep,preset,proven,strategy,element,contact_law,friction_coefficient,support,tolerance,nodes_per_face,roi_mm,backend,threads,tets,nodes,steps,ms_per_step,collision_ms,us_per_sample,us_per_sample_p99,setup_ms,iterations_mean,iterations_max,min_det_f,finite,failed_steps,haptic_local_model,rms_err_mm,max_err_mm,ref_max_mm,force_err_left_n,force_err_left_pct,force_err_right_n,force_err_right_pct,final_force_err_left_pct,final_force_err_right_pct,final_force_left_n,final_force_right_n,mean_match_mm";
 
 fn grid_csv_row(r: &Row) -> String {
     let c = &r.config;
     let e = r.errors.unwrap_or_default();
     format!(
-        "{},{},{},{},{:e},{},{},{},{},{},{},{},{:.3},{:.3},{:.1},{:.1},{:.0},{:.2},{},{:.4},{},{},{},{:.4},{:.4},{:.4},{:.4},{:.2},{:.4},{:.2},{:.2},{:.2},{:.4},{:.4},{:.3}",
+        "{},{},{},{},{},{},{},{},{},{:e},{},{},{},{},{},{},{},{:.3},{:.3},{:.1},{:.1},{:.0},{:.2},{},{:.4},{},{},{},{:.4},{:.4},{:.4},{:.4},{:.2},{:.4},{:.2},{:.2},{:.2},{:.4},{:.4},{:.3}",
         c.label,
         c.sweep,
         c.preset,
+        c.proven,
         c.strategy.name(),
+        c.element.name(),
+        c.contact_law.name(),
+        c.friction_coefficient
+            .map_or(String::new(), |mu| mu.to_string()),
+        c.support.name(),
         c.tolerance,
         c.nodes_per_face,
         c.roi_m.map_or(String::new(), |d| format!("{:.0}", d * 1e3)),
