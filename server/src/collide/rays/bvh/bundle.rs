@@ -369,12 +369,14 @@ fn cast_in(
             let mut m = margin;
             let mut outside = false;
             for k in 0..2 {
-                let tlo = p[0][k].min(p[1][k]).min(p[2][k]);
-                let thi = p[0][k].max(p[1][k]).max(p[2][k]);
-                let mk = margin + 1e-9 * tlo.abs().max(thi.abs());
-                m = m.max(mk);
+                let tlo = lesser(lesser(p[0][k], p[1][k]), p[2][k]);
+                let thi = greater(greater(p[0][k], p[1][k]), p[2][k]);
+                let mk = margin + 1e-9 * greater(tlo.abs(), thi.abs());
+                m = greater(m, mk);
                 let (tlo, thi) = (tlo - mk, thi + mk);
-                // Also skips a triangle with a NaN vertex (it meets no line).
+                // A triangle with a NaN vertex may pass (the plain
+                // comparisons may skip the NaN): the triangle tests reject
+                // it (a NaN determinant).
                 if !(tlo <= rhi[k] && thi >= rlo[k]) {
                     outside = true;
                     break;
@@ -439,6 +441,19 @@ fn cast_in(
     cast
 }
 
+/// The lesser of `a` and `b` by one comparison (`b` when either is NaN):
+/// one instruction where `f64::min` takes four.
+#[inline(always)]
+fn lesser(a: f64, b: f64) -> f64 {
+    if a < b { a } else { b }
+}
+
+/// The greater of `a` and `b` by one comparison (`b` when either is NaN).
+#[inline(always)]
+fn greater(a: f64, b: f64) -> f64 {
+    if a > b { a } else { b }
+}
+
 /// The edge lines of a triangle projected onto the bundle's plane (`p`, m),
 /// each moved outwards by `m` (m): `g[0] u + g[1] v + g[2] >= 0` on all three
 /// for every projected origin `(u, v)` within `m` of the closed triangle
@@ -446,15 +461,16 @@ fn cast_in(
 /// the offset takes `m` times its 1-norm, at least its length. `None`, and
 /// the rectangle alone filters, where the projected triangle is thin
 /// (twice its area at most `1e-4` of its longest edge squared, a triangle
-/// seen edge on included) or not finite: there the rounding of the normals
-/// is not bounded far below `m`.
+/// seen edge on included), smaller than `m` or not finite: there the
+/// rounding of the normals is not bounded far below `m`.
 ///
 /// Why this is exact: the rounding of the projections is about
 /// `1e-16 (|p| + |origin|)`, the normal's error times the distance to a
-/// candidate origin (within the rectangle) about `1e-15 |p| l` for a
-/// longest edge `l`, while the shortest edge of a triangle that passes the
-/// thinness test is above `1e-4 l` and `m >= 1e-9 |p|`: every origin whose
-/// line the exact test can find in the triangle passes.
+/// candidate origin (within the rectangle, at most `l + 2 m <= 3 l` away
+/// for a longest edge `l >= m`) about `1e-15 |p| l`, while the shortest
+/// edge of a triangle that passes the thinness test is above `1e-4 l` and
+/// `m >= 1e-9 |p|`, so the offset is above `1e-13 |p| l`: every origin
+/// whose line the exact test can find in the triangle passes.
 #[inline]
 fn edge_filter(p: &[[f64; 2]; 3], m: f64) -> Option<[[f64; 3]; 3]> {
     let edge = |i: usize, j: usize| [p[j][0] - p[i][0], p[j][1] - p[i][1]];
@@ -463,7 +479,7 @@ fn edge_filter(p: &[[f64; 2]; 3], m: f64) -> Option<[[f64; 3]; 3]> {
     let len2 = |e: [f64; 2]| e[0] * e[0] + e[1] * e[1];
     let longest2 = len2(ab).max(len2(bc)).max(len2(ca));
     // Also refuses a NaN or infinite area.
-    if !(area2.abs() > 1e-4 * longest2) || !longest2.is_finite() {
+    if !(area2.abs() > 1e-4 * longest2) || !longest2.is_finite() || !(longest2 > m * m) {
         return None;
     }
     let s = area2.signum();

@@ -40,7 +40,8 @@
 //!
 //! A batch of rays that all look within finite ranges (a spatula's bounded
 //! rays) starts below the root: at the deepest frontier of at most eight nodes
-//! covering the box of all their segments, found once per batch, so the top
+//! covering the box of all their segments, found once per batch (when the
+//! first ray walks alone: a batch cast as bundles needs none), so the top
 //! levels of the tree are not walked again for every ray (exact: any hit
 //! within a ray's range lies in that box).
 //!
