@@ -478,8 +478,9 @@ fn edge_filter(p: &[[f64; 2]; 3], m: f64) -> Option<[[f64; 3]; 3]> {
     let area2 = ab[0] * (-ca[1]) - ab[1] * (-ca[0]);
     let len2 = |e: [f64; 2]| e[0] * e[0] + e[1] * e[1];
     let longest2 = len2(ab).max(len2(bc)).max(len2(ca));
-    // Also refuses a NaN or infinite area.
-    if !(area2.abs() > 1e-4 * longest2) || !longest2.is_finite() || !(longest2 > m * m) {
+    // False for a NaN or infinite area too.
+    let fat = area2.abs() > 1e-4 * longest2 && longest2.is_finite() && longest2 > m * m;
+    if !fat {
         return None;
     }
     let s = area2.signum();
