@@ -61,9 +61,11 @@ pub struct RayHit {
 }
 
 /// Returns `true` when the triangle is degenerate or the line is parallel to
-/// it (see the module documentation for the tolerances).
+/// it (see the module documentation for the tolerances). A function of the
+/// direction and the triangle only: parallel rays may share one evaluation
+/// ([`WatertightRay::intersect_from`]).
 #[inline]
-fn degenerate_or_parallel(
+pub(crate) fn degenerate_or_parallel(
     dir: &Vector3<f64>,
     a: &Point3<f64>,
     b: &Point3<f64>,
@@ -179,8 +181,8 @@ impl WatertightRay {
     /// unscaled depth along the line (times `sz`: the scaled depth, which
     /// only a hit needs).
     #[inline(always)]
-    fn shear(&self, p: &Point3<f64>) -> (f64, f64, f64) {
-        let d = p - self.origin;
+    fn shear(&self, origin: &Point3<f64>, p: &Point3<f64>) -> (f64, f64, f64) {
+        let d = p - origin;
         let z = d[self.kz];
         (d[self.kx] - self.sx * z, d[self.ky] - self.sy * z, z)
     }
@@ -189,12 +191,33 @@ impl WatertightRay {
     /// signed. `None` for a miss, a parallel line or a degenerate triangle.
     #[inline]
     pub fn intersect(&self, a: &Point3<f64>, b: &Point3<f64>, c: &Point3<f64>) -> Option<RayHit> {
+        self.intersect_from(&self.origin, a, b, c, || {
+            degenerate_or_parallel(&self.dir, a, b, c)
+        })
+    }
+
+    /// [`Self::intersect`] for the parallel line through `origin` (the same
+    /// direction, hence the same permutation and shear): the same operations
+    /// on the same values, so the same answer bit for bit as a ray prepared
+    /// at `origin`. `degenerate` must return
+    /// `degenerate_or_parallel(dir, a, b, c)`; it is called at most once,
+    /// only for a line that passes the edge tests, so that the rays of a
+    /// bundle can share one evaluation per triangle.
+    #[inline(always)]
+    pub(crate) fn intersect_from(
+        &self,
+        origin: &Point3<f64>,
+        a: &Point3<f64>,
+        b: &Point3<f64>,
+        c: &Point3<f64>,
+        degenerate: impl FnOnce() -> bool,
+    ) -> Option<RayHit> {
         if self.sz == 0.0 {
             return None;
         }
-        let (ax, ay, az) = self.shear(a);
-        let (bx, by, bz) = self.shear(b);
-        let (cx, cy, cz) = self.shear(c);
+        let (ax, ay, az) = self.shear(origin, a);
+        let (bx, by, bz) = self.shear(origin, b);
+        let (cx, cy, cz) = self.shear(origin, c);
         let u = cx * by - cy * bx;
         let v = ax * cy - ay * cx;
         let w = bx * ay - by * ax;
@@ -225,7 +248,7 @@ impl WatertightRay {
         if w == 0.0 && !owned(ax, ay, bx, by) {
             return None;
         }
-        if degenerate_or_parallel(&self.dir, a, b, c) {
+        if degenerate() {
             return None;
         }
         let (az, bz, cz) = (self.sz * az, self.sz * bz, self.sz * cz);

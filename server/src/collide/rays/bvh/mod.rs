@@ -40,7 +40,8 @@
 //!
 //! A batch of rays that all look within finite ranges (a spatula's bounded
 //! rays) starts below the root: at the deepest frontier of at most eight nodes
-//! covering the box of all their segments, found once per batch, so the top
+//! covering the box of all their segments, found once per batch (when the
+//! first ray walks alone: a batch cast as bundles needs none), so the top
 //! levels of the tree are not walked again for every ray (exact: any hit
 //! within a ray's range lies in that box).
 //!
@@ -60,6 +61,7 @@ use super::{Hit, NodeHits, RayBackend, RayRange, SurfaceError, check_surface};
 use faer::Par;
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
+use std::sync::OnceLock;
 
 /// Largest number of triangles in a leaf.
 pub const LEAF_SIZE: usize = 4;
@@ -797,7 +799,21 @@ impl Bvh {
             return;
         }
         let range = |i: usize| ranges.get(i).copied().unwrap_or(RayRange::LINE);
-        let entry = Entry::new(self, origins, dirs, ranges);
+        // Found when a ray first walks alone: a cast of bundles alone
+        // needs none.
+        let entry_cell = OnceLock::new();
+        let entry = LazyEntry {
+            cell: &entry_cell,
+            bvh: self,
+            origins,
+            dirs,
+            ranges,
+        };
+        if self.traversal == Traversal::Bundled && n >= BUNDLE_MIN {
+            self.cast_span(0, origins, dirs, ranges, par, &entry, &mut out[..]);
+            return;
+        }
+        let entry = entry.get();
         let start = |i: usize| -> &[u32] {
             if segment(&origins[i], &dirs[i], ranges.get(i)).is_some() {
                 entry.nodes()
@@ -805,10 +821,6 @@ impl Bvh {
                 &[0]
             }
         };
-        if self.traversal == Traversal::Bundled && n >= BUNDLE_MIN {
-            self.cast_span(0, origins, dirs, ranges, par, &entry, &mut out[..]);
-            return;
-        }
         match par {
             Par::Seq => {
                 let mut stack = EMPTY_STACK;
@@ -841,7 +853,7 @@ impl Bvh {
         dirs: &[Vector3<f64>],
         ranges: &[RayRange],
         par: Par,
-        entry: &Entry,
+        entry: &LazyEntry<'_>,
         out: &mut [NodeHits],
     ) {
         if matches!(par, Par::Seq) || out.len() <= SPAN_SEQ {
@@ -866,7 +878,7 @@ impl Bvh {
         origins: &[Point3<f64>],
         dirs: &[Vector3<f64>],
         ranges: &[RayRange],
-        entry: &Entry,
+        entry: &LazyEntry<'_>,
         out: &mut [NodeHits],
     ) {
         let end = first + out.len();
@@ -894,7 +906,7 @@ impl Bvh {
                     if let Some(again) = bundle.recast_range(&range(k), hits) {
                         let start: &[u32] =
                             if segment(&origins[k], &dirs[k], Some(&again)).is_some() {
-                                entry.nodes()
+                                entry.get().nodes()
                             } else {
                                 &[0]
                             };
@@ -918,7 +930,11 @@ impl Bvh {
                 }
             } else {
                 for k in i..j {
-                    let start: &[u32] = if bounded(k) { entry.nodes() } else { &[0] };
+                    let start: &[u32] = if bounded(k) {
+                        entry.get().nodes()
+                    } else {
+                        &[0]
+                    };
                     out[k - first] =
                         self.cast_one(origins[k], dirs[k], range(k), start, &mut stack);
                 }
@@ -965,6 +981,22 @@ fn segment(
 struct Entry {
     nodes: [u32; ENTRY_MAX],
     len: usize,
+}
+
+/// The [`Entry`] of one cast, found on first use.
+struct LazyEntry<'a> {
+    cell: &'a OnceLock<Entry>,
+    bvh: &'a Bvh,
+    origins: &'a [Point3<f64>],
+    dirs: &'a [Vector3<f64>],
+    ranges: &'a [RayRange],
+}
+
+impl LazyEntry<'_> {
+    fn get(&self) -> &Entry {
+        self.cell
+            .get_or_init(|| Entry::new(self.bvh, self.origins, self.dirs, self.ranges))
+    }
 }
 
 impl Entry {
