@@ -31,3 +31,5 @@ pub mod mesh;
 pub mod progress;
 pub mod scene;
 pub mod sim;
+#[cfg(test)]
+mod test_rng;

@@ -1272,13 +1272,7 @@ mod tests {
     /// A small SPD compliance (m/N) like a patch of surface vertices:
     /// strong positive coupling between neighbours.
     fn patch(n: usize, seed: u64) -> Vec<f64> {
-        let mut x = seed;
-        let mut next = || {
-            x = x
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (x >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut next = crate::test_rng::unit(seed);
         let pts: Vec<(f64, f64)> = (0..n).map(|_| (next(), next())).collect();
         let mut w = vec![0.0; n * n];
         for i in 0..n {

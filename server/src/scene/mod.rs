@@ -463,6 +463,9 @@ pub enum ContactLaw {
 }
 
 impl ContactLaw {
+    /// All laws.
+    pub const ALL: [ContactLaw; 3] = [Self::Frictionless, Self::Coulomb, Self::Paper];
+
     /// The scene-file name.
     pub fn name(self) -> &'static str {
         match self {

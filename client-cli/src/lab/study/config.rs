@@ -51,6 +51,9 @@ pub enum Support {
 }
 
 impl Support {
+    /// All supports, in the order the study's tables list them.
+    pub const ALL: [Support; 3] = [Self::Foundation, Self::SkullSurface, Self::Stem];
+
     /// Name as in the table.
     pub fn name(self) -> &'static str {
         match self {

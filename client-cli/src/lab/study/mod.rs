@@ -348,12 +348,8 @@ impl Plan {
             ];
             // Contact rule x support: every law under every support (the
             // baseline is frictionless on the foundation).
-            for support in [Support::Foundation, Support::SkullSurface, Support::Stem] {
-                for law in [
-                    ContactLaw::Frictionless,
-                    ContactLaw::Coulomb,
-                    ContactLaw::Paper,
-                ] {
+            for support in Support::ALL {
+                for law in ContactLaw::ALL {
                     if support == Support::Foundation && law == ContactLaw::Frictionless {
                         continue;
                     }

@@ -451,12 +451,8 @@ mod tests {
         use super::super::config::Support;
         use fissure_engine::scene::ContactLaw;
         let plan = Plan::new(false);
-        for support in [Support::Foundation, Support::SkullSurface, Support::Stem] {
-            for law in [
-                ContactLaw::Frictionless,
-                ContactLaw::Coulomb,
-                ContactLaw::Paper,
-            ] {
+        for support in Support::ALL {
+            for law in ContactLaw::ALL {
                 let runs: Vec<_> = plan
                     .grid
                     .iter()

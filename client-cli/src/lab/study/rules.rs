@@ -53,20 +53,9 @@ fn twin_key(c: &Config) -> Config {
     }
 }
 
-fn support_order(s: Support) -> usize {
-    match s {
-        Support::Foundation => 0,
-        Support::SkullSurface => 1,
-        Support::Stem => 2,
-    }
-}
-
-fn law_order(l: ContactLaw) -> usize {
-    match l {
-        ContactLaw::Frictionless => 0,
-        ContactLaw::Coulomb => 1,
-        ContactLaw::Paper => 2,
-    }
+/// Where `x` stands in `all` (the tables' order).
+fn order<T: PartialEq>(all: &[T], x: &T) -> usize {
+    all.iter().position(|a| a == x).unwrap_or(all.len())
 }
 
 /// The rows of every grid run that has a frictionless twin with another
@@ -103,8 +92,8 @@ pub fn evaluate(runs: &[(&RunResult, &Row)]) -> Vec<RuleRow> {
             Some(compare::compare(twin, &region, run))
         };
         out.push((
-            support_order(c.support),
-            law_order(c.contact_law),
+            order(&Support::ALL, &c.support),
+            order(&ContactLaw::ALL, &c.contact_law),
             RuleRow {
                 label: c.label.clone(),
                 support: c.support.name(),

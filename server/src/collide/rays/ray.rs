@@ -447,13 +447,7 @@ mod tests {
             p(-0.1, 0.9, 0.1),
         ];
         let tris = [[0, 1, 2], [0, 2, 3]];
-        let mut k = 0u64;
-        let mut rnd = || {
-            k = k
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (k >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rnd = crate::test_rng::unit(0);
         for _ in 0..2000 {
             let s = rnd();
             let target = q[0] + (q[2] - q[0]) * s;

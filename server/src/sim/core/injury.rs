@@ -602,13 +602,9 @@ mod tests {
 
     /// Numbers uniform in [-1, 1) from `seed` (a linear congruential
     /// generator: reproducible, nothing to install).
-    fn uniform(mut seed: u64) -> impl FnMut() -> f64 {
-        move || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
-        }
+    fn uniform(seed: u64) -> impl FnMut() -> f64 {
+        let mut unit = crate::test_rng::unit(seed);
+        move || unit() * 2.0 - 1.0
     }
 
     /// The closed form equals nalgebra's symmetric eigen-solver, on

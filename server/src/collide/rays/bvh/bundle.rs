@@ -691,13 +691,7 @@ mod tests {
     /// and vertices), and stands aside for thin projections.
     #[test]
     fn edge_filter_keeps_every_hit() {
-        let mut k = 7u64;
-        let mut rnd = || {
-            k = k
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (k >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rnd = crate::test_rng::unit(7);
         let dir = Vector3::new(0.3, -0.2, 1.0).normalize();
         let a = dir.iamin();
         let e1 = dir.cross(&Vector3::ith(a, 1.0)).normalize();
