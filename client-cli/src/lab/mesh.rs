@@ -46,6 +46,12 @@ pub enum MeshCommand {
         /// paper-34k 6, paper-48k none).
         #[arg(long)]
         proven: bool,
+        /// A phantom preset's finest lattice spacing, mm, in place of its own
+        /// (paper-48k: 4; coarse: 12), within 2 to 12; the elements grow
+        /// about as the inverse cube of the spacing with --proven (paper-48k
+        /// proven at 3.2 mm: about twice 204k).
+        #[arg(long, value_name = "MM")]
+        spacing_mm: Option<f64>,
     },
     /// Mesh the inside of a closed triangle surface (.obj, .ply, .stl, or a
     /// .vtu of triangles) with tetrahedra (isosurface stuffing, uniform at the
@@ -173,6 +179,7 @@ pub fn run(cmd: MeshCommand) -> anyhow::Result<()> {
             size,
             cells,
             proven,
+            spacing_mm,
         } => {
             let generated = generate(
                 &preset,
@@ -181,6 +188,7 @@ pub fn run(cmd: MeshCommand) -> anyhow::Result<()> {
                     size_m: size,
                     cells,
                     proven,
+                    spacing_m: spacing_mm.map(|h| h * 1e-3),
                 },
             )?;
             if !generated.repair.is_empty() {
@@ -519,6 +527,8 @@ pub struct PresetOptions {
     /// Mesh a phantom preset with the proven mesher (surface at the fissure
     /// spacing everywhere, interior graded).
     pub proven: bool,
+    /// A phantom preset's finest lattice spacing, m, in place of its own.
+    pub spacing_m: Option<f64>,
 }
 
 /// The names [`preset_mesh`] knows.
@@ -547,8 +557,24 @@ pub fn preset_mesh_repaired(
     let block = |mesh| (mesh, BoundaryRepair::default());
     Ok(match name {
         "coarse" | "paper-34k" | "paper-48k" => {
-            let p = fissure_engine::mesh::phantom::preset_meshed(name, cube.proven)?;
+            if let Some(h) = cube.spacing_m {
+                use fissure_engine::scene::{MAX_PHANTOM_SPACING_M, MIN_PHANTOM_SPACING_M};
+                if !(h.is_finite() && (MIN_PHANTOM_SPACING_M..=MAX_PHANTOM_SPACING_M).contains(&h))
+                {
+                    bail!(
+                        "--spacing-mm must be within {} to {} mm, got {}",
+                        MIN_PHANTOM_SPACING_M * 1e3,
+                        MAX_PHANTOM_SPACING_M * 1e3,
+                        h * 1e3
+                    );
+                }
+            }
+            let p =
+                fissure_engine::mesh::phantom::preset_meshed(name, cube.proven, cube.spacing_m)?;
             (p.mesh, p.repair)
+        }
+        _ if cube.spacing_m.is_some() && PRESETS.contains(&name) => {
+            bail!("--spacing-mm applies to the phantom presets, not '{name}'")
         }
         "cube" => {
             if !(cube.size_m > 0.0 && cube.size_m.is_finite()) || cube.cells == 0 {
@@ -1014,6 +1040,7 @@ mod tests {
             size_m: 0.05,
             cells: 8,
             proven,
+            spacing_m: None,
         };
         let proven = generate("coarse", &vtu, &opts(true)).unwrap().mesh;
         let plain = preset_mesh("coarse", &opts(false)).unwrap();
@@ -1042,6 +1069,7 @@ mod tests {
                 size_m: 0.05,
                 cells: 8,
                 proven: false,
+                spacing_m: None,
             },
         )
         .unwrap();
@@ -1144,10 +1172,25 @@ mod tests {
                     size_m: 0.05,
                     cells: 2,
                     proven: false,
+                    spacing_m: None,
                 }
             )
             .is_err()
         );
+        // A spacing outside its range, or on a block, names the flag.
+        for (name, h) in [("coarse", 0.0005), ("coarse", f64::NAN), ("cube", 0.004)] {
+            let e = preset_mesh(
+                name,
+                &PresetOptions {
+                    size_m: 0.05,
+                    cells: 2,
+                    proven: false,
+                    spacing_m: Some(h),
+                },
+            )
+            .unwrap_err();
+            assert!(e.to_string().contains("--spacing-mm"), "{name} {h}: {e}");
+        }
     }
 
     /// A .vtu of triangles only (what `fissure watch` writes) is a surface:
@@ -1290,6 +1333,7 @@ mod tests {
             size_m: 0.05,
             cells: 8,
             proven: false,
+            spacing_m: None,
         };
         let Generated { mesh, repair, .. } = generate("paper-34k", &vtu, &opts).unwrap();
         assert_eq!(
@@ -1316,6 +1360,7 @@ mod tests {
             size_m: 0.05,
             cells: 4,
             proven: false,
+            spacing_m: None,
         };
         let stl = dir.path().join("cube.stl");
         let g = generate("cube", &stl, &opts).unwrap();

@@ -332,16 +332,30 @@ pub fn preset_params(name: &str) -> Result<PhantomParams, PhantomError> {
 
 /// The phantom of a named preset (see [`PRESETS`]).
 pub fn preset(name: &str) -> Result<Phantom, PhantomError> {
-    preset_meshed(name, false)
+    preset_meshed(name, false, None)
 }
 
 /// The phantom of a named preset, meshed by the proven mesher when `proven`
-/// (see [`PhantomParams::proven`]).
-pub fn preset_meshed(name: &str, proven: bool) -> Result<Phantom, PhantomError> {
-    generate_with(&PhantomParams {
+/// (see [`PhantomParams::proven`]), at the finest lattice spacing
+/// `spacing_m` (m) when given: the preset's spacing and surface size scale
+/// by the same factor, so the grading keeps its shape.
+pub fn preset_meshed(
+    name: &str,
+    proven: bool,
+    spacing_m: Option<f64>,
+) -> Result<Phantom, PhantomError> {
+    let mut params = PhantomParams {
         proven,
         ..preset_params(name)?
-    })
+    };
+    if let Some(h) = spacing_m {
+        // A non-positive or non-finite spacing is refused by
+        // `generate_with`, which names it.
+        let scale = h / params.spacing;
+        params.spacing = h;
+        params.surface_size *= scale;
+    }
+    generate_with(&params)
 }
 
 /// Generates the phantom with custom parameters.

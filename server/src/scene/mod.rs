@@ -167,6 +167,11 @@ pub struct FoundationSpec {
     pub open: Vec<Region>,
 }
 
+/// The finest phantom lattice spacing a scene may ask for, m.
+pub const MIN_PHANTOM_SPACING_M: f64 = 0.002;
+/// The coarsest phantom lattice spacing a scene may ask for, m.
+pub const MAX_PHANTOM_SPACING_M: f64 = 0.012;
+
 /// Which brain model to build.
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
@@ -191,6 +196,15 @@ pub enum ModelSpec {
         /// bounds; 3 to 4 times the elements). Default false.
         #[serde(default)]
         proven: bool,
+        /// Finest lattice spacing, m, in place of the preset's (with
+        /// `proven`, the spacing of the whole surface): refines or coarsens
+        /// the preset's mesh while keeping its shape, fissures and grading
+        /// (`paper-48k`: 4 mm; the element count grows about as
+        /// `spacing^-3` with `proven`). Must resolve the fissures: a
+        /// spacing above the fissure gap is refused or gives a mesh whose
+        /// fissure walls touch. Default: the preset's.
+        #[serde(default)]
+        spacing_m: Option<f64>,
     },
     /// A tetrahedral mesh file (MSH, VTK/VTU, TetGen), relative to the scene
     /// file. Its boundary must be a closed manifold, and it must be at most
@@ -881,6 +895,22 @@ impl Scene {
                 ));
             }
         }
+        if let ModelSpec::Phantom {
+            spacing_m: Some(h), ..
+        } = &self.model
+        {
+            // The lattice must resolve a 3 mm fissure (the mesher's own
+            // bound) and stay within memory: 2 mm with the proven mesher is
+            // about 1.6 million tetrahedra.
+            if !(h.is_finite() && (MIN_PHANTOM_SPACING_M..=MAX_PHANTOM_SPACING_M).contains(h)) {
+                return Err(bad(
+                    "model.spacing_m".into(),
+                    format!(
+                        "must be within {MIN_PHANTOM_SPACING_M} to {MAX_PHANTOM_SPACING_M} m, got {h}"
+                    ),
+                ));
+            }
+        }
         let materials = std::iter::once((
             "material".to_string(),
             &self.material.youngs_modulus_pa,
@@ -1332,7 +1362,8 @@ mod tests {
             scene.model,
             ModelSpec::Phantom {
                 preset: "coarse".into(),
-                proven: true
+                proven: true,
+                spacing_m: None,
             }
         );
         let model = crate::sim::core::engine::Model::build(&scene).unwrap();
@@ -1344,6 +1375,42 @@ mod tests {
         );
         let plain = crate::mesh::phantom::preset("coarse").unwrap().mesh;
         assert_ne!(model.mesh.tets.len(), plain.tets.len());
+    }
+
+    /// A finer spacing refines the preset's mesh (more elements, smaller
+    /// mean element) and keeps it a valid phantom; a spacing outside the
+    /// allowed range is refused, naming the field and the bound.
+    #[test]
+    fn a_phantom_spacing_refines_the_mesh_and_out_of_range_ones_are_refused() {
+        let text = include_str!("../../scenes/sylvian.toml");
+        let with = |extra: &str| {
+            text.replace(
+                "preset = \"paper-48k\"",
+                &format!("preset = \"coarse\"\n{extra}"),
+            )
+        };
+        let plain = Scene::parse(&with(""), "p.toml").unwrap();
+        let fine = Scene::parse(&with("spacing_m = 0.009"), "p.toml").unwrap();
+        assert!(matches!(
+            fine.model,
+            ModelSpec::Phantom {
+                spacing_m: Some(h),
+                ..
+            } if h == 0.009
+        ));
+        let plain = crate::sim::core::engine::Model::build(&plain).unwrap();
+        let fine = crate::sim::core::engine::Model::build(&fine).unwrap();
+        assert!(
+            fine.mesh.tets.len() > 2 * plain.mesh.tets.len(),
+            "{} against {}",
+            fine.mesh.tets.len(),
+            plain.mesh.tets.len()
+        );
+        for bad in ["0.001", "0.05", "-0.004", "nan"] {
+            let e = Scene::parse(&with(&format!("spacing_m = {bad}")), "p.toml").unwrap_err();
+            let msg = e.to_string();
+            assert!(msg.contains("model.spacing_m"), "{bad}: {msg}");
+        }
     }
 
     #[test]
@@ -1640,6 +1707,7 @@ mod tests {
             coarse.model = ModelSpec::Phantom {
                 preset: "coarse".into(),
                 proven: false,
+                spacing_m: None,
             };
             let model = crate::sim::core::engine::Model::build(&coarse).unwrap();
             let springs = model.foundation.as_ref().unwrap();

@@ -115,6 +115,10 @@ pub struct Config {
     /// level).
     #[serde(default)]
     pub proven: bool,
+    /// The phantom's finest lattice spacing, m, in place of the preset's
+    /// (`scene.model.spacing_m`); `None`: the preset's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub spacing_m: Option<f64>,
 }
 
 fn ser_element<S: serde::Serializer>(e: &Element, ser: S) -> Result<S::Ok, S::Error> {
@@ -166,6 +170,7 @@ impl Config {
             element: Element::Tet4,
             support: Support::Stem,
             proven: false,
+            spacing_m: None,
         }
         .labelled()
     }
@@ -173,12 +178,18 @@ impl Config {
     /// Sets the label from the fields (only the ones that differ from the
     /// baseline's material and speed are named).
     pub fn labelled(mut self) -> Self {
-        let preset = match (self.preset.as_str(), self.proven) {
-            ("paper-48k", false) => "48k".to_string(),
-            ("paper-48k", true) => "204k".to_string(),
-            ("paper-34k", false) => "34k".to_string(),
-            (other, false) => other.to_string(),
-            (other, true) => format!("{other}-proven"),
+        let preset = match (self.preset.as_str(), self.proven, self.spacing_m) {
+            ("paper-48k", false, None) => "48k".to_string(),
+            ("paper-48k", true, None) => "204k".to_string(),
+            ("paper-34k", false, None) => "34k".to_string(),
+            (other, false, None) => other.to_string(),
+            (other, true, None) => format!("{other}-proven"),
+            (other, proven, Some(h)) => format!(
+                "{}{}-{:.1}mm",
+                other.trim_start_matches("paper-"),
+                if proven { "-proven" } else { "" },
+                h * 1e3
+            ),
         };
         let strategy = self.strategy.kind().label;
         let mut l = format!("{preset}/{strategy}");
@@ -251,6 +262,7 @@ impl Config {
         scene.model = fissure_engine::scene::ModelSpec::Phantom {
             preset: self.preset.clone(),
             proven: self.proven,
+            spacing_m: self.spacing_m,
         };
         scene.material.youngs_modulus_pa = self.youngs_pa;
         scene.material.poisson_ratio = self.nu;
@@ -310,6 +322,7 @@ mod tests {
         let map = json.as_object_mut().expect("an object");
         map.remove("support");
         map.remove("proven");
+        map.remove("spacing_m");
         let back: Config = serde_json::from_value(json).expect("reads without the new fields");
         assert_eq!(back, Config::baseline());
     }

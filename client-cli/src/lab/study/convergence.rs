@@ -1,7 +1,8 @@
 //! Mesh convergence of the reference: the reference physics (frictionless
 //! contact, the scene's elastic foundation, the `tet4-nodal-pressure`
-//! element) on successively finer meshes, coarsest first: paper-34k,
-//! paper-48k and the 204k level (paper-48k meshed by the proven mesher).
+//! element) on successively finer meshes, coarsest first ([`LEVELS`]):
+//! paper-34k, paper-48k, then paper-48k meshed by the proven mesher at a
+//! 5 mm, 4 mm (the 204k level, the study's reference) and 3.2 mm spacing.
 //!
 //! The material law is linear elasticity, solved by `compliance` (the
 //! supported stiffness factored once, the contact condensed exactly onto
@@ -21,15 +22,16 @@
 //! The criterion: the final net force changes by under
 //! [`FORCE_CRITERION_PCT`] between the last two levels, on both spatulas.
 //!
-//! **Element size.** The levels are not one mesh family refined by a
-//! fixed ratio (they differ in grading and mesher), so each level's size is
-//! the one number they share: `h = (V / n)^(1/3)`, the edge of the cube of a
+//! **Element size.** The levels are not all one mesh family refined by a
+//! fixed ratio (the first two differ in grading and mesher from the
+//! proven ones), so each level's size is the one number they share: `h = (V / n)^(1/3)`, the edge of the cube of a
 //! tetrahedron's mean volume, with `V` the volume enclosed by the rest
 //! surface ([`enclosed_volume`], divergence theorem: `V = sum over
 //! triangles (a . (b x c)) / 6`) and `n` the tetrahedron count.
 //!
-//! **Richardson extrapolation** ([`richardson`]). With `F(h) = F_inf + C
-//! h^p` and three levels `h0 > h1 > h2`, the order solves
+//! **Richardson extrapolation** ([`richardson`]) over the last three
+//! levels (the proven family). With `F(h) = F_inf + C h^p` and three levels
+//! `h0 > h1 > h2`, the order solves
 //! `(F0 - F1) / (F1 - F2) = (h0^p - h1^p) / (h1^p - h2^p)` (bisection: the
 //! right side increases with `p` from `ln(h0/h1) / ln(h1/h2)` at `p -> 0`);
 //! then `C = (F1 - F2) / (h1^p - h2^p)` and `F_inf = F2 - C h2^p`. When the
@@ -80,25 +82,42 @@ pub fn reference_physics(c: &mut Config) {
     c.support = Support::Foundation;
 }
 
-/// The convergence levels of the full study around `base`, coarsest first:
-/// paper-34k, paper-48k, and paper-48k meshed by the proven mesher (the
-/// 204k level).
+/// The mesh of each convergence level, coarsest first: (preset, proven
+/// mesher, finest lattice spacing in m or the preset's). paper-34k and
+/// paper-48k are the product's graded meshes; then one family of the
+/// proven mesher (the whole surface at the spacing, the interior graded
+/// alike) at 5, 4 and 3.2 mm, refined by a fixed ratio of 1.25, over which
+/// Richardson's order is meaningful. The 4 mm level is the 204k one.
+pub const LEVELS: [(&str, bool, Option<f64>); 5] = [
+    ("paper-34k", false, None),
+    ("paper-48k", false, None),
+    ("paper-48k", true, Some(0.005)),
+    ("paper-48k", true, None),
+    ("paper-48k", true, Some(0.0032)),
+];
+
+/// The index in [`LEVELS`] of the study's reference, the 204k level: the
+/// grid and the incompressibility sweep run against it, and the finer
+/// level after it measures how far from converged it is (a grid against
+/// the finest level would cost about four times its reference run, and the
+/// sweep's seven runs as much again).
+pub const REFERENCE_LEVEL: usize = 3;
+
+/// The convergence levels of the full study around `base`, coarsest first
+/// ([`LEVELS`]).
 pub fn levels(base: &Config) -> Vec<Config> {
-    [
-        ("paper-34k", false),
-        ("paper-48k", false),
-        ("paper-48k", true),
-    ]
-    .into_iter()
-    .map(|(preset, proven)| {
-        let mut c = base.clone();
-        reference_physics(&mut c);
-        c.preset = preset.into();
-        c.proven = proven;
-        c.sweep = "convergence".into();
-        c.labelled()
-    })
-    .collect()
+    LEVELS
+        .into_iter()
+        .map(|(preset, proven, spacing_m)| {
+            let mut c = base.clone();
+            reference_physics(&mut c);
+            c.preset = preset.into();
+            c.proven = proven;
+            c.spacing_m = spacing_m;
+            c.sweep = "convergence".into();
+            c.labelled()
+        })
+        .collect()
 }
 
 /// Characteristic element size `h = (V / n)^(1/3)`, m, of `tets`
@@ -451,11 +470,25 @@ mod tests {
             [
                 "34k/lin/n150/np/foundation",
                 "48k/lin/n150/np/foundation",
-                "204k/lin/n150/np/foundation"
+                "48k-proven-5.0mm/lin/n150/np/foundation",
+                "204k/lin/n150/np/foundation",
+                "48k-proven-3.2mm/lin/n150/np/foundation",
             ]
         );
-        let scene = levels[2].scene().expect("the 204k level's scene");
+        assert_eq!(labels[REFERENCE_LEVEL], "204k/lin/n150/np/foundation");
+        let scene = levels[REFERENCE_LEVEL]
+            .scene()
+            .expect("the 204k level's scene");
         assert!(scene.foundation.is_some());
+        let finest = levels[4].scene().expect("the finest level's scene");
+        assert!(matches!(
+            finest.model,
+            fissure_engine::scene::ModelSpec::Phantom {
+                proven: true,
+                spacing_m: Some(h),
+                ..
+            } if h == 0.0032
+        ));
         assert!(Config::baseline().scene().unwrap().foundation.is_none());
     }
 }

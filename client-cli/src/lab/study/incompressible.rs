@@ -1,8 +1,8 @@
-//! Poisson's ratio towards incompressibility on the finest mesh, with both
-//! elements: the reference physics ([`convergence::reference_physics`]:
+//! Poisson's ratio towards incompressibility on the reference's mesh, with
+//! both elements: the reference physics ([`convergence::reference_physics`]:
 //! frictionless contact, the scene's foundation, linear elasticity) on the
-//! 204k level at `nu` in [`NUS`], with `tet4` and with
-//! `tet4-nodal-pressure`.
+//! 204k level ([`convergence::REFERENCE_LEVEL`]) at `nu` in [`NUS`], with
+//! `tet4` and with `tet4-nodal-pressure`.
 //!
 //! The measure is the stiffening ratio `R(nu) = F(nu) / F(0.45)`, with `F`
 //! the sum of both spatulas' net force magnitudes at the last step. Linear
@@ -10,12 +10,12 @@
 //! bulk modulus); the nodal-pressure element does not.
 //!
 //! **The converged nearly incompressible answer** is `R(0.4999)` of the
-//! nodal-pressure element in the mesh limit: its values on the three
-//! convergence levels (paper-34k, paper-48k, 204k) extrapolated by
-//! [`convergence::richardson`] over the levels' element sizes; when the
-//! levels are not in the asymptotic range, the finest level's value stands
-//! for it (and the report says so). The target: the 204k level's
-//! nodal-pressure `R(0.4999)` within [`TOLERANCE_PCT`] of it.
+//! nodal-pressure element in the mesh limit: its values on every
+//! convergence level, the last three extrapolated by
+//! [`convergence::richardson`] over the levels' element sizes; when they
+//! are not in the asymptotic range, the finest level's value stands for it
+//! (and the report says so). The target: the sweep level's nodal-pressure
+//! `R(0.4999)` within [`TOLERANCE_PCT`] of it.
 
 use super::config::Config;
 use super::convergence::{self, Richardson};
@@ -27,16 +27,16 @@ use serde::Serialize;
 pub const NUS: [f64; 4] = [0.45, 0.49, 0.499, 0.4999];
 /// The nearly incompressible value.
 pub const NU_LIMIT: f64 = 0.4999;
-/// Largest deviation of the finest level's nodal-pressure `R(0.4999)` from
+/// Largest deviation of the sweep level's nodal-pressure `R(0.4999)` from
 /// the converged answer, %.
 pub const TOLERANCE_PCT: f64 = 10.0;
 
 /// The runs of the sweep that the convergence levels (`levels`, coarsest
 /// first, nodal-pressure at 0.45) do not already hold: both elements at
-/// every `nu` on the finest level, and the nodal-pressure element at
-/// [`NU_LIMIT`] on the coarser ones.
-pub fn configs(levels: &[Config]) -> Vec<Config> {
-    let Some(finest) = levels.last() else {
+/// every `nu` on the sweep level `levels[at]`, and the nodal-pressure
+/// element at [`NU_LIMIT`] on the others.
+pub fn configs(levels: &[Config], at: usize) -> Vec<Config> {
+    let Some(level) = levels.get(at) else {
         return Vec::new();
     };
     let with = |c: &Config, element: Element, nu: f64| {
@@ -50,17 +50,19 @@ pub fn configs(levels: &[Config]) -> Vec<Config> {
     for element in [Element::Tet4, Element::Tet4NodalPressure] {
         for nu in NUS {
             if !(element == Element::Tet4NodalPressure && nu == 0.45) {
-                out.push(with(finest, element, nu));
+                out.push(with(level, element, nu));
             }
         }
     }
-    for c in &levels[..levels.len() - 1] {
-        out.push(with(c, Element::Tet4NodalPressure, NU_LIMIT));
+    for (i, c) in levels.iter().enumerate() {
+        if i != at {
+            out.push(with(c, Element::Tet4NodalPressure, NU_LIMIT));
+        }
     }
     out
 }
 
-/// One element's values on the finest level.
+/// One element's values on the sweep level.
 #[derive(Debug, Clone, Serialize)]
 pub struct ElementSweep {
     /// The element.
@@ -79,19 +81,20 @@ pub struct ElementSweep {
 pub struct Incompressible {
     /// [`NUS`].
     pub nus: Vec<f64>,
-    /// The finest level's label at `nu` = 0.45 with the nodal-pressure element.
-    pub finest: String,
-    /// `tet4`, then `tet4-nodal-pressure`, on the finest level.
+    /// The sweep level's label at `nu` = 0.45 with the nodal-pressure
+    /// element.
+    pub level: String,
+    /// `tet4`, then `tet4-nodal-pressure`, on the sweep level.
     pub elements: Vec<ElementSweep>,
     /// The nodal-pressure `R(0.4999)` per convergence level (coarsest
     /// first): label, element size (mm), ratio.
     pub limit_by_level: Vec<(String, f64, f64)>,
-    /// Its Richardson estimate over the levels (three levels).
+    /// Its Richardson estimate over the last three levels.
     pub richardson: Option<Richardson>,
     /// The converged answer: the Richardson limit, or the finest level's
     /// value when the levels are not in the asymptotic range.
     pub converged_ratio: Option<f64>,
-    /// Deviation of each element's finest-level `R(0.4999)` from it, %
+    /// Deviation of each element's sweep-level `R(0.4999)` from it, %
     /// (`tet4`, `tet4-nodal-pressure`).
     pub deviation_pct: [Option<f64>; 2],
     /// [`TOLERANCE_PCT`].
@@ -105,13 +108,13 @@ fn total_force_n(r: &RunResult) -> f64 {
 }
 
 fn same_level(a: &Config, b: &Config) -> bool {
-    a.preset == b.preset && a.proven == b.proven
+    a.preset == b.preset && a.proven == b.proven && a.spacing_m == b.spacing_m
 }
 
-/// Evaluates the sweep from the convergence levels' runs (coarsest first)
-/// and the sweep's own runs.
-pub fn evaluate(levels: &[&RunResult], runs: &[&RunResult]) -> Option<Incompressible> {
-    let finest = levels.last()?;
+/// Evaluates the sweep on the level `at` (its configuration) from the
+/// convergence levels' runs (coarsest first) and the sweep's own runs.
+pub fn evaluate(levels: &[&RunResult], at: &Config, runs: &[&RunResult]) -> Option<Incompressible> {
+    let level = *levels.iter().find(|l| same_level(&l.config, at))?;
     let all: Vec<&RunResult> = levels.iter().chain(runs).copied().collect();
     let find = |level: &Config, element: Element, nu: f64| {
         all.iter()
@@ -125,7 +128,7 @@ pub fn evaluate(levels: &[&RunResult], runs: &[&RunResult]) -> Option<Incompress
         .map(|element| {
             let rs: Vec<Option<&RunResult>> = NUS
                 .iter()
-                .map(|&nu| find(&finest.config, element, nu))
+                .map(|&nu| find(&level.config, element, nu))
                 .collect();
             let force_n: Vec<Option<f64>> = rs.iter().map(|r| r.map(total_force_n)).collect();
             let ratio = force_n
@@ -169,7 +172,7 @@ pub fn evaluate(levels: &[&RunResult], runs: &[&RunResult]) -> Option<Incompress
     });
     Some(Incompressible {
         nus: NUS.to_vec(),
-        finest: finest.config.label.clone(),
+        level: level.config.label.clone(),
         met: deviation_pct[1].is_some_and(|d| d <= TOLERANCE_PCT),
         elements,
         limit_by_level,
@@ -187,9 +190,10 @@ mod tests {
     #[test]
     fn the_sweep_adds_only_the_runs_the_levels_lack() {
         let levels = convergence::levels(&Config::baseline());
-        let runs = configs(&levels);
-        // 4 nu with tet4 and 3 with nodal pressure on 204k, 2 coarser limits.
-        assert_eq!(runs.len(), 9);
+        let runs = configs(&levels, convergence::REFERENCE_LEVEL);
+        // 4 nu with tet4 and 3 with nodal pressure on 204k, and the limit
+        // on the 4 other levels.
+        assert_eq!(runs.len(), 11);
         for c in &runs {
             assert!(!levels.contains(c), "{} duplicates a level", c.label);
             assert_eq!(runs.iter().filter(|o| o.label == c.label).count(), 1);

@@ -116,11 +116,15 @@ pub fn merge(dir: &Path, out: &Path, allow_missing: bool) -> Result<StudyResult,
         }
     }
     let planned = Plan::new(plan.quick);
-    // The reference closes the levels when it is the finest of them.
-    if planned.reference_closes_convergence() && !levels.is_empty() {
-        if let Some(r) = reference {
-            levels.push(&r.result);
-        }
+    // The reference takes its place among the levels when it is one of
+    // them: after the levels that are coarser (planned before it).
+    if let (Some(at), Some(r), false) = (planned.reference_level(), reference, levels.is_empty()) {
+        let coarser = planned.convergence[..at].to_vec();
+        let place = levels
+            .iter()
+            .take_while(|l| coarser.iter().any(|c| c.label == l.config.label))
+            .count();
+        levels.insert(place, &r.result);
     }
     let (stability, checks) = stability::evaluate(&planned.stability, stab);
     let pairs: Vec<_> = grid_runs.into_iter().zip(&grid).collect();
@@ -133,7 +137,12 @@ pub fn merge(dir: &Path, out: &Path, allow_missing: bool) -> Result<StudyResult,
         checks,
         convergence: (levels.len() >= 2).then(|| convergence::evaluate(&levels)),
         incompressible: (!nu_runs.is_empty())
-            .then(|| incompressible::evaluate(&levels, &nu_runs))
+            .then(|| {
+                let at = planned
+                    .reference_level()
+                    .map_or(&planned.reference, |i| &planned.convergence[i]);
+                incompressible::evaluate(&levels, at, &nu_runs)
+            })
             .flatten(),
         total_s,
         window_s: plan.window_s,

@@ -13,15 +13,16 @@
 //!   `neo-hookean`, held at the stem: the engine builds them without the
 //!   foundation only) and tolerance, nodes a face, region of interest, ray
 //!   backend, threads. Every run is compared with the **reference**, the
-//!   finest convergence level below ([`compare`]).
+//!   204k convergence level below ([`compare`]).
 //! * **Convergence of the reference** ([`convergence`]): the reference
 //!   physics of the product's scene (frictionless contact, the elastic
 //!   foundation, the `tet4-nodal-pressure` element, linear elasticity) on
-//!   paper-34k, paper-48k and the 204k level (paper-48k, proven mesher):
-//!   force and displacement changes between levels and a Richardson
-//!   estimate (the finest level is the grid's reference, run once); and
-//!   Poisson's ratio towards incompressibility on the 204k
-//!   level with both elements ([`incompressible`]). The full study plans
+//!   paper-34k, paper-48k and paper-48k meshed by the proven mesher at 5,
+//!   4 (the 204k level) and 3.2 mm: force and displacement changes between
+//!   levels and a Richardson estimate over the proven family (the 204k
+//!   level is the grid's reference, run once; the finer level measures how
+//!   converged it is); and Poisson's ratio towards incompressibility on the
+//!   204k level with both elements ([`incompressible`]). The full study plans
 //!   them (`--convergence-only`: only them); the quick one does not.
 //! * **Stability**: Poisson's ratio, Young's modulus and spatula speed swept
 //!   to their extremes ([`stability`]); each run reports whether it stayed
@@ -267,8 +268,8 @@ pub struct Plan {
     /// The reference physics on successively finer meshes, coarsest first
     /// ([`convergence`]).
     pub convergence: Vec<Config>,
-    /// Poisson's ratio towards incompressibility on the finest level, both
-    /// elements ([`incompressible`]).
+    /// Poisson's ratio towards incompressibility on the reference's level,
+    /// both elements ([`incompressible`]).
     pub incompressible: Vec<Config>,
 }
 
@@ -335,10 +336,10 @@ impl Plan {
                     sweep,
                 )
             };
-            // The finest convergence level is the reference, run once.
+            // The 204k convergence level is the reference, run once.
             let reference = Config {
                 sweep: "reference".into(),
-                ..levels[levels.len() - 1].clone()
+                ..levels[convergence::REFERENCE_LEVEL].clone()
             };
             let mut grid = vec![
                 v(&|_| {}, "baseline"),
@@ -395,17 +396,17 @@ impl Plan {
                 rate_hz: 200.0,
                 dt_s: 0.05,
                 stability: stability::Sweep::full(),
-                incompressible: incompressible::configs(&levels),
+                incompressible: incompressible::configs(&levels, convergence::REFERENCE_LEVEL),
                 convergence: levels,
             }
         }
     }
 
-    /// Whether the reference is the finest convergence level (the full
-    /// study): it is then run once, as the reference, and closes the
-    /// convergence's levels.
-    pub fn reference_closes_convergence(&self) -> bool {
-        self.convergence.last().is_some_and(|l| {
+    /// The convergence level the reference is (the full study's 204k
+    /// level), if any: it is then run once, as the reference, and takes
+    /// its place among the levels.
+    pub fn reference_level(&self) -> Option<usize> {
+        self.convergence.iter().position(|l| {
             Config {
                 sweep: self.reference.sweep.clone(),
                 ..l.clone()
@@ -435,7 +436,7 @@ pub struct StudyResult {
     /// Convergence of the reference over the mesh levels (two levels at
     /// least).
     pub convergence: Option<convergence::Convergence>,
-    /// Poisson's ratio towards incompressibility on the finest level.
+    /// Poisson's ratio towards incompressibility on the reference's level.
     pub incompressible: Option<incompressible::Incompressible>,
     /// Wall time of the runs, s (their sum, wherever they ran).
     pub total_s: f64,

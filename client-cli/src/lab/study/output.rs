@@ -478,8 +478,8 @@ fn convergence_markdown(md: &mut String, c: &Convergence) {
 fn incompressible_markdown(md: &mut String, n: &Incompressible) {
     let _ = writeln!(
         md,
-        "### Towards incompressibility on the finest level ({})\n",
-        n.finest
+        "### Towards incompressibility on the reference's level ({})\n",
+        n.level
     );
     let _ = writeln!(
         md,
@@ -518,11 +518,11 @@ fn incompressible_markdown(md: &mut String, n: &Incompressible) {
         if matches!(r, Richardson::NotAsymptotic { .. }) {
             text.push_str(": the finest level's value stands for the limit");
         }
-        let _ = writeln!(md, "- Richardson over the levels: {text}");
+        let _ = writeln!(md, "- Richardson over the last three levels: {text}");
     }
     let _ = writeln!(
         md,
-        "- converged nearly incompressible R: {}; the finest level's R deviates by {} (tet4) and {} (nodal pressure)",
+        "- converged nearly incompressible R: {}; the sweep level's R deviates by {} (tet4) and {} (nodal pressure)",
         f(n.converged_ratio, 4),
         n.deviation_pct[0].map_or("-".into(), |d| format!("{d:.1}%")),
         n.deviation_pct[1].map_or("-".into(), |d| format!("{d:.1}%")),

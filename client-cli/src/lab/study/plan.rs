@@ -108,12 +108,12 @@ pub struct PlanOptions {
     #[arg(long)]
     pub no_stability: bool,
     /// Skip the convergence of the reference over the mesh levels and the
-    /// incompressibility sweep on the finest level.
+    /// incompressibility sweep on the reference's level.
     #[arg(long)]
     pub no_convergence: bool,
     /// Only the convergence of the reference over the mesh levels and the
-    /// incompressibility sweep on the finest level (no grid, no stability
-    /// sweep).
+    /// incompressibility sweep on the reference's level (no grid, no
+    /// stability sweep).
     #[arg(long, conflicts_with = "no_convergence")]
     pub convergence_only: bool,
 }
@@ -144,10 +144,10 @@ impl StudyPlan {
         let mut runs: Vec<(Role, Config, ScenarioSpec, bool)> = Vec::new();
         let grid = !options.no_grid && !options.convergence_only;
         let convergence = !options.no_convergence && !plan.convergence.is_empty();
-        // The full study's reference is its finest convergence level: one
+        // The full study's reference is one of its convergence levels: one
         // run serves both.
-        let shared = plan.reference_closes_convergence();
-        if grid || (convergence && shared) {
+        let shared = plan.reference_level();
+        if grid || (convergence && shared.is_some()) {
             runs.push((Role::Reference, plan.reference.clone(), grid_spec, true));
         }
         if grid {
@@ -158,11 +158,12 @@ impl StudyPlan {
             );
         }
         if convergence {
-            let coarser = plan.convergence.len() - usize::from(shared);
             runs.extend(
-                plan.convergence[..coarser]
+                plan.convergence
                     .iter()
-                    .map(|c| (Role::Convergence, c.clone(), grid_spec, true)),
+                    .enumerate()
+                    .filter(|(i, _)| Some(*i) != shared)
+                    .map(|(_, c)| (Role::Convergence, c.clone(), grid_spec, true)),
             );
             runs.extend(
                 plan.incompressible
@@ -397,9 +398,10 @@ mod tests {
     }
 
     #[test]
-    fn the_full_reference_is_the_finest_level_planned_once_whatever_part_is_asked() {
+    fn the_full_reference_is_the_204k_level_planned_once_whatever_part_is_asked() {
         let levels = Plan::new(false).convergence;
-        let finest = levels.last().expect("levels").clone();
+        let finest = levels[super::super::convergence::REFERENCE_LEVEL].clone();
+        assert!(finest.label.starts_with("204k/"), "{}", finest.label);
         let count =
             |plan: &StudyPlan, role: Role| plan.runs.iter().filter(|r| r.role == role).count();
         for (options, grid) in [
@@ -418,7 +420,7 @@ mod tests {
             let reference = &plan.runs[0].config;
             assert_eq!(reference.label, finest.label);
             assert_eq!(reference.sweep, "reference");
-            // The finest level is not planned again as a level.
+            // The reference's level is not planned again as a level.
             assert_eq!(count(&plan, Role::Convergence), levels.len() - 1);
             assert!(
                 plan.runs

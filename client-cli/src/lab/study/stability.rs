@@ -59,6 +59,9 @@ pub struct StrategySweep {
     /// The phantom preset of these runs when not the sweep's (the
     /// nodal-pressure reference runs on [`REFERENCE_PRESET`]).
     pub preset: Option<String>,
+    /// Mesh the preset with the proven mesher (the finest mesh's extremes:
+    /// paper-48k proven is the study's 204k reference level).
+    pub proven: bool,
     /// Poisson's ratios (0.45 is the nominal run).
     pub nus: Vec<f64>,
     /// Young's moduli, Pa (3 kPa is the nominal run).
@@ -74,6 +77,7 @@ impl StrategySweep {
             strategy: Strategy::Compliance,
             element,
             preset: None,
+            proven: false,
             nus: Vec::new(),
             youngs_pa: Vec::new(),
             speeds_mps: Vec::new(),
@@ -90,11 +94,27 @@ impl StrategySweep {
         }
     }
 
+    /// Young's modulus and speed at their extremes on the finest mesh the
+    /// study runs (the 204k reference level, paper-48k meshed by the proven
+    /// mesher) with the nodal-pressure element: a softer brain deforms its
+    /// smallest elements most, a fast spatula crosses several of them
+    /// between two samples.
+    pub fn finest_mesh_extremes() -> Self {
+        Self {
+            preset: Some(REFERENCE_PRESET.into()),
+            proven: true,
+            youngs_pa: vec![100.0, 1e6],
+            speeds_mps: vec![1.0],
+            ..Self::linear(Element::Tet4NodalPressure)
+        }
+    }
+
     /// Whether `r` is one of its runs.
-    fn owns(&self, sweep_preset: &str, r: &Row) -> bool {
-        r.config.strategy == self.strategy
-            && r.config.element == self.element
-            && r.config.preset == self.preset.as_deref().unwrap_or(sweep_preset)
+    fn owns(&self, sweep_preset: &str, c: &Config) -> bool {
+        c.strategy == self.strategy
+            && c.element == self.element
+            && c.preset == self.preset.as_deref().unwrap_or(sweep_preset)
+            && c.proven == self.proven
     }
 
     /// Its name in the checks.
@@ -105,6 +125,9 @@ impl StrategySweep {
         }
         if let Some(p) = &self.preset {
             n.push_str(&format!(" on {p}"));
+        }
+        if self.proven {
+            n.push_str(" proven (204k)");
         }
         n
     }
@@ -133,7 +156,9 @@ impl Sweep {
     /// solvers' and the collision's behaviour at the extremes, which the
     /// coarse mesh shows at a fraction of the cost): linear `compliance`
     /// over every value, `corotational` over the extremes, `neo-hookean`
-    /// over the hardest ones (it costs about a second a step).
+    /// over the hardest ones (it costs about a second a step); and the
+    /// extremes of E and speed on the finest mesh
+    /// ([`StrategySweep::finest_mesh_extremes`]).
     pub fn full() -> Self {
         Self {
             preset: "coarse".into(),
@@ -152,6 +177,7 @@ impl Sweep {
                     ..StrategySweep::linear(Element::Tet4NodalPressure)
                 },
                 StrategySweep::nearly_incompressible_reference(),
+                StrategySweep::finest_mesh_extremes(),
                 StrategySweep {
                     strategy: Strategy::Corotational,
                     nus: vec![0.3, 0.499],
@@ -204,6 +230,7 @@ impl Sweep {
         Config {
             sweep: "stability".into(),
             preset: ss.preset.clone().unwrap_or_else(|| self.preset.clone()),
+            proven: ss.proven,
             strategy: ss.strategy,
             element: ss.element,
             nodes_per_face: self.nodes_per_face,
@@ -317,10 +344,13 @@ pub fn evaluate(sweep: &Sweep, runs: Vec<Row>) -> (Vec<StabilityRow>, Vec<Check>
     let reference = sweep
         .strategies
         .iter()
-        .find(|ss| ss.element == Element::Tet4NodalPressure && ss.preset.is_some());
+        .find(|ss| ss.element == Element::Tet4NodalPressure && ss.preset.is_some() && !ss.proven);
     let reference_ratio = |nu: f64| -> Option<f64> {
         let ss = reference?;
-        let mine: Vec<&Row> = runs.iter().filter(|r| ss.owns(&sweep.preset, r)).collect();
+        let mine: Vec<&Row> = runs
+            .iter()
+            .filter(|r| ss.owns(&sweep.preset, &r.config))
+            .collect();
         let f0 = mine.iter().find(|r| r.config.sweep == "nominal")?;
         let f = mine
             .iter()
@@ -329,7 +359,7 @@ pub fn evaluate(sweep: &Sweep, runs: Vec<Row>) -> (Vec<StabilityRow>, Vec<Check>
     };
     for ss in &sweep.strategies {
         let s = ss.strategy;
-        let owned = |r: &Row| ss.owns(&sweep.preset, r);
+        let owned = |r: &Row| ss.owns(&sweep.preset, &r.config);
         let mine: Vec<&Row> = runs.iter().filter(|r| owned(r)).collect();
         let Some(nominal) = mine.iter().find(|r| r.config.sweep == "nominal") else {
             continue;
@@ -465,4 +495,44 @@ pub fn evaluate(sweep: &Sweep, runs: Vec<Row>) -> (Vec<StabilityRow>, Vec<Check>
             .join(", "),
     });
     (rows, checks)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The finest mesh's extremes run on the study's 204k level with the
+    /// nodal-pressure element, held at the stem (so the force is linear in
+    /// E), and no other strategy's sweep claims their runs, nor theirs the
+    /// nearly incompressible reference's on the graded paper-48k.
+    #[test]
+    fn the_finest_mesh_extremes_run_on_the_204k_level_and_own_only_their_runs() {
+        let sweep = Sweep::full();
+        let runs = sweep.configs(0.05).expect("the sweep's runs");
+        let finest = StrategySweep::finest_mesh_extremes();
+        let mine: Vec<&Config> = runs.iter().map(|(c, _)| c).filter(|c| c.proven).collect();
+        // Nominal, two moduli, one speed.
+        assert_eq!(
+            mine.len(),
+            4,
+            "{:?}",
+            mine.iter().map(|c| &c.label).collect::<Vec<_>>()
+        );
+        for c in &mine {
+            assert!(c.label.starts_with("204k/"), "{}", c.label);
+            assert_eq!(c.element, Element::Tet4NodalPressure);
+            assert_eq!(c.support, super::super::config::Support::Stem);
+            c.scene().expect("a valid scene");
+        }
+        for (c, _) in &runs {
+            let claims: Vec<String> = sweep
+                .strategies
+                .iter()
+                .filter(|ss| ss.owns(&sweep.preset, c))
+                .map(StrategySweep::name)
+                .collect();
+            assert_eq!(claims.len(), 1, "{}: {claims:?}", c.label);
+            assert_eq!(finest.owns(&sweep.preset, c), c.proven, "{}", c.label);
+        }
+    }
 }

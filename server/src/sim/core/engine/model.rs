@@ -100,8 +100,12 @@ impl Model {
             ModelSpec::Cube { size_m, cells } => crate::mesh::blocks::cube(*size_m, *cells),
             ModelSpec::VValley => crate::mesh::blocks::v_valley(),
             ModelSpec::UValley => crate::mesh::blocks::u_valley(),
-            ModelSpec::Phantom { preset, proven } => {
-                let p = crate::mesh::phantom::preset_meshed(preset, *proven)?;
+            ModelSpec::Phantom {
+                preset,
+                proven,
+                spacing_m,
+            } => {
+                let p = crate::mesh::phantom::preset_meshed(preset, *proven, *spacing_m)?;
                 landmarks = Some(p.landmarks);
                 p.mesh
             }
