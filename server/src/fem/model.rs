@@ -230,9 +230,7 @@ impl Model {
         }
         self.pattern = match &self.pressure {
             None => Pattern::with_pairs(self.n_nodes(), &self.tets, pairs),
-            Some(p) => {
-                Pattern::with_groups_and_pairs(self.n_nodes(), &self.tets, p.stars(), pairs)
-            }
+            Some(p) => Pattern::with_groups_and_pairs(self.n_nodes(), &self.tets, p.stars(), pairs),
         };
         Ok(())
     }

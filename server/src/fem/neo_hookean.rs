@@ -737,12 +737,11 @@ mod tests {
                 let mut kv = vec![0.0; v.len()];
                 s.model.pattern.sym_matvec(&s.values, &v, &mut kv);
                 let h = 1e-5;
-                let (up, um): (Vec<f64>, Vec<f64>) = s
-                    .u
-                    .iter()
-                    .zip(&v)
-                    .map(|(u, v)| (u + h * v, u - h * v))
-                    .unzip();
+                let (up, um): (Vec<f64>, Vec<f64>) =
+                    s.u.iter()
+                        .zip(&v)
+                        .map(|(u, v)| (u + h * v, u - h * v))
+                        .unzip();
                 let (fp, fm) = (force(&mut s, &up), force(&mut s, &um));
                 let scale = kv.iter().fold(0.0f64, |m, x| m.max(x.abs()));
                 for i in 0..v.len() {
@@ -771,7 +770,10 @@ mod tests {
             s.assemble(true).unwrap();
             let scale = tangent.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             for (a, b) in tangent.iter().zip(&s.values) {
-                assert!((a - b).abs() < 1e-10 * scale, "nodal {nodal}: {a:e} vs {b:e}");
+                assert!(
+                    (a - b).abs() < 1e-10 * scale,
+                    "nodal {nodal}: {a:e} vs {b:e}"
+                );
             }
         }
     }
@@ -802,8 +804,8 @@ mod tests {
             .into_iter()
             .map(|node| {
                 let p = mesh.nodes[node as usize];
-                let s = (std::f64::consts::PI * p.x / l).sin()
-                    * (std::f64::consts::PI * p.y / l).sin();
+                let s =
+                    (std::f64::consts::PI * p.x / l).sin() * (std::f64::consts::PI * p.y / l).sin();
                 Prescribed {
                     node,
                     displacement: Vector3::new(0.0, 0.0, -d * s),
@@ -835,15 +837,17 @@ mod tests {
 
     /// Linearization consistency of the nonlinear nodal-pressure element:
     /// its energy linearizes to the linear element's, so at a strain of
-    /// 1e-6 `neo-hookean` meets `compliance` with the same element (alone
-    /// and with a foundation on the sides) to O(strain) relative; the bound
-    /// 1e-4 leaves a hundredfold margin and is far below the gap between
-    /// the two elements (tet4 is several times stiffer at nu = 0.4999).
+    /// 1e-5 `neo-hookean` meets `compliance` with the same element (alone
+    /// and with a foundation on the sides) to O(strain) relative (measured:
+    /// 3e-6 at nu = 0.45, 8e-5 at 0.4999, tenfold at a tenfold strain);
+    /// the bound 1e-3 leaves a twelvefold margin at least and is
+    /// far below the gap between the two elements (tet4 is several times
+    /// stiffer at nu = 0.4999) or a wrong bulk modulus on the nodes.
     #[test]
     fn at_small_load_nodal_pressure_meets_the_linear_element() {
         let l = 0.02;
         let mesh = cube(l, 3);
-        let d = 2e-8;
+        let d = 2e-7;
         for nu in [0.45, 0.4999] {
             for k in [None, Some(1e5)] {
                 let e = Element::Tet4NodalPressure;
@@ -854,9 +858,14 @@ mod tests {
                     .iter()
                     .zip(&lin)
                     .fold(0.0f64, |m, (a, b)| m.max((a - b).norm()));
-                assert!(du < 1e-4 * scale, "nu {nu}, k {k:?}: {du:e} of {scale:e}");
+                eprintln!(
+                    "nu {nu}, k {k:?}: displacement {:.2e}, force {:.2e} relative",
+                    du / scale,
+                    (f - f_lin).abs() / f_lin.abs()
+                );
+                assert!(du < 1e-3 * scale, "nu {nu}, k {k:?}: {du:e} of {scale:e}");
                 assert!(
-                    (f - f_lin).abs() < 1e-4 * f_lin.abs(),
+                    (f - f_lin).abs() < 1e-3 * f_lin.abs(),
                     "nu {nu}, k {k:?}: {f} N vs {f_lin} N"
                 );
             }
@@ -895,15 +904,18 @@ mod tests {
 
     /// The patch test: a uniform press on symmetry rollers is a uniform
     /// strain, which the nodal-pressure element represents exactly (every
-    /// `J_a` equals the elements' `J`), so at a strain of 1e-6 neo-Hookean
-    /// with it needs `E A d / L` and moves the sides by `nu d x / L`, to
-    /// O(strain) relative (bound 1e-5), at any Poisson's ratio.
+    /// `J_a` equals the elements' `J`), so the nonlinear solution is
+    /// homogeneous, `u = (a x, a y, -d z / L)`, to the solver's tolerance
+    /// (checked to 1e-8 of `d`), at any Poisson's ratio; at a strain of
+    /// 1e-5 it needs `E A d / L` and the sides move by `a = nu d / L`, to
+    /// O(strain) relative (bound 1e-4). The test is purely relative
+    /// (`floor_strain = 0`): the forces here are 1e-7 N.
     #[test]
     fn a_uniform_press_gives_e_a_d_over_l_with_nodal_pressure() {
         use crate::fem::{AxisSupport, Constraint, ConstraintKind};
         let l = 0.02;
         let mesh = cube(l, 2);
-        let delta = 2e-8;
+        let delta = 2e-7;
         let mut axis = Vec::new();
         for (i, p) in mesh.nodes.iter().enumerate() {
             for a in 0..3 {
@@ -933,23 +945,32 @@ mod tests {
             let opts = SolverOptions {
                 axis_supports: axis.clone(),
                 element: Element::Tet4NodalPressure,
-                iterative: IterativeOptions::reference(),
+                iterative: IterativeOptions {
+                    floor_strain: 0.0,
+                    ..IterativeOptions::reference()
+                },
                 ..SolverOptions::default()
             };
             let mut s = build_solver(Strategy::NeoHookean, &mesh, mat, &[], &opts).unwrap();
             let sol = s.solve_constraints(&cons).unwrap();
+            // The lateral stretch, from the sides' largest displacement.
+            let a = sol.displacements.iter().fold(0.0f64, |m, u| m.max(u.x)) / l;
             for (p, u) in mesh.nodes.iter().zip(&sol.displacements) {
-                let exact =
-                    Vector3::new(nu * delta * p.x / l, nu * delta * p.y / l, -delta * p.z / l);
+                let homogeneous = Vector3::new(a * p.x, a * p.y, -delta * p.z / l);
                 assert!(
-                    (u - exact).norm() < 1e-5 * delta,
-                    "nu {nu} at {p}: {u} vs {exact}"
+                    (u - homogeneous).norm() < 1e-8 * delta,
+                    "nu {nu} at {p}: {u} vs {homogeneous}"
                 );
             }
+            assert!(
+                (a - nu * delta / l).abs() < 1e-4 * delta / l,
+                "nu {nu}: {a} vs {}",
+                nu * delta / l
+            );
             let fz: f64 = sol.reactions.iter().map(|r| r.z).sum();
             let exact = -mat.youngs_modulus_pa * delta * l;
             assert!(
-                (fz - exact).abs() < 1e-5 * exact.abs(),
+                (fz - exact).abs() < 1e-4 * exact.abs(),
                 "nu {nu}: {fz} vs {exact}"
             );
         }

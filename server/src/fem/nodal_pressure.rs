@@ -451,8 +451,8 @@ impl NodalVolumes {
                 f.row(1).transpose(),
                 f.row(2).transpose(),
             );
-            let cof = Matrix3::from_columns(&[r1.cross(&r2), r2.cross(&r0), r0.cross(&r1)])
-                .transpose();
+            let cof =
+                Matrix3::from_columns(&[r1.cross(&r2), r2.cross(&r0), r0.cross(&r1)]).transpose();
             self.jm1_element[e] = jm1;
             self.f_element[e] = f;
             self.grad_element[e] = g.grads.map(|gb| g.volume * (cof * gb));

@@ -169,8 +169,7 @@ impl TangentPatch {
                 .finish(&model.pattern, &this.zeros, &mut this.values, &mut this.rhs);
             true
         };
-        if !assemble(self, false) || self.factor.factorize(&model.pattern, &self.values).is_err()
-        {
+        if !assemble(self, false) || self.factor.factorize(&model.pattern, &self.values).is_err() {
             assemble(self, true);
             self.factor.factorize(&model.pattern, &self.values)?;
         }
