@@ -381,8 +381,8 @@ impl Strategy {
     }
 
     /// Whether its elasticity is linear (small strain about the rest
-    /// shape): its compliance is constant, so it can take an elastic
-    /// foundation folded into the stiffness once and a contact linearized
+    /// shape): its compliance is constant, so its stiffness (an elastic
+    /// foundation folded in) is factored once and its contact linearized
     /// about the rest shape.
     pub fn is_linear(self) -> bool {
         self.kind().linear

@@ -53,7 +53,8 @@ pub struct Model {
     pub length_m: f64,
     /// The volumetric part on the nodes, when the model uses the
     /// average-nodal-pressure element ([`Model::use_nodal_pressure`]); `kel`
-    /// is then the deviatoric part alone.
+    /// is then the deviatoric part alone (and `neo-hookean` gives its
+    /// elements `lambda = -2 mu / 3`, [`super::nodal_pressure::NodalVolumes`]).
     pub pressure: Option<NodalPressure>,
 }
 

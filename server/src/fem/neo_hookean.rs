@@ -627,8 +627,10 @@ mod tests {
     }
 
     /// The neo-Hookean strategy on `mesh` with no support (its energy is
-    /// all there is to check), the nodal-pressure element when asked, and a
-    /// foundation (1e6 Pa/m) on the faces whose centroid lies below 2 mm.
+    /// all there is to check), the nodal-pressure element when asked, a
+    /// foundation (1e6 Pa/m) on the faces whose centroid lies below 2 mm
+    /// and a stretched tie across the cube (0.1 N/m, rest length 90 % of
+    /// the distance of its nodes, coupled in the pattern beside the stars).
     fn strategy(mesh: &TetMesh, nu: f64, nodal: bool) -> NeoHookean {
         let material = Material {
             youngs_modulus_pa: 3000.0,
@@ -648,7 +650,22 @@ mod tests {
             },
         )
         .unwrap();
-        NeoHookean::new(model, IterativeOptions::reference()).unwrap()
+        let (a, b) = (0, mesh.nodes.len() as u32 - 1);
+        model.couple_pairs(&[[a, b]]).unwrap();
+        let mut s = NeoHookean::new(model, IterativeOptions::reference()).unwrap();
+        s.springs = TieSprings {
+            pairs: vec![(
+                0,
+                crate::fem::ties::TiePair {
+                    first_tie: 0,
+                    a,
+                    b,
+                    rest_length_m: 0.9 * (mesh.nodes[b as usize] - mesh.nodes[a as usize]).norm(),
+                    stiffness_n_per_m: 0.1,
+                },
+            )],
+        };
+        s
     }
 
     /// A large deformation of `mesh`: a rotation by 0.4 rad, a stretch of
@@ -681,7 +698,7 @@ mod tests {
     }
 
     /// The internal force is the gradient of the energy (tissue, nodal
-    /// part, foundation), checked by central differences of step `h` =
+    /// part, foundation, tie), checked by central differences of step `h` =
     /// 1e-8 m: their truncation error `h^2 W''' ~ 1e-16 N` and rounding
     /// `eps W / h ~ 1e-13 N` lie far below the bound, 1e-7 of the largest
     /// force (about 1e-3 N here).
@@ -720,7 +737,7 @@ mod tests {
     }
 
     /// The assembled tangent (elements, the nodal part's rank-one and
-    /// volume-Hessian terms, the foundation) is the derivative of the
+    /// volume-Hessian terms, the foundation, the tie) is the derivative of the
     /// internal force: `K v` against `(f(u + h v) - f(u - h v)) / 2h` for
     /// random directions `v` (|v| ~ 1 mm, h = 1e-5: a move of 10 nm,
     /// truncation ~1e-10 relative), to 1e-6 of `|K v|`.
@@ -759,7 +776,8 @@ mod tests {
     /// At rest the tangent is the rest stiffness, the fallback of a
     /// tangent that is not positive definite: `kel` (deviatoric with the
     /// nodal-pressure element, the foundation's springs in it) plus the
-    /// linear nodal part `K_vol`, counted once each.
+    /// linear nodal part `K_vol`, counted once each (and the tie's tangent
+    /// in both).
     #[test]
     fn at_rest_the_tangent_is_the_rest_stiffness() {
         for nodal in [false, true] {

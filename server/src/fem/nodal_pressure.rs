@@ -1,6 +1,7 @@
-//! The average-nodal-pressure tetrahedron (Bonet and Burton 1998), linear
-//! version: a locking-free option for nearly incompressible tissue on the
-//! same 4-node mesh. SI units (m, Pa, N).
+//! The average-nodal-pressure tetrahedron (Bonet and Burton 1998): a
+//! locking-free option for nearly incompressible tissue on the same 4-node
+//! mesh, in a linear version ([`NodalPressure`], the linear strategies) and
+//! a neo-Hookean one ([`NodalVolumes`], `neo-hookean`). SI units (m, Pa, N).
 //!
 //! The strain energy of linear elasticity splits into a deviatoric and a
 //! volumetric part,
@@ -26,6 +27,10 @@
 //! the nodes leaves one constraint per node. A uniform strain gives
 //! `theta_a = tr(eps)` at every node, so the patch test holds and a uniform
 //! press still gives `E A d / L`.
+//!
+//! The nonlinear version replaces `theta_a` by the logarithm of the nodal
+//! volume ratio, `ln J_a` (its energy, gradient and tangent are stated at
+//! [`NodalVolumes`]); it linearizes to the linear version.
 //!
 //! Written here, not taken from a crate: no Rust FEM crate offers the
 //! element on a caller's assembly, and the operator is a few lines over the
