@@ -106,11 +106,15 @@ impl TangentPatch {
             this.values.fill(0.0);
             this.rhs.fill(0.0);
             for (e, t) in model.tets.iter().enumerate() {
+                let tangent;
                 let ke = if rest {
-                    model.kel[e]
+                    &model.kel[e]
                 } else {
                     match k(e) {
-                        Some(ke) => ke,
+                        Some(ke) => {
+                            tangent = ke;
+                            &tangent
+                        }
                         None => return false,
                     }
                 };
@@ -118,7 +122,7 @@ impl TangentPatch {
                     &model.pattern,
                     e,
                     t,
-                    &ke,
+                    ke,
                     &this.zeros,
                     &mut this.values,
                     &mut this.rhs,
