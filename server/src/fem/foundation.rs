@@ -556,13 +556,18 @@ mod tests {
     /// 10 % press with a drag (bottom fixed, a stiff foundation on the four
     /// sides, which bulge into it), the patch's reactions at a press moved
     /// by `delta` against a full solve there, relative to the largest full
-    /// reaction.
-    fn patch_error_on_foundation(strategy: Strategy, delta: f64) -> f64 {
+    /// reaction; with the element `element` and Poisson's ratio `nu`.
+    fn patch_error_on_foundation(
+        strategy: Strategy,
+        element: crate::fem::Element,
+        nu: f64,
+        delta: f64,
+    ) -> f64 {
         let l = 0.02;
         let mesh = crate::mesh::blocks::cube(l, 4);
         let material = Material {
             youngs_modulus_pa: 3000.0,
-            poisson_ratio: 0.45,
+            poisson_ratio: nu,
         };
         let fixed: Vec<u32> = (0..mesh.nodes.len() as u32)
             .filter(|&n| mesh.nodes[n as usize].z < 1e-12)
@@ -584,6 +589,7 @@ mod tests {
                 faces: sides,
             }),
             iterative: IterativeOptions::reference(),
+            element,
             ..SolverOptions::default()
         };
         let press = |d: Vector3<f64>| -> Vec<Prescribed> {
@@ -619,23 +625,27 @@ mod tests {
     /// The tangent patch holds the foundation: the neo-Hookean patch is the
     /// first-order expansion of the full solve (halving the move quarters
     /// its error; without the springs in the tangent the error would only
-    /// halve), the corotational one (frozen rotations) predicts to first
-    /// order.
+    /// halve), with tet4 and with the nodal-pressure element (whose nodal
+    /// part the tangent holds too, checked at nu = 0.49 where it dominates);
+    /// the corotational one (frozen rotations) predicts to first order.
     #[test]
     fn the_tangent_patch_holds_the_foundation() {
+        use crate::fem::Element;
+        for (element, nu) in [(Element::Tet4, 0.45), (Element::Tet4NodalPressure, 0.49)] {
+            let (e1, e2) = (
+                patch_error_on_foundation(Strategy::NeoHookean, element, nu, 2e-4),
+                patch_error_on_foundation(Strategy::NeoHookean, element, nu, 1e-4),
+            );
+            eprintln!("neo-hookean {element:?}: error {e1:.3e} at 0.2 mm, {e2:.3e} at 0.1 mm");
+            assert!(
+                e1 / e2 > 3.2 && e1 / e2 < 5.0,
+                "neo-Hookean {element:?}: {e1:e} / {e2:e}"
+            );
+            assert!(e1 < 1e-2, "{element:?}: {e1}");
+        }
         let (e1, e2) = (
-            patch_error_on_foundation(Strategy::NeoHookean, 2e-4),
-            patch_error_on_foundation(Strategy::NeoHookean, 1e-4),
-        );
-        eprintln!("neo-hookean: error {e1:.3e} at 0.2 mm, {e2:.3e} at 0.1 mm");
-        assert!(
-            e1 / e2 > 3.2 && e1 / e2 < 5.0,
-            "neo-Hookean {e1:e} / {e2:e}"
-        );
-        assert!(e1 < 1e-2, "{e1}");
-        let (e1, e2) = (
-            patch_error_on_foundation(Strategy::Corotational, 2e-4),
-            patch_error_on_foundation(Strategy::Corotational, 1e-4),
+            patch_error_on_foundation(Strategy::Corotational, Element::Tet4, 0.45, 2e-4),
+            patch_error_on_foundation(Strategy::Corotational, Element::Tet4, 0.45, 1e-4),
         );
         eprintln!("corotational: error {e1:.3e} at 0.2 mm, {e2:.3e} at 0.1 mm");
         assert!(e1 / e2 > 1.8, "corotational {e1:e} / {e2:e}");
