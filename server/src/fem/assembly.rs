@@ -116,7 +116,19 @@ impl Pattern {
     /// nodes `[a, b, a, b]`, so that its tangent goes through the element
     /// path (node bases, elimination) unchanged.
     pub fn with_pairs(n_nodes: usize, tets: &[[u32; 4]], pairs: &[[u32; 2]]) -> Self {
-        let mut pattern = Self::with_groups(n_nodes, tets, pairs.iter().map(|p| &p[..]));
+        Self::with_groups_and_pairs(n_nodes, tets, std::iter::empty(), pairs)
+    }
+
+    /// [`Pattern::with_groups`] and [`Pattern::with_pairs`] at once: the
+    /// stars of the nodal-pressure element and the ties' pairs.
+    pub fn with_groups_and_pairs<'a>(
+        n_nodes: usize,
+        tets: &[[u32; 4]],
+        groups: impl Iterator<Item = &'a [u32]>,
+        pairs: &'a [[u32; 2]],
+    ) -> Self {
+        let mut pattern =
+            Self::with_groups(n_nodes, tets, groups.chain(pairs.iter().map(|p| &p[..])));
         let extra: Vec<[u32; 78]> = pairs
             .iter()
             .map(|&[a, b]| pattern.scatter_of(&[a, b, a, b]))

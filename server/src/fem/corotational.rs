@@ -9,6 +9,12 @@
 //! constrained rest-state inverse (the `compliance` machinery: the supported
 //! factor plus the compliance block of the step's rows).
 //!
+//! An elastic foundation ([`super::foundation::FoundationSprings`], springs
+//! of fixed rest normals, not rotated with the elements) adds `K_f u` to the
+//! internal force and `K_f` to the tangent `K_R`; the rest-state inverse
+//! holds it already (`kel` does), so the preconditioner stays the inverse of
+//! the tangent at rest. The tie springs ([`TieSprings`]) enter the same way.
+//!
 //! Warm start: the last good state plus the linear response to the change
 //! of the enforced values (which meets them), so a small-rotation step
 //! converges in one or two outer iterations; and, when the step has the
@@ -221,7 +227,9 @@ impl Corotational {
     pub fn new(model: Model, opts: IterativeOptions) -> Result<Self, SolveError> {
         if model.pressure.is_some() {
             return Err(SolveError::InvalidModel(
-                "the nodal-pressure element is linear: strategy corotational takes tet4".into(),
+                "the nodal-pressure element has no corotational form: strategy corotational \
+                 takes tet4"
+                    .into(),
             ));
         }
         let n = model.pattern.n_dofs;
@@ -324,6 +332,7 @@ impl Corotational {
             Some((element, jacobian)) => Err(SolveError::Inverted { element, jacobian }),
             None => {
                 self.gather_map.gather(self.par, &self.elem, &mut self.f);
+                m.foundation.add_product(&m.tets, u, &mut self.f);
                 self.springs.add_forces(&m.rest, u, &mut self.f);
                 Ok(())
             }
@@ -348,6 +357,7 @@ impl Corotational {
             }
         });
         self.gather_map.gather(self.par, &self.elem, &mut self.q);
+        m.foundation.add_product(&m.tets, &self.p, &mut self.q);
         self.springs
             .add_product(&m.rest, &self.u, &self.p, &mut self.q);
     }
@@ -608,7 +618,13 @@ impl Corotational {
             m,
             |e| {
                 let r = rot[e];
+                // The element's own stiffness: the foundation's springs
+                // (in `kel` too) hold fixed normals and do not rotate; the
+                // refactor adds them unrotated.
                 let mut k = m.kel[e];
+                if let Some(kf) = m.foundation.matrix_of(e) {
+                    k -= kf;
+                }
                 for a in 0..4 {
                     for b in 0..4 {
                         let kab: Matrix3<f64> = k.fixed_view::<3, 3>(3 * a, 3 * b).into_owned();
@@ -619,6 +635,7 @@ impl Corotational {
                 Some(k)
             },
             &self.springs,
+            None,
             &self.u,
         );
         if refactored.is_err() {

@@ -237,8 +237,10 @@ pub fn neo_hookean_energy(h: &Matrix3<f64>, lambda: f64, mu: f64) -> Option<Ener
     let iso = hh - 2.0 * i2 - 2.0 * det + 2.0 * phi;
     Some(EnergyDensity {
         value: 0.5 * mu * iso + 0.5 * lambda * lj * lj,
+        // |lambda|: the deviatoric part of the nodal-pressure element takes
+        // a negative one (`-2 mu / 3`).
         magnitude: 0.5 * mu * (hh + 2.0 * i2.abs() + 2.0 * det.abs() + 2.0 * phi)
-            + 0.5 * lambda * lj * lj,
+            + 0.5 * lambda.abs() * lj * lj,
     })
 }
 

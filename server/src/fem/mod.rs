@@ -179,6 +179,11 @@ pub enum SolveError {
     /// An element inverted (non-positive volume in the deformed state).
     #[error("element {element} inverted (J = {jacobian:e})")]
     Inverted { element: usize, jacobian: f64 },
+    /// A node's volume inverted (non-positive `J_a`, the ratio of its
+    /// deformed to its rest nodal volume, under the nonlinear
+    /// average-nodal-pressure element, [`nodal_pressure::NodalVolumes`]).
+    #[error("the volume of node {node} inverted (J = {jacobian:e})")]
+    InvertedNode { node: usize, jacobian: f64 },
     /// The model cannot be built (material out of range, degenerate element).
     #[error("invalid model: {0}")]
     InvalidModel(String),
@@ -376,8 +381,8 @@ impl Strategy {
     }
 
     /// Whether its elasticity is linear (small strain about the rest
-    /// shape): its compliance is constant, so it can take an elastic
-    /// foundation folded into the stiffness once and a contact linearized
+    /// shape): its compliance is constant, so its stiffness (an elastic
+    /// foundation folded in) is factored once and its contact linearized
     /// about the rest shape.
     pub fn is_linear(self) -> bool {
         self.kind().linear
@@ -432,8 +437,10 @@ pub enum Element {
     Tet4,
     /// Linear tetrahedra with the volumetric strain averaged over each
     /// node's star ([`nodal_pressure`], Bonet and Burton 1998): locking-free
-    /// near incompressibility, a wider stiffness pattern. Linear strategies
-    /// (`direct`, `compliance`) only.
+    /// near incompressibility, a wider stiffness pattern. The linear
+    /// strategies (`direct`, `compliance`) take the linear element,
+    /// `neo-hookean` its nonlinear analogue (the nodal volume ratio,
+    /// [`nodal_pressure::NodalVolumes`]); `corotational` refuses it.
     Tet4NodalPressure,
 }
 
@@ -476,8 +483,10 @@ pub struct SolverOptions {
     /// in an active set over the surface nodes).
     pub skull: Option<skull::Skull>,
     /// An elastic foundation on the outer surface ([`foundation`]): its
-    /// springs are folded into the element matrices once. `direct` and
-    /// `compliance` only.
+    /// springs are folded into the element matrices once (the linear
+    /// strategies' stiffness) and kept apart for the nonlinear ones, which
+    /// add their force, tangent and energy to the tissue's
+    /// ([`model::Model::foundation`]). Every strategy takes it.
     pub foundation: Option<foundation::Foundation>,
     /// Parallelism of the per-element loops (`corotational`) and of the
     /// dense block factorization and recovery (`compliance`,
@@ -523,7 +532,9 @@ impl Default for SolverOptions {
 
 /// Builds a deformation solver for `mesh` (positions in m) with `material`,
 /// nodes `fixed` held in place, and the chosen `strategy`. Factorizations a
-/// strategy needs once per scene happen here.
+/// strategy needs once per scene happen here. Every strategy takes an
+/// elastic foundation ([`SolverOptions::foundation`]); the nodal-pressure
+/// element is refused with `corotational` only.
 pub fn build_solver(
     strategy: Strategy,
     mesh: &crate::mesh::TetMesh,
@@ -534,9 +545,13 @@ pub fn build_solver(
     let mut model = model::Model::new(mesh, material, fixed, &options.axis_supports)?;
     model.set_tissues(&mesh.labels, material, &options.tissues)?;
     if options.element == Element::Tet4NodalPressure {
-        if !strategy.is_linear() {
+        // The nodal-pressure element is written for energies the strategy
+        // evaluates itself (the linear stiffness, the neo-Hookean energy);
+        // the corotational force is a rotated linear stress per element,
+        // which has no nodal part.
+        if strategy == Strategy::Corotational {
             return Err(SolveError::InvalidModel(format!(
-                "element {} needs the direct or compliance strategy, not {}",
+                "element {} needs the direct, compliance or neo-hookean strategy, not {}",
                 options.element.name(),
                 strategy.name()
             )));
@@ -544,12 +559,6 @@ pub fn build_solver(
         model.use_nodal_pressure();
     }
     if let Some(f) = &options.foundation {
-        if !strategy.is_linear() {
-            return Err(SolveError::InvalidModel(format!(
-                "an elastic foundation needs the direct or compliance strategy, not {}",
-                strategy.name()
-            )));
-        }
         foundation::fold_into(&mut model, f)?;
     }
     if !strategy.is_linear() && !options.tie_pairs.is_empty() {

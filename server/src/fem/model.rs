@@ -3,6 +3,7 @@
 
 use super::assembly::Pattern;
 use super::element::{ElementMatrix, TetGeometry};
+use super::foundation::FoundationSprings;
 use super::nodal_pressure::NodalPressure;
 use super::{Material, SolveError, Tissue};
 use crate::mesh::TetMesh;
@@ -29,8 +30,13 @@ pub struct Model {
     pub geoms: Vec<TetGeometry>,
     /// Linear element stiffness per element, N/m (with the springs of an
     /// elastic foundation on its outer faces, once
-    /// [`super::foundation::fold_into`] has added them).
+    /// [`super::foundation::fold_into`] has added them): the rest stiffness.
     pub kel: Vec<ElementMatrix>,
+    /// The springs of an elastic foundation apart from `kel` (which holds
+    /// them too), for the nonlinear strategies, whose internal force and
+    /// tangent come from the stress and add these ([`super::foundation`]);
+    /// empty without a foundation.
+    pub foundation: FoundationSprings,
     /// Lamé parameters `[lambda, mu]` per element, Pa (one material, or
     /// each element its tissue's, [`Model::set_tissues`]).
     pub lame_pa: Vec<[f64; 2]>,
@@ -47,7 +53,8 @@ pub struct Model {
     pub length_m: f64,
     /// The volumetric part on the nodes, when the model uses the
     /// average-nodal-pressure element ([`Model::use_nodal_pressure`]); `kel`
-    /// is then the deviatoric part alone.
+    /// is then the deviatoric part alone (and `neo-hookean` gives its
+    /// elements `lambda = -2 mu / 3`, [`super::nodal_pressure::NodalVolumes`]).
     pub pressure: Option<NodalPressure>,
 }
 
@@ -120,6 +127,7 @@ impl Model {
             lame_pa: vec![[lambda, mu]; geoms.len()],
             geoms,
             kel,
+            foundation: FoundationSprings::default(),
             pattern,
             support,
             fixed: fixed.to_vec(),
@@ -209,14 +217,9 @@ impl Model {
     /// Couples each node pair of `pairs` in the pattern (pair `i` is the
     /// pseudo-element `tets.len() + i`, [`Pattern::with_pairs`]): the ties
     /// a nonlinear strategy holds as springs of its energy
-    /// ([`super::ties::TieSprings`]). Not with the nodal-pressure element
-    /// (a linear one; linear strategies take ties as contact rows).
+    /// ([`super::ties::TieSprings`]). With the nodal-pressure element the
+    /// pattern keeps the nodes' stars too.
     pub fn couple_pairs(&mut self, pairs: &[[u32; 2]]) -> Result<(), SolveError> {
-        if self.pressure.is_some() {
-            return Err(SolveError::InvalidModel(
-                "tie springs are for the nonlinear strategies, which take tet4".into(),
-            ));
-        }
         let n = self.n_nodes() as u32;
         if let Some(p) = pairs
             .iter()
@@ -226,7 +229,10 @@ impl Model {
                 "tie pair {p:?}: needs two distinct nodes below {n}"
             )));
         }
-        self.pattern = Pattern::with_pairs(self.n_nodes(), &self.tets, pairs);
+        self.pattern = match &self.pressure {
+            None => Pattern::with_pairs(self.n_nodes(), &self.tets, pairs),
+            Some(p) => Pattern::with_groups_and_pairs(self.n_nodes(), &self.tets, p.stars(), pairs),
+        };
         Ok(())
     }
 

@@ -1,6 +1,7 @@
-//! The average-nodal-pressure tetrahedron (Bonet and Burton 1998), linear
-//! version: a locking-free option for nearly incompressible tissue on the
-//! same 4-node mesh. SI units (m, Pa, N).
+//! The average-nodal-pressure tetrahedron (Bonet and Burton 1998): a
+//! locking-free option for nearly incompressible tissue on the same 4-node
+//! mesh, in a linear version ([`NodalPressure`], the linear strategies) and
+//! a neo-Hookean one ([`NodalVolumes`], `neo-hookean`). SI units (m, Pa, N).
 //!
 //! The strain energy of linear elasticity splits into a deviatoric and a
 //! volumetric part,
@@ -27,14 +28,21 @@
 //! `theta_a = tr(eps)` at every node, so the patch test holds and a uniform
 //! press still gives `E A d / L`.
 //!
+//! The nonlinear version replaces `theta_a` by the logarithm of the nodal
+//! volume ratio, `ln J_a` (its energy, gradient and tangent are stated at
+//! [`NodalVolumes`]); it linearizes to the linear version.
+//!
 //! Written here, not taken from a crate: no Rust FEM crate offers the
 //! element on a caller's assembly, and the operator is a few lines over the
 //! rest geometry the model already holds.
 
-use super::assembly::Pattern;
+// Negated comparisons are deliberate: NaN must fail the positivity checks.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
+use super::assembly::{Pattern, node_vec};
 use super::constraint::Frame;
-use super::element::TetGeometry;
-use nalgebra::Vector3;
+use super::element::{ElementMatrix, TetGeometry, det_minus_one};
+use nalgebra::{Matrix3, Vector3};
 
 /// The volumetric part of the average-nodal-pressure tetrahedron: per node
 /// its star, the weights `w_ab` and the nodal volume `V_a`.
@@ -53,6 +61,14 @@ pub struct NodalPressure {
     weights: Vec<Vector3<f64>>,
     /// `V_a`, m^3 (0 for a node in no element).
     volume_m3: Vec<f64>,
+    /// Per node, the range of the elements around it in `around` / `slots`.
+    around_start: Vec<usize>,
+    /// The elements around each node.
+    around: Vec<u32>,
+    /// Beside `around`: the position of each of the element's corners in the
+    /// node's star (an index into `nodes` / `weights`), so that the current
+    /// weights of the nonlinear part ([`NodalVolumes`]) need no search.
+    slots: Vec<[u32; 4]>,
 }
 
 impl NodalPressure {
@@ -84,6 +100,7 @@ impl NodalPressure {
         let mut volume_m3 = vec![0.0; n_nodes];
         let mut bulk_modulus_pa = vec![0.0; n_nodes];
         let mut scratch: Vec<(u32, Vector3<f64>)> = Vec::new();
+        let mut slots = Vec::with_capacity(around.len());
         start.push(0);
         for a in 0..n_nodes {
             scratch.clear();
@@ -115,6 +132,12 @@ impl NodalPressure {
             if va > 0.0 {
                 bulk_modulus_pa[a] = ka / va;
             }
+            let star = &nodes[start[a]..];
+            for &e in &around[count[a]..count[a + 1]] {
+                slots.push(tets[e as usize].map(|b| {
+                    (start[a] + star.binary_search(&b).expect("a corner is in the star")) as u32
+                }));
+            }
             start.push(nodes.len());
         }
         Self {
@@ -123,6 +146,9 @@ impl NodalPressure {
             nodes,
             weights,
             volume_m3,
+            around_start: count,
+            around,
+            slots,
         }
     }
 
@@ -220,9 +246,48 @@ impl NodalPressure {
         rhs: &mut [f64],
         scratch: &mut Vec<Vector3<f64>>,
     ) {
+        let out = Eliminated {
+            frame,
+            pattern,
+            lift,
+            values,
+            rhs,
+        };
+        self.scatter_into(out, scratch);
+    }
+
+    /// [`Self::scatter`] into `out`.
+    pub fn scatter_into(&self, out: Eliminated<'_>, scratch: &mut Vec<Vector3<f64>>) {
+        self.scatter_rank_one(
+            out,
+            &self.weights,
+            |a| self.bulk_modulus_pa[a] * self.volume_m3[a],
+            scratch,
+        );
+    }
+
+    /// Scatters `sum_a c_a w_a w_a^T` (N/m) as [`Self::scatter`] does
+    /// `K_vol`, for per-node coefficients `c_a = coef(a)` (J) and weights
+    /// `weights` (1/m, beside the stars' nodes, as [`Self::star`] gives
+    /// them): `K_vol` is `c_a = kappa_a V_a` with the rest weights.
+    fn scatter_rank_one(
+        &self,
+        out: Eliminated<'_>,
+        weights: &[Vector3<f64>],
+        coef: impl Fn(usize) -> f64,
+        scratch: &mut Vec<Vector3<f64>>,
+    ) {
+        let Eliminated {
+            frame,
+            pattern,
+            lift,
+            values,
+            rhs,
+        } = out;
         for a in 0..self.n_nodes() {
-            let (nodes, w) = self.star(a);
-            let c = self.bulk_modulus_pa[a] * self.volume_m3[a];
+            let r = self.start[a]..self.start[a + 1];
+            let (nodes, w) = (&self.nodes[r.clone()], &weights[r]);
+            let c = coef(a);
             scratch.clear();
             scratch.extend(nodes.iter().zip(w).map(|(&b, w)| {
                 if frame.rotated[b as usize] {
@@ -255,6 +320,250 @@ impl NodalPressure {
                 }
             }
         }
+    }
+}
+
+/// The eliminated system a scatter adds into ([`Frame::scatter`]): the
+/// frame, the pattern, the lift (node bases), the matrix values (lower
+/// triangle) and the right-hand side.
+pub struct Eliminated<'a> {
+    /// The step's frame (node bases, constrained DOFs).
+    pub frame: &'a Frame,
+    /// The stiffness pattern (holding the stars).
+    pub pattern: &'a Pattern,
+    /// The remaining gap to the enforced values, node bases, m.
+    pub lift: &'a [f64],
+    /// Values of the lower triangle of `pattern`, N/m.
+    pub values: &'a mut [f64],
+    /// Right-hand side, N.
+    pub rhs: &'a mut [f64],
+}
+
+/// The nonlinear volumetric part of the average-nodal-pressure element, for
+/// the compressible neo-Hookean model (`neo-hookean` with
+/// `tet4-nodal-pressure`), and the workspace that evaluates it.
+///
+/// **Energy.** The neo-Hookean density
+/// `psi = mu/2 (I1 - 3) - mu ln J + lambda/2 (ln J)^2` splits as the linear
+/// one does: each element keeps `psi` with `lambda` replaced by
+/// `lambda_dev = -2 mu / 3` (which linearizes to `mu dev(eps) : dev(eps)`
+/// exactly), and the volumetric part moves to the nodes,
+///
+/// `U = sum_a U_a`, `U_a = V_a kappa_a / 2 (ln J_a)^2`, `J_a = v_a / V_a`,
+///
+/// with `v_a = sum_{e ∋ a} v_e / 4` the current (deformed) nodal volume,
+/// `v_e = J_e V_e`, `V_a` the rest one and `kappa_a` the nodal bulk
+/// modulus of [`NodalPressure`]. At small strain `ln J_a = theta_a +
+/// O(eps^2)`, so `U` linearizes to the linear element's
+/// `kappa_a / 2 V_a theta_a^2` and the two elements agree at small load.
+///
+/// **Gradient.** `dU/dx = sum_a U_a' grad v_a`, `U_a' = dU_a / dv_a =
+/// kappa_a ln J_a / J_a` (Pa), and `grad_{x_b} v_e = V_e cof(F_e) g_b`
+/// (m^2, the cofactor `cof F = J F^-T`). Summed per element this is
+/// `f_b^e = p_e V_e cof(F_e) g_b`, `p_e` the mean of `U_a'` over the
+/// element's corners: a pressure force per element.
+///
+/// **Tangent.** `sum_a [U_a'' grad v_a grad v_a^T + U_a' hess v_a]`: the
+/// first term a rank-one matrix per node over its star, `c_a w_a w_a^T`
+/// with the current weights `w_ab = grad_{x_b} v_a / V_a` (1/m, the rest
+/// ones of [`NodalPressure`] at rest) and `c_a = V_a^2 U_a'' = V_a kappa_a
+/// (1 - ln J_a) / J_a^2` (J, `kappa_a V_a` at rest); the second per
+/// element, `p_e hess v_e`, with the Hessian of a tetrahedron's volume
+/// `d^2 v_e / dx_a dx_b = -V_e [F_e (g_a x g_b)]_x` (skew 3 x 3 blocks,
+/// `[c]_x` the cross-product matrix; zero at rest only through `p_e = 0`).
+///
+/// **Precision.** `J_a - 1 = sum_{e ∋ a} (V_e / 4) (J_e - 1) / V_a` from the
+/// cancellation-free `J_e - 1` ([`super::element::det_minus_one`]), and
+/// `ln J_a = ln_1p(J_a - 1)`: the nodal energy and force keep full relative
+/// precision at light load, as the element's do.
+///
+/// An element with `J_e <= 0` or a node with `J_a <= 0` is inverted.
+#[derive(Debug, Clone, Default)]
+pub struct NodalVolumes {
+    /// Per element, `J_e - 1`.
+    jm1_element: Vec<f64>,
+    /// Per element, `grad_{x_b} v_e = V_e cof(F_e) g_b` for its corners, m^2.
+    grad_element: Vec<[Vector3<f64>; 4]>,
+    /// Per element, `F_e = I + H_e`.
+    f_element: Vec<Matrix3<f64>>,
+    /// Per node, `J_a - 1`.
+    jm1: Vec<f64>,
+    /// Per node, `U_a' = kappa_a ln J_a / J_a`, Pa.
+    slope: Vec<f64>,
+    /// Per node, `c_a = V_a^2 U_a''`, J.
+    curvature: Vec<f64>,
+    /// The current weights `w_ab`, 1/m, beside the stars' nodes.
+    weights: Vec<Vector3<f64>>,
+}
+
+/// Where the nonlinear volumetric part failed: an element or a node
+/// inverted, with its `J`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Inversion {
+    /// Element `e` has `J_e <= 0`.
+    Element(usize, f64),
+    /// Node `a` has `J_a <= 0`.
+    Node(usize, f64),
+}
+
+impl From<Inversion> for super::SolveError {
+    fn from(i: Inversion) -> Self {
+        match i {
+            Inversion::Element(element, jacobian) => Self::Inverted { element, jacobian },
+            Inversion::Node(node, jacobian) => Self::InvertedNode { node, jacobian },
+        }
+    }
+}
+
+impl NodalVolumes {
+    /// A workspace for `p` on `n_elements` elements.
+    pub fn new(p: &NodalPressure, n_elements: usize) -> Self {
+        let n = p.n_nodes();
+        Self {
+            jm1_element: vec![0.0; n_elements],
+            grad_element: vec![[Vector3::zeros(); 4]; n_elements],
+            f_element: vec![Matrix3::identity(); n_elements],
+            jm1: vec![0.0; n],
+            slope: vec![0.0; n],
+            curvature: vec![0.0; n],
+            weights: vec![Vector3::zeros(); p.weights.len()],
+        }
+    }
+
+    /// Evaluates the nodal part of `p` on the elements `tets` (rest
+    /// geometry `geoms`) at displacement `u` (DOF vector, m): every
+    /// element's and node's `J`, the nodal slopes and curvatures and the
+    /// current weights. Fails on the first inverted element, then on the
+    /// first inverted node.
+    pub fn evaluate(
+        &mut self,
+        p: &NodalPressure,
+        tets: &[[u32; 4]],
+        geoms: &[TetGeometry],
+        u: &[f64],
+    ) -> Result<(), Inversion> {
+        for (e, (t, g)) in tets.iter().zip(geoms).enumerate() {
+            let h = g.displacement_gradient(&t.map(|n| node_vec(u, n as usize)));
+            let jm1 = det_minus_one(&h);
+            if !(jm1 > -1.0) {
+                return Err(Inversion::Element(e, 1.0 + jm1));
+            }
+            let f = Matrix3::identity() + h;
+            // cof F = [f1 x f2, f2 x f0, f0 x f1]^T by rows of F: the
+            // transpose of the column form for F^T.
+            let (r0, r1, r2) = (
+                f.row(0).transpose(),
+                f.row(1).transpose(),
+                f.row(2).transpose(),
+            );
+            let cof =
+                Matrix3::from_columns(&[r1.cross(&r2), r2.cross(&r0), r0.cross(&r1)]).transpose();
+            self.jm1_element[e] = jm1;
+            self.f_element[e] = f;
+            self.grad_element[e] = g.grads.map(|gb| g.volume * (cof * gb));
+        }
+        for a in 0..p.n_nodes() {
+            let va = p.volume_m3[a];
+            let r = p.around_start[a]..p.around_start[a + 1];
+            let w = &mut self.weights[p.start[a]..p.start[a + 1]];
+            w.fill(Vector3::zeros());
+            if !(va > 0.0) {
+                self.jm1[a] = 0.0;
+                self.slope[a] = 0.0;
+                self.curvature[a] = 0.0;
+                continue;
+            }
+            let mut jm1 = 0.0;
+            for (&e, slots) in p.around[r.clone()].iter().zip(&p.slots[r]) {
+                let e = e as usize;
+                let quarter = geoms[e].volume / 4.0;
+                jm1 += quarter * self.jm1_element[e];
+                for (k, &s) in slots.iter().enumerate() {
+                    w[s as usize - p.start[a]] += self.grad_element[e][k] * (0.25 / va);
+                }
+            }
+            let jm1 = jm1 / va;
+            if !(jm1 > -1.0) {
+                return Err(Inversion::Node(a, 1.0 + jm1));
+            }
+            let (j, lj, kappa) = (1.0 + jm1, jm1.ln_1p(), p.bulk_modulus_pa[a]);
+            self.jm1[a] = jm1;
+            self.slope[a] = kappa * lj / j;
+            self.curvature[a] = va * kappa * (1.0 - lj) / (j * j);
+        }
+        Ok(())
+    }
+
+    /// The nodal energy `sum_a V_a kappa_a / 2 (ln J_a)^2` (J, >= 0: its
+    /// own rounding magnitude) at the last [`Self::evaluate`].
+    pub fn energy(&self, p: &NodalPressure) -> f64 {
+        (0..p.n_nodes())
+            .map(|a| {
+                let lj = self.jm1[a].ln_1p();
+                0.5 * p.volume_m3[a] * p.bulk_modulus_pa[a] * lj * lj
+            })
+            .sum()
+    }
+
+    /// The mean nodal slope `p_e` (Pa) over the corners `t` of an element.
+    pub fn element_pressure(&self, t: &[u32; 4]) -> f64 {
+        0.25 * t.iter().map(|&a| self.slope[a as usize]).sum::<f64>()
+    }
+
+    /// The nodal part's force on element `e`'s corners `t`: `p_e grad v_e`
+    /// (N, each corner's), at the last [`Self::evaluate`].
+    pub fn element_forces(&self, e: usize, t: &[u32; 4]) -> [Vector3<f64>; 4] {
+        let pe = self.element_pressure(t);
+        self.grad_element[e].map(|g| pe * g)
+    }
+
+    /// Adds the nodal part's internal force (N) on every node to `f` (DOF
+    /// vector), at the last [`Self::evaluate`].
+    pub fn add_forces(&self, tets: &[[u32; 4]], f: &mut [f64]) {
+        for (e, t) in tets.iter().enumerate() {
+            let fe = self.element_forces(e, t);
+            for (a, &n) in t.iter().enumerate() {
+                for i in 0..3 {
+                    f[3 * n as usize + i] += fe[a][i];
+                }
+            }
+        }
+    }
+
+    /// Adds the element part of the tangent, `p_e hess v_e` (N/m), to the
+    /// element matrix `k` of element `e` on corners `t` (its local DOF
+    /// order, global basis), at the last [`Self::evaluate`].
+    pub fn add_element_tangent(
+        &self,
+        e: usize,
+        t: &[u32; 4],
+        geom: &TetGeometry,
+        k: &mut ElementMatrix,
+    ) {
+        let pe = self.element_pressure(t);
+        if pe == 0.0 {
+            return;
+        }
+        let (f, s) = (&self.f_element[e], pe * geom.volume);
+        for a in 0..4 {
+            for b in 0..4 {
+                if a == b {
+                    continue;
+                }
+                let c = s * (f * geom.grads[a].cross(&geom.grads[b]));
+                // -[c]_x.
+                let block = Matrix3::new(0.0, c.z, -c.y, -c.z, 0.0, c.x, c.y, -c.x, 0.0);
+                let mut dst = k.fixed_view_mut::<3, 3>(3 * a, 3 * b);
+                dst += block;
+            }
+        }
+    }
+
+    /// Scatters the rank-one part `sum_a c_a w_a w_a^T` (N/m) into an
+    /// eliminated system as [`NodalPressure::scatter`] does `K_vol`, at the
+    /// last [`Self::evaluate`].
+    pub fn scatter(&self, p: &NodalPressure, out: Eliminated<'_>, scratch: &mut Vec<Vector3<f64>>) {
+        p.scatter_rank_one(out, &self.weights, |a| self.curvature[a], scratch);
     }
 }
 

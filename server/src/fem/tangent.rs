@@ -20,13 +20,17 @@
 //! The factorization is made when a patch is first asked for after a step,
 //! not at the step itself. A tangent that is not positive definite (an
 //! element near collapse under neo-Hookean) falls back to the rest stiffness
-//! there, as the Newton iteration does.
+//! there, as the Newton iteration does. The tangent holds every term of
+//! the strategy's energy: the tissue's elements, the springs of an elastic
+//! foundation and of the ties, and the nodal part of the nodal-pressure
+//! element (`neo-hookean`).
 
 use super::constraint::Frame;
 use super::contact::CompliancePatch;
 use super::element::ElementMatrix;
 use super::factor::SparseLlt;
 use super::model::Model;
+use super::nodal_pressure::{Eliminated, NodalPressure, NodalVolumes};
 use super::ties::TieSprings;
 use super::{SolveError, assembly::node_vec};
 use nalgebra::{Matrix3, Point3, Vector3};
@@ -43,6 +47,8 @@ pub struct TangentPatch {
     rhs: Vec<f64>,
     zeros: Vec<f64>,
     cols: Vec<f64>,
+    /// Workspace of the nodal-pressure scatter.
+    scratch: Vec<Vector3<f64>>,
     /// Whether the factor is of the last step's state.
     fresh: bool,
 }
@@ -58,6 +64,7 @@ impl TangentPatch {
             rhs: vec![0.0; n],
             zeros: vec![0.0; n],
             cols: Vec::new(),
+            scratch: Vec::new(),
             fresh: false,
         })
     }
@@ -73,28 +80,44 @@ impl TangentPatch {
         self.fresh = false;
     }
 
-    /// Assembles `sum_e k(e)` (the element tangents, global basis, N/m)
-    /// and the tangents of the tie springs `springs` at displacement `u`
-    /// (DOF vector, m; [`TieSprings::elements`])
-    /// with the supports eliminated and factors it, unless the factor is of
-    /// the current state already. When `k` gives a matrix that is not
-    /// positive definite, `model.kel` (the rest stiffness) is used instead.
+    /// Assembles `sum_e k(e)` (the element tangents, global basis, N/m),
+    /// the springs of an elastic foundation (`model.foundation`), the
+    /// tangents of the tie springs `springs` at displacement `u` (DOF
+    /// vector, m; [`TieSprings::elements`]) and, with the nodal-pressure
+    /// element, the rank-one nodal part of `nodal` (evaluated at `u`;
+    /// [`NodalVolumes::scatter`]) with the supports eliminated and factors
+    /// it, unless the factor is of the current state already. When `k`
+    /// gives `None` for an element or the sum is not positive definite, the
+    /// rest stiffness is used instead: `model.kel` (which holds the
+    /// foundation's springs), the linear nodal part `K_vol` and the tie
+    /// springs.
     pub fn refactor(
         &mut self,
         model: &Model,
         mut k: impl FnMut(usize) -> Option<ElementMatrix>,
         springs: &TieSprings,
+        nodal: Option<(&NodalPressure, &NodalVolumes)>,
         u: &[f64],
     ) -> Result<(), SolveError> {
         if self.fresh {
             return Ok(());
         }
-        let mut assemble = |this: &mut Self, rest: bool| {
+        let mut assemble = |this: &mut Self, rest: bool| -> bool {
             this.values.fill(0.0);
             this.rhs.fill(0.0);
             for (e, t) in model.tets.iter().enumerate() {
-                let ke = if rest { None } else { k(e) };
-                let ke = ke.as_ref().unwrap_or(&model.kel[e]);
+                let tangent;
+                let ke = if rest {
+                    &model.kel[e]
+                } else {
+                    match k(e) {
+                        Some(ke) => {
+                            tangent = ke;
+                            &tangent
+                        }
+                        None => return false,
+                    }
+                };
                 this.frame.scatter(
                     &model.pattern,
                     e,
@@ -104,6 +127,33 @@ impl TangentPatch {
                     &mut this.values,
                     &mut this.rhs,
                 );
+            }
+            if !rest {
+                // The foundation's springs (in `kel` already).
+                for (e, kf) in model.foundation.iter() {
+                    this.frame.scatter(
+                        &model.pattern,
+                        e,
+                        &model.tets[e],
+                        kf,
+                        &this.zeros,
+                        &mut this.values,
+                        &mut this.rhs,
+                    );
+                }
+            }
+            if let Some(p) = &model.pressure {
+                let out = Eliminated {
+                    frame: &this.frame,
+                    pattern: &model.pattern,
+                    lift: &this.zeros,
+                    values: &mut this.values,
+                    rhs: &mut this.rhs,
+                };
+                match nodal {
+                    Some((np, state)) if !rest => state.scatter(np, out, &mut this.scratch),
+                    _ => p.scatter_into(out, &mut this.scratch),
+                }
             }
             // The ties' springs (pseudo-elements after the tetrahedra,
             // [`super::ties::TieSprings::elements`]), positive
@@ -121,9 +171,9 @@ impl TangentPatch {
             }
             this.frame
                 .finish(&model.pattern, &this.zeros, &mut this.values, &mut this.rhs);
+            true
         };
-        assemble(self, false);
-        if self.factor.factorize(&model.pattern, &self.values).is_err() {
+        if !assemble(self, false) || self.factor.factorize(&model.pattern, &self.values).is_err() {
             assemble(self, true);
             self.factor.factorize(&model.pattern, &self.values)?;
         }
