@@ -111,13 +111,13 @@ enum Bench {
         #[arg(long, value_delimiter = ',')]
         strategy: Vec<String>,
         /// Element formulations (tet4, tet4-nodal-pressure); both by default,
-        /// the nonlinear strategies run tet4 only.
+        /// corotational runs tet4 only.
         #[arg(long, value_delimiter = ',')]
         element: Vec<String>,
         /// Timed steps per row.
         #[arg(long, default_value_t = 5)]
         steps: usize,
-        /// Also run each linear row with an elastic foundation of this
+        /// Also run each row with an elastic foundation of this
         /// stiffness, Pa/m, on the outer triangles beyond 25 mm of the top
         /// centre (the bundled scenes use 1.145e10), beside the stem-only
         /// row on the same contact set, with their ratio.

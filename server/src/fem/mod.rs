@@ -380,6 +380,15 @@ impl Strategy {
         self.kind().name
     }
 
+    /// Whether it builds the element `element`: every strategy takes
+    /// `tet4`; the nodal-pressure element is written for energies the
+    /// strategy evaluates itself (the linear stiffness, the neo-Hookean
+    /// energy), so `corotational`, whose force is a rotated linear stress
+    /// per element with no nodal part, does not take it.
+    pub fn takes_element(self, element: Element) -> bool {
+        element == Element::Tet4 || self != Self::Corotational
+    }
+
     /// Whether its elasticity is linear (small strain about the rest
     /// shape): its compliance is constant, so its stiffness (an elastic
     /// foundation folded in) is factored once and its contact linearized
@@ -545,11 +554,7 @@ pub fn build_solver(
     let mut model = model::Model::new(mesh, material, fixed, &options.axis_supports)?;
     model.set_tissues(&mesh.labels, material, &options.tissues)?;
     if options.element == Element::Tet4NodalPressure {
-        // The nodal-pressure element is written for energies the strategy
-        // evaluates itself (the linear stiffness, the neo-Hookean energy);
-        // the corotational force is a rotated linear stress per element,
-        // which has no nodal part.
-        if strategy == Strategy::Corotational {
+        if !strategy.takes_element(options.element) {
             return Err(SolveError::InvalidModel(format!(
                 "element {} needs the direct, compliance or neo-hookean strategy, not {}",
                 options.element.name(),

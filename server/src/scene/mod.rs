@@ -978,21 +978,12 @@ impl Scene {
             for (i, r) in f.open.iter().enumerate() {
                 check_region(format!("foundation.open[{i}]"), r)?;
             }
-            if !self.solver.strategy.is_linear() {
-                return Err(bad(
-                    "foundation".into(),
-                    format!(
-                        "an elastic foundation needs solver.strategy = \"compliance\" or \"direct\" (the scene has {:?})",
-                        self.solver.strategy.name()
-                    ),
-                ));
-            }
         }
-        if self.solver.element != Element::Tet4 && !self.solver.strategy.is_linear() {
+        if !self.solver.strategy.takes_element(self.solver.element) {
             return Err(bad(
                 "solver.element".into(),
                 format!(
-                    "{:?} is a linear element: it needs solver.strategy = \"compliance\" or \"direct\" (the scene has {:?})",
+                    "{:?} needs solver.strategy = \"compliance\", \"direct\" or \"neo-hookean\" (the scene has {:?})",
                     self.solver.element.name(),
                     self.solver.strategy.name()
                 ),
@@ -1400,8 +1391,10 @@ mod tests {
         ));
         let plain = crate::sim::core::engine::Model::build(&plain).unwrap();
         let fine = crate::sim::core::engine::Model::build(&fine).unwrap();
+        // The surface (most of the coarse phantom's elements) grows as
+        // the spacing's inverse square: (12 / 9)^2 = 1.8.
         assert!(
-            fine.mesh.tets.len() > 2 * plain.mesh.tets.len(),
+            10 * fine.mesh.tets.len() > 13 * plain.mesh.tets.len(),
             "{} against {}",
             fine.mesh.tets.len(),
             plain.mesh.tets.len()
@@ -1533,7 +1526,7 @@ mod tests {
     /// "tet4-nodal-pressure"; the latter is refused with a nonlinear
     /// strategy, and an unknown value is refused naming the values.
     #[test]
-    fn the_element_is_a_solver_setting_for_the_linear_strategies() {
+    fn the_element_is_a_solver_setting_refused_where_the_strategy_cannot_build_it() {
         let text = include_str!("../../scenes/cube.toml");
         let (scene, _) = Scene::load("cube").unwrap();
         assert_eq!(scene.solver.element, Element::Tet4);
@@ -1545,19 +1538,19 @@ mod tests {
             assert_ne!(t, text);
             Scene::parse(&t, "x.toml")
         };
-        for strategy in ["compliance", "direct"] {
+        for strategy in ["compliance", "direct", "neo-hookean"] {
             let scene = with(strategy, "tet4-nodal-pressure").unwrap();
             assert_eq!(scene.solver.element, Element::Tet4NodalPressure);
         }
-        for strategy in ["corotational", "neo-hookean"] {
-            let err = with(strategy, "tet4-nodal-pressure")
-                .unwrap_err()
-                .to_string();
-            assert!(
-                err.contains("solver.element") && err.contains(strategy),
-                "{err}"
-            );
-        }
+        // The corotational force is a rotated linear stress per element,
+        // with no nodal part.
+        let err = with("corotational", "tet4-nodal-pressure")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("solver.element") && err.contains("corotational"),
+            "{err}"
+        );
         let err = with("compliance", "tet10").unwrap_err().to_string();
         assert!(
             err.contains("tet10") && err.contains("tet4-nodal-pressure"),
@@ -1677,11 +1670,16 @@ mod tests {
         .unwrap_err()
         .to_string();
         assert!(err.contains("no-such-list.txt"), "{err}");
-        // The iterative strategies do not take a foundation.
-        let text = cube_on_foundation("")
-            .replace("strategy = \"compliance\"", "strategy = \"corotational\"");
-        let err = Scene::parse(&text, "c.toml").unwrap_err().to_string();
-        assert!(err.contains("`foundation`"), "{err}");
+        // The iterative strategies take a foundation too (their energy
+        // holds its springs).
+        for strategy in ["corotational", "neo-hookean"] {
+            let text = cube_on_foundation("").replace(
+                "strategy = \"compliance\"",
+                &format!("strategy = \"{strategy}\""),
+            );
+            let scene = Scene::parse(&text, "c.toml").expect(strategy);
+            assert!(scene.foundation.is_some());
+        }
     }
 
     #[test]

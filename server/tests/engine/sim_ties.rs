@@ -192,8 +192,8 @@ fn bad_tie_declarations_are_refused_naming_what_is_wrong() {
     );
 }
 
-/// `scene(ties)` solved by `corotational` (which takes no foundation: the
-/// scene's is dropped).
+/// `scene(ties)` solved by `corotational`, held at the stem alone (the
+/// scene's foundation is dropped).
 fn corotational(ties: &str) -> Scene {
     let text = include_str!("../../scenes/sylvian.toml")
         .replace("paper-48k", "coarse")

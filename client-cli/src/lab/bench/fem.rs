@@ -5,8 +5,9 @@
 //! Each (strategy, contact count) runs one untimed warm-up step (it caches
 //! the compliance columns of the new contact nodes) and then `steps` timed
 //! steps at increasing indentation depth; `ms_per_step` is their mean.
-//! The linear strategies run with each element formulation asked for
-//! (`tet4`, `tet4-nodal-pressure`), side by side in one run.
+//! Every strategy runs with each element formulation asked for (`tet4`,
+//! `tet4-nodal-pressure`; `corotational` with `tet4` only), side by side
+//! in one run.
 //!
 //! Supports ([`Support`]): the fixed bottom alone (`stem`), and with
 //! `--foundation-pa-per-m K` also an elastic foundation of `K` on every
@@ -45,9 +46,9 @@ pub struct FemBenchOptions {
     pub compliance_surface_too: bool,
     /// Parallelism given to the solvers (default: every rayon thread).
     pub parallelism: Par,
-    /// Element formulations (the nonlinear strategies take `tet4` only).
+    /// Element formulations (`corotational` takes `tet4` only).
     pub elements: Vec<Element>,
-    /// Supports, side by side (a foundation needs a linear strategy).
+    /// Supports, side by side.
     pub supports: Vec<Support>,
 }
 
@@ -155,7 +156,7 @@ pub fn run_fem_bench(mesh: &TetMesh, preset_name: &str, opts: &FemBenchOptions) 
     let mut variants: Vec<(Strategy, Element, Recover, String)> = Vec::new();
     for &s in &opts.strategies {
         for &e in &opts.elements {
-            if e != Element::Tet4 && !s.is_linear() {
+            if !s.takes_element(e) {
                 continue;
             }
             variants.push((s, e, Recover::All, s.name().to_string()));
@@ -187,9 +188,6 @@ pub fn run_fem_bench(mesh: &TetMesh, preset_name: &str, opts: &FemBenchOptions) 
         // change in the machine's load falls on every support alike.
         let mut solvers = Vec::new();
         for &support in &opts.supports {
-            if support != Support::Stem && !strategy.is_linear() {
-                continue;
-            }
             let foundation = match support {
                 Support::Stem => None,
                 Support::Foundation { stiffness_pa_per_m } => Some(Foundation {
@@ -371,24 +369,28 @@ mod tests {
             ..Default::default()
         };
         let rows = run_fem_bench(&mesh, "tiny", &opts);
-        // 4 strategies and compliance-surface with tet4, the 3 linear
-        // variants again with the nodal-pressure element; 2 contact counts.
-        assert_eq!(rows.len(), (5 + 3) * 2);
+        // 4 strategies and compliance-surface with tet4, all but
+        // corotational again with the nodal-pressure element; 2 contact
+        // counts.
+        assert_eq!(rows.len(), (5 + 4) * 2);
         assert_eq!(
             rows.iter()
                 .filter(|r| r.element == "tet4-nodal-pressure")
                 .count(),
-            3 * 2
+            4 * 2
+        );
+        assert!(
+            rows.iter()
+                .any(|r| r.element == "tet4-nodal-pressure" && r.strategy == "neo-hookean")
         );
         for r in &rows {
             assert!(r.error.is_none(), "{r:?}");
             assert!(r.ms_per_step.is_finite() && r.ms_per_step >= 0.0);
         }
     }
-    /// With a foundation beside the stem, each linear row runs on both
-    /// supports at the same contact set and carries its ratio to the
-    /// stem's; a nonlinear strategy, which cannot take a foundation, runs
-    /// on the stem alone.
+    /// With a foundation beside the stem, each row runs on both supports at
+    /// the same contact set and carries its ratio to the stem's, the
+    /// nonlinear strategies' too.
     #[test]
     fn a_foundation_runs_beside_the_stem_on_the_same_contact_set() {
         let mesh = cuboid([0.06, 0.06, 0.03], [6, 6, 3]);
@@ -427,6 +429,7 @@ mod tests {
                 ("compliance", "stem"),
                 ("compliance", "foundation 1.000e8 Pa/m"),
                 ("corotational", "stem"),
+                ("corotational", "foundation 1.000e8 Pa/m"),
             ]
         );
         for r in &rows {
@@ -435,5 +438,6 @@ mod tests {
         assert_eq!(rows[0].over_stem, None);
         let over = rows[1].over_stem.expect("the foundation's row has a ratio");
         assert_eq!(over, rows[1].ms_per_step / rows[0].ms_per_step);
+        assert!(rows[3].over_stem.is_some(), "{:?}", rows[3]);
     }
 }

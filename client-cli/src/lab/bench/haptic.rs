@@ -145,8 +145,8 @@ pub struct HapticArgs {
     /// Run every scene with this solver strategy (direct, compliance,
     /// corotational, neo-hookean) instead of its own: the nonlinear ones
     /// give the force loop the tangent compliance of their last step. A
-    /// scene the strategy cannot run (an elastic foundation needs a linear
-    /// one) is refused, naming why.
+    /// scene the strategy cannot run (`corotational` with the nodal-pressure
+    /// element) is refused, naming why.
     #[arg(long)]
     pub strategy: Option<String>,
     /// Window after contact begins of the onset error, ms.
