@@ -5,6 +5,7 @@
 //! P2-P1 mixed elements on the same mesh) as `nu -> 0.5`.
 
 use fissure_engine::fem::compliance::Recover;
+use fissure_engine::fem::corotational::IterativeOptions;
 use fissure_engine::fem::element::TetGeometry;
 use fissure_engine::fem::reactions::net_force_torque;
 use fissure_engine::fem::{
@@ -194,14 +195,11 @@ fn nodal_pressure_equals_a_dense_solve_of_its_energy_at_nu_near_half() {
     }
 }
 
-/// A uniform press is exact at any Poisson's ratio (the patch test): on
-/// symmetry rollers the top pushed down by d needs `E A d / L`, and the
-/// sides move out by `nu d x / L`.
-#[test]
-fn a_uniform_press_gives_e_a_d_over_l_near_incompressibility() {
-    let l = 0.02;
-    let mesh = cube(l, 3);
-    let delta = 1e-4;
+/// A cube of edge `l` (`n` cells an edge) on symmetry rollers at its
+/// `x = 0`, `y = 0` and `z = 0` faces, and its top pushed down by `delta`
+/// (m): a uniform press.
+fn uniform_press(l: f64, n: usize, delta: f64) -> (TetMesh, Vec<AxisSupport>, Vec<Constraint>) {
+    let mesh = cube(l, n);
     let mut axis = Vec::new();
     for (i, p) in mesh.nodes.iter().enumerate() {
         for a in 0..3 {
@@ -223,6 +221,16 @@ fn a_uniform_press_gives_e_a_d_over_l_near_incompressibility() {
             },
         })
         .collect();
+    (mesh, axis, cons)
+}
+
+/// A uniform press is exact at any Poisson's ratio (the patch test): on
+/// symmetry rollers the top pushed down by d needs `E A d / L`, and the
+/// sides move out by `nu d x / L`.
+#[test]
+fn a_uniform_press_gives_e_a_d_over_l_near_incompressibility() {
+    let (l, delta) = (0.02, 1e-4);
+    let (mesh, axis, cons) = uniform_press(l, 3, delta);
     for nu in [0.0, 0.45, 0.4999] {
         let mat = Material {
             youngs_modulus_pa: 5000.0,
@@ -250,6 +258,56 @@ fn a_uniform_press_gives_e_a_d_over_l_near_incompressibility() {
                 "{strategy:?} nu {nu}: {fz} vs {exact}"
             );
         }
+    }
+}
+
+/// The patch test of the nonlinear element: a uniform press on symmetry
+/// rollers is a uniform strain, which `neo-hookean` with the nodal-pressure
+/// element represents exactly (every nodal `J_a` equals the elements'
+/// `J`), so its solution is homogeneous, `u = (a x, a y, -d z / L)`, to the
+/// solver's tolerance (checked to 1e-8 of `d`), at any Poisson's ratio; at
+/// a strain of 1e-5 it needs `E A d / L` and the sides move by
+/// `a = nu d / L`, to O(strain) relative (bound 1e-4). The test is purely
+/// relative (`floor_strain = 0`): the forces here are 1e-7 N.
+#[test]
+fn a_uniform_press_is_homogeneous_with_neo_hookean_nodal_pressure() {
+    let (l, delta) = (0.02, 2e-7);
+    let (mesh, axis, cons) = uniform_press(l, 2, delta);
+    for nu in [0.0, 0.45, 0.4999] {
+        let mat = Material {
+            youngs_modulus_pa: 5000.0,
+            poisson_ratio: nu,
+        };
+        let opts = SolverOptions {
+            axis_supports: axis.clone(),
+            iterative: IterativeOptions {
+                floor_strain: 0.0,
+                ..IterativeOptions::reference()
+            },
+            ..options(Element::Tet4NodalPressure)
+        };
+        let mut s = build_solver(Strategy::NeoHookean, &mesh, mat, &[], &opts).unwrap();
+        let sol = s.solve_constraints(&cons).unwrap();
+        // The lateral stretch, from the sides' largest displacement.
+        let a = sol.displacements.iter().fold(0.0f64, |m, u| m.max(u.x)) / l;
+        for (p, u) in mesh.nodes.iter().zip(&sol.displacements) {
+            let homogeneous = Vector3::new(a * p.x, a * p.y, -delta * p.z / l);
+            assert!(
+                (u - homogeneous).norm() < 1e-8 * delta,
+                "nu {nu} at {p}: {u} vs {homogeneous}"
+            );
+        }
+        assert!(
+            (a - nu * delta / l).abs() < 1e-4 * delta / l,
+            "nu {nu}: {a} vs {}",
+            nu * delta / l
+        );
+        let fz: f64 = sol.reactions.iter().map(|r| r.z).sum();
+        let exact = -mat.youngs_modulus_pa * delta * l;
+        assert!(
+            (fz - exact).abs() < 1e-4 * exact.abs(),
+            "nu {nu}: {fz} vs {exact}"
+        );
     }
 }
 
