@@ -140,7 +140,7 @@ pub fn polar_rotation(f: &Matrix3<f64>) -> Matrix3<f64> {
 
 /// Cofactor matrix of `x` (`cof(X) = det(X) X^-T`), and `det X`.
 #[inline]
-fn cofactor_det(x: &Matrix3<f64>) -> (Matrix3<f64>, f64) {
+pub(super) fn cofactor_det(x: &Matrix3<f64>) -> (Matrix3<f64>, f64) {
     let (c0, c1, c2) = (x.column(0), x.column(1), x.column(2));
     let cof = Matrix3::from_columns(&[c1.cross(&c2), c2.cross(&c0), c0.cross(&c1)]);
     let det = c0.dot(&cof.column(0));

@@ -167,8 +167,10 @@ pub fn fold_into(model: &mut Model, foundation: &Foundation) -> Result<(), Solve
             owner.insert(key, e);
         }
     }
-    // Each element's springs, summed over its faces.
-    let mut added: BTreeMap<usize, ElementMatrix> = BTreeMap::new();
+    // Each element's springs, summed over its faces (and over the faces of
+    // a foundation folded before).
+    let mut kept_by_element: BTreeMap<usize, ElementMatrix> =
+        model.foundation.iter().map(|(e, k)| (e, *k)).collect();
     for (i, f) in foundation.faces.iter().enumerate() {
         if let Some(&n) = f.iter().find(|&&n| n as usize >= n_nodes) {
             return Err(SolveError::InvalidModel(format!(
@@ -185,7 +187,9 @@ pub fn fold_into(model: &mut Model, foundation: &Foundation) -> Result<(), Solve
         let t = model.tets[e];
         let local = f.map(|n| t.iter().position(|&m| m == n).expect("face of the tet"));
         let kf = face_matrix(f.map(|n| model.rest[n as usize]), k);
-        let kept = added.entry(e).or_insert_with(ElementMatrix::zeros);
+        let kept = kept_by_element
+            .entry(e)
+            .or_insert_with(ElementMatrix::zeros);
         // Into the element matrix (the linear strategies' stiffness) and
         // beside it (the nonlinear ones').
         for ke in [&mut model.kel[e], kept] {
@@ -198,15 +202,9 @@ pub fn fold_into(model: &mut Model, foundation: &Foundation) -> Result<(), Solve
             }
         }
     }
-    // Merged with the springs of a foundation folded before.
-    let mut merged: BTreeMap<usize, ElementMatrix> =
-        model.foundation.iter().map(|(e, k)| (e, *k)).collect();
-    for (e, k) in added {
-        *merged.entry(e).or_insert_with(ElementMatrix::zeros) += k;
-    }
     model.foundation = FoundationSprings {
-        elements: merged.keys().copied().collect(),
-        matrices: merged.into_values().collect(),
+        elements: kept_by_element.keys().copied().collect(),
+        matrices: kept_by_element.into_values().collect(),
     };
     Ok(())
 }

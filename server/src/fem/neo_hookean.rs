@@ -278,6 +278,9 @@ impl NeoHookean {
             scatter_add(t, &fe, &mut self.f);
             if linear {
                 k = m.kel[e];
+            } else if let Some(kf) = m.foundation.matrix_of(e) {
+                // The foundation's springs (in `kel` already).
+                k += kf;
             }
             self.frame.rotate_element(t, &mut k);
             self.frame.scatter(
@@ -291,24 +294,6 @@ impl NeoHookean {
             );
         }
         m.foundation.add_product(&m.tets, &self.u, &mut self.f);
-        if !linear {
-            // The foundation's springs on their elements' entries (in
-            // `kel` already for the rest stiffness).
-            for (e, kf) in m.foundation.iter() {
-                let t = &m.tets[e];
-                let mut k = *kf;
-                self.frame.rotate_element(t, &mut k);
-                self.frame.scatter(
-                    &m.pattern,
-                    e,
-                    t,
-                    &k,
-                    &self.lift,
-                    &mut self.values,
-                    &mut self.rhs,
-                );
-            }
-        }
         if let Some(p) = &m.pressure {
             let out = Eliminated {
                 frame: &self.frame,

@@ -41,7 +41,7 @@
 
 use super::assembly::{Pattern, node_vec};
 use super::constraint::Frame;
-use super::element::{ElementMatrix, TetGeometry, det_minus_one};
+use super::element::{ElementMatrix, TetGeometry, cofactor_det, det_minus_one};
 use nalgebra::{Matrix3, Vector3};
 
 /// The volumetric part of the average-nodal-pressure tetrahedron: per node
@@ -449,15 +449,7 @@ impl NodalVolumes {
                 return Err(Inversion::Element(e, 1.0 + jm1));
             }
             let f = Matrix3::identity() + h;
-            // cof F = [f1 x f2, f2 x f0, f0 x f1]^T by rows of F: the
-            // transpose of the column form for F^T.
-            let (r0, r1, r2) = (
-                f.row(0).transpose(),
-                f.row(1).transpose(),
-                f.row(2).transpose(),
-            );
-            let cof =
-                Matrix3::from_columns(&[r1.cross(&r2), r2.cross(&r0), r0.cross(&r1)]).transpose();
+            let (cof, _) = cofactor_det(&f);
             self.jm1_element[e] = jm1;
             self.f_element[e] = f;
             self.grad_element[e] = g.grads.map(|gb| g.volume * (cof * gb));

@@ -112,7 +112,11 @@ impl TangentPatch {
                 } else {
                     match k(e) {
                         Some(ke) => {
-                            tangent = ke;
+                            // The foundation's springs (in `kel` already).
+                            tangent = match model.foundation.matrix_of(e) {
+                                Some(kf) => ke + kf,
+                                None => ke,
+                            };
                             &tangent
                         }
                         None => return false,
@@ -127,20 +131,6 @@ impl TangentPatch {
                     &mut this.values,
                     &mut this.rhs,
                 );
-            }
-            if !rest {
-                // The foundation's springs (in `kel` already).
-                for (e, kf) in model.foundation.iter() {
-                    this.frame.scatter(
-                        &model.pattern,
-                        e,
-                        &model.tets[e],
-                        kf,
-                        &this.zeros,
-                        &mut this.values,
-                        &mut this.rhs,
-                    );
-                }
             }
             if let Some(p) = &model.pressure {
                 let out = Eliminated {
