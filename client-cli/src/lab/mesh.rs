@@ -558,9 +558,10 @@ pub fn preset_mesh_repaired(
     Ok(match name {
         "coarse" | "paper-34k" | "paper-48k" => {
             if let Some(h) = cube.spacing_m {
-                use fissure_engine::scene::{MAX_PHANTOM_SPACING_M, MIN_PHANTOM_SPACING_M};
-                if !(h.is_finite() && (MIN_PHANTOM_SPACING_M..=MAX_PHANTOM_SPACING_M).contains(&h))
-                {
+                use fissure_engine::scene::{
+                    MAX_PHANTOM_SPACING_M, MIN_PHANTOM_SPACING_M, phantom_spacing_allowed,
+                };
+                if !phantom_spacing_allowed(h) {
                     bail!(
                         "--spacing-mm must be within {} to {} mm, got {}",
                         MIN_PHANTOM_SPACING_M * 1e3,

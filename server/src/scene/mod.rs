@@ -172,6 +172,14 @@ pub const MIN_PHANTOM_SPACING_M: f64 = 0.002;
 /// The coarsest phantom lattice spacing a scene may ask for, m.
 pub const MAX_PHANTOM_SPACING_M: f64 = 0.012;
 
+/// Whether `h` (m) is a phantom lattice spacing a model may ask for: the
+/// lattice must resolve a 3 mm fissure (the mesher's own bound) and stay
+/// within memory (2 mm with the proven mesher is about 1.6 million
+/// tetrahedra).
+pub fn phantom_spacing_allowed(h: f64) -> bool {
+    h.is_finite() && (MIN_PHANTOM_SPACING_M..=MAX_PHANTOM_SPACING_M).contains(&h)
+}
+
 /// Which brain model to build.
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
@@ -899,10 +907,7 @@ impl Scene {
             spacing_m: Some(h), ..
         } = &self.model
         {
-            // The lattice must resolve a 3 mm fissure (the mesher's own
-            // bound) and stay within memory: 2 mm with the proven mesher is
-            // about 1.6 million tetrahedra.
-            if !(h.is_finite() && (MIN_PHANTOM_SPACING_M..=MAX_PHANTOM_SPACING_M).contains(h)) {
+            if !phantom_spacing_allowed(*h) {
                 return Err(bad(
                     "model.spacing_m".into(),
                     format!(

@@ -119,7 +119,7 @@ pub fn merge(dir: &Path, out: &Path, allow_missing: bool) -> Result<StudyResult,
     // The reference takes its place among the levels when it is one of
     // them: after the levels that are coarser (planned before it).
     if let (Some(at), Some(r), false) = (planned.reference_level(), reference, levels.is_empty()) {
-        let coarser = planned.convergence[..at].to_vec();
+        let coarser = &planned.convergence[..at];
         let place = levels
             .iter()
             .take_while(|l| coarser.iter().any(|c| c.label == l.config.label))

@@ -46,7 +46,7 @@ pub enum Role {
     /// A level of the reference's mesh convergence.
     Convergence,
     /// A run of the Poisson's ratio sweep towards incompressibility on the
-    /// finest level.
+    /// reference's level.
     Incompressible,
 }
 
@@ -400,8 +400,8 @@ mod tests {
     #[test]
     fn the_full_reference_is_the_204k_level_planned_once_whatever_part_is_asked() {
         let levels = Plan::new(false).convergence;
-        let finest = levels[super::super::convergence::REFERENCE_LEVEL].clone();
-        assert!(finest.label.starts_with("204k/"), "{}", finest.label);
+        let level = levels[super::super::convergence::REFERENCE_LEVEL].clone();
+        assert!(level.label.starts_with("204k/"), "{}", level.label);
         let count =
             |plan: &StudyPlan, role: Role| plan.runs.iter().filter(|r| r.role == role).count();
         for (options, grid) in [
@@ -418,7 +418,7 @@ mod tests {
             assert_eq!(plan.runs[0].role, Role::Reference);
             assert_eq!(count(&plan, Role::Reference), 1);
             let reference = &plan.runs[0].config;
-            assert_eq!(reference.label, finest.label);
+            assert_eq!(reference.label, level.label);
             assert_eq!(reference.sweep, "reference");
             // The reference's level is not planned again as a level.
             assert_eq!(count(&plan, Role::Convergence), levels.len() - 1);
@@ -426,7 +426,7 @@ mod tests {
                 plan.runs
                     .iter()
                     .filter(|r| r.role == Role::Convergence)
-                    .all(|r| r.config.label != finest.label)
+                    .all(|r| r.config.label != level.label)
             );
             assert_eq!(count(&plan, Role::Grid) > 0, grid);
         }
