@@ -118,6 +118,17 @@ fn quick_study_is_stable_and_consistent() {
             r.config.label
         );
         assert!(r.ms_per_step > 0.0 && r.us_per_sample > 0.0);
+        // A force sample equals a full solve at its poses: where a sample
+        // falls on a step's instant, the step (the full solve at that
+        // sample's poses and history) gives the sample's force to the
+        // contact solver's tolerance, though the sample's model is a whole
+        // interval old.
+        let h = r.haptic.expect("samples fall on the steps' instants");
+        assert!(
+            h.checked >= 10 && h.max_pct < 1e-3,
+            "{}: {h:?}",
+            r.config.label
+        );
     }
 
     for f in [

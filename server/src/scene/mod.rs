@@ -154,7 +154,8 @@ pub struct RoiSpec {
 /// An elastic (Winkler) foundation on the outer surface: normal springs of
 /// `stiffness_pa_per_m` between the tissue and a fixed support, on every
 /// outer triangle except those of the `open` regions (see [`region`] and
-/// [`crate::fem::foundation`]). Needs the `direct` or `compliance` strategy.
+/// [`crate::fem::foundation`]). Every strategy takes it (the nonlinear ones
+/// add the springs' energy, force and tangent, `Model::foundation`).
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct FoundationSpec {

@@ -8,12 +8,11 @@
 //! The material law is linear elasticity, solved by `compliance` (the
 //! supported stiffness factored once, the contact condensed exactly onto
 //! the contact nodes' columns of its inverse; `direct`, the independent
-//! check, costs 13x a step with the nodal-pressure element, DESIGN.md). The
-//! engine builds the nodal-pressure element and the elastic foundation for
-//! the linear strategies only (`fem::build_solver` refuses either with
-//! `corotational` or `neo-hookean`, which evaluate their internal force from
-//! the stress rather than from the element matrices), so a neo-Hookean
-//! reference on the foundation is not a problem the engine solves.
+//! check, costs 13x a step with the nodal-pressure element, DESIGN.md).
+//! `neo-hookean` takes the foundation and the nodal-pressure element too,
+//! but refactors its tangent at every Newton iteration: on these levels a
+//! run would cost many times the linear one, so the grid measures the
+//! material law's share at paper-48k instead.
 //!
 //! Per level: the net force on each spatula at the last step and its peak
 //! over the steps. Between successive levels: the force change relative to

@@ -70,6 +70,9 @@ pub struct RunResult {
     pub step_ms: Vec<f64>,
     /// Collision part of each step, ms.
     pub collision_ms: Vec<f64>,
+    /// Whether each step failed (it then holds the last good state; empty
+    /// in result files written before it was recorded).
+    pub step_failed: Vec<bool>,
     /// Solver iterations per successful step.
     pub iterations: Vec<u32>,
     /// Force-loop samples: time, s, and force per instrument, N.
@@ -284,6 +287,7 @@ fn run_in_pool(
         surface_u: Vec::new(),
         step_ms: Vec::with_capacity(total_steps),
         collision_ms: Vec::with_capacity(total_steps),
+        step_failed: Vec::with_capacity(total_steps),
         iterations: Vec::new(),
         sample_t: Vec::with_capacity(scenario.times.len()),
         sample_force: Vec::with_capacity(scenario.times.len()),
@@ -341,6 +345,8 @@ fn run_in_pool(
         res.step_force.push(forces);
         res.step_ms.push(done.step_us * 1e-3);
         res.collision_ms.push(frame.timings.collision_us * 1e-3);
+        res.step_failed
+            .push(done.report.is_none() && snap.solver_error.is_some());
         if keep_surface {
             res.surface_u.push(
                 full.surface
@@ -427,6 +433,18 @@ impl RunResult {
     /// Largest solver iterations of a step.
     pub fn max_iterations(&self) -> u32 {
         self.iterations.iter().copied().max().unwrap_or(0)
+    }
+
+    /// The force samples against the steps at the same instants
+    /// ([`super::haptic`]).
+    pub fn haptic_error(&self) -> Option<super::haptic::HapticError> {
+        super::haptic::at_step_instants(&super::haptic::Series {
+            step_t: &self.step_t,
+            step_force: &self.step_force,
+            step_failed: &self.step_failed,
+            sample_t: &self.sample_t,
+            sample_force: &self.sample_force,
+        })
     }
 
     /// Net force on instrument `i` at the last step, N.

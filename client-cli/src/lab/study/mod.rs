@@ -47,6 +47,7 @@ pub mod compare;
 pub mod config;
 pub mod convergence;
 pub mod driver;
+pub mod haptic;
 pub mod incompressible;
 pub mod merge;
 pub mod output;
@@ -205,6 +206,9 @@ pub struct Row {
     pub failure: Option<String>,
     /// Whether the force loop has a local model (else no force between steps).
     pub haptic_local_model: bool,
+    /// The force samples against the steps at the same instants
+    /// ([`haptic`]); `None` where nothing pushes.
+    pub haptic: Option<haptic::HapticError>,
     /// Net force magnitude on each instrument at the last step, N.
     pub final_force_n: [f64; 2],
     /// Errors against the reference (grid) or the sweep's nominal run (stability).
@@ -244,6 +248,7 @@ impl Row {
             failed_steps: run.failed_steps,
             failure: run.failure.clone(),
             haptic_local_model: run.has_local_model,
+            haptic: run.haptic_error(),
             final_force_n: [run.final_force(0).norm(), run.final_force(1).norm()],
             errors,
             dropped_outside_roi: run.dropped_outside_roi,

@@ -47,13 +47,13 @@ pub fn slug(label: &str) -> String {
         .collect()
 }
 
-const GRID_HEADER: &str = "label,sweep,preset,proven,strategy,element,contact_law,friction_coefficient,support,tolerance,nodes_per_face,roi_mm,backend,threads,tets,nodes,steps,ms_per_step,collision_ms,us_per_sample,us_per_sample_p99,setup_ms,iterations_mean,iterations_max,min_det_f,finite,failed_steps,haptic_local_model,rms_err_mm,max_err_mm,ref_max_mm,force_err_left_n,force_err_left_pct,force_err_right_n,force_err_right_pct,final_force_err_left_pct,final_force_err_right_pct,final_force_left_n,final_force_right_n,mean_match_mm";
+const GRID_HEADER: &str = "label,sweep,preset,proven,strategy,element,contact_law,friction_coefficient,support,tolerance,nodes_per_face,roi_mm,backend,threads,tets,nodes,steps,ms_per_step,collision_ms,us_per_sample,us_per_sample_p99,setup_ms,iterations_mean,iterations_max,min_det_f,finite,failed_steps,haptic_local_model,haptic_max_err_pct,haptic_rms_err_pct,haptic_checked,rms_err_mm,max_err_mm,ref_max_mm,force_err_left_n,force_err_left_pct,force_err_right_n,force_err_right_pct,final_force_err_left_pct,final_force_err_right_pct,final_force_left_n,final_force_right_n,mean_match_mm";
 
 fn grid_csv_row(r: &Row) -> String {
     let c = &r.config;
     let e = r.errors.unwrap_or_default();
     format!(
-        "{},{},{},{},{},{},{},{},{},{:e},{},{},{},{},{},{},{},{:.3},{:.3},{:.1},{:.1},{:.0},{:.2},{},{:.4},{},{},{},{:.4},{:.4},{:.4},{:.4},{:.2},{:.4},{:.2},{:.2},{:.2},{:.4},{:.4},{:.3}",
+        "{},{},{},{},{},{},{},{},{},{:e},{},{},{},{},{},{},{},{:.3},{:.3},{:.1},{:.1},{:.0},{:.2},{},{:.4},{},{},{},{},{},{},{:.4},{:.4},{:.4},{:.4},{:.2},{:.4},{:.2},{:.2},{:.2},{:.4},{:.4},{:.3}",
         c.label,
         c.sweep,
         c.preset,
@@ -83,6 +83,11 @@ fn grid_csv_row(r: &Row) -> String {
         r.finite,
         r.failed_steps,
         r.haptic_local_model,
+        r.haptic
+            .map_or(String::new(), |h| format!("{:.3}", h.max_pct)),
+        r.haptic
+            .map_or(String::new(), |h| format!("{:.3}", h.rms_pct)),
+        r.haptic.map_or(0, |h| h.checked),
         e.rms_mm,
         e.max_mm,
         e.ref_max_mm,
@@ -169,17 +174,17 @@ pub fn markdown(res: &StudyResult) -> String {
         );
         let _ = writeln!(
             md,
-            "| configuration | sweep | tets | ms/step | us/force sample | iterations (mean/max) | RMS err (mm) | max err (mm) | force err L (N, %) | force err R (N, %) | min det F | failed steps | haptic local model |"
+            "| configuration | sweep | tets | ms/step | us/force sample | iterations (mean/max) | RMS err (mm) | max err (mm) | force err L (N, %) | force err R (N, %) | min det F | failed steps | haptic local model | haptic err max / RMS (% peak) |"
         );
         let _ = writeln!(
             md,
-            "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|"
+            "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|"
         );
         for r in res.reference.iter().chain(&res.grid) {
             let e = r.errors.unwrap_or_default();
             let _ = writeln!(
                 md,
-                "| {}{} | {} | {} | {:.1} | {:.0} | {:.1} / {} | {:.3} | {:.3} | {:.3}, {:.1}% | {:.3}, {:.1}% | {:.3} | {} | {} |",
+                "| {}{} | {} | {} | {:.1} | {:.0} | {:.1} / {} | {:.3} | {:.3} | {:.3}, {:.1}% | {:.3}, {:.1}% | {:.3} | {} | {} | {} |",
                 r.config.label,
                 if r.backend_used.starts_with(r.config.backend.name()) {
                     String::new()
@@ -201,6 +206,10 @@ pub fn markdown(res: &StudyResult) -> String {
                 r.min_det_f,
                 r.failed_steps,
                 if r.haptic_local_model { "yes" } else { "no" },
+                r.haptic.map_or("-".into(), |h| format!(
+                    "{:.2} / {:.2}",
+                    h.max_pct, h.rms_pct
+                )),
             );
         }
         let failed: Vec<&Row> = res
