@@ -207,6 +207,10 @@ pub struct Errors {
     /// Mean distance from a reference point to its match, mm (how far the
     /// meshes' rest surfaces differ there).
     pub mean_match_mm: f64,
+    /// Root mean square of the same, mm.
+    pub rms_match_mm: f64,
+    /// Its largest, mm.
+    pub max_match_mm: f64,
 }
 
 /// The reference surface vertices in the error region.
@@ -251,6 +255,11 @@ pub fn compare(reference: &RunResult, region: &[usize], run: &RunResult) -> Erro
         mean_match_mm: matches.iter().map(|m| m.distance).sum::<f64>()
             / matches.len().max(1) as f64
             * 1e3,
+        rms_match_mm: (matches.iter().map(|m| m.distance.powi(2)).sum::<f64>()
+            / matches.len().max(1) as f64)
+            .sqrt()
+            * 1e3,
+        max_match_mm: matches.iter().map(|m| m.distance).fold(0.0, f64::max) * 1e3,
         ..Errors::default()
     };
     let fsteps = reference.step_force.len().min(run.step_force.len());
@@ -294,6 +303,68 @@ mod tests {
         // Beyond the hypotenuse: its midpoint.
         let w = closest_on_triangle(&Point3::new(1.0, 1.0, 0.0), &a, &b, &c);
         assert!((w[1] - 0.5).abs() < 1e-12 && (w[2] - 0.5).abs() < 1e-12);
+    }
+
+    /// A run at rest (no step) on surface `pos`, `triangles`.
+    fn at_rest(pos: Vec<Point3<f64>>, triangles: Vec<[u32; 3]>) -> RunResult {
+        RunResult {
+            config: super::super::config::Config::baseline(),
+            tets: 0,
+            nodes: pos.len(),
+            rest_surface: pos,
+            triangles,
+            step_t: Vec::new(),
+            step_force: Vec::new(),
+            surface_u: Vec::new(),
+            step_ms: Vec::new(),
+            collision_ms: Vec::new(),
+            step_failed: Vec::new(),
+            iterations: Vec::new(),
+            sample_t: Vec::new(),
+            sample_force: Vec::new(),
+            sample_us: Vec::new(),
+            min_det_f: 1.0,
+            finite: true,
+            failed_steps: 0,
+            failure: None,
+            dropped_outside_roi: 0,
+            setup_ms: 0.0,
+            backend_used: String::new(),
+            has_local_model: true,
+        }
+    }
+
+    #[test]
+    fn rest_surfaces_a_uniform_offset_apart_match_at_that_distance() {
+        // A 40 mm cube about the fissure centre, and the same cube with
+        // every face moved out by 0.2 mm: every point of the first (faces,
+        // edges and corners) lies 0.2 mm from the second's surface.
+        let cube = fissure_engine::mesh::blocks::cube(0.04, 4);
+        let surf = cube.boundary();
+        let mut pos = Vec::new();
+        surf.gather(&cube.nodes, &mut pos);
+        let mid = pos.iter().map(|p| p.coords).sum::<Vector3<f64>>() / pos.len() as f64;
+        let centre = Point3::from(FISSURE_CENTRE_M);
+        let (side, offset) = (0.04, 2e-4);
+        let at = |k: f64| -> Vec<Point3<f64>> {
+            pos.iter().map(|p| centre + (p.coords - mid) * k).collect()
+        };
+        let inner = at_rest(at(1.0), surf.triangles.clone());
+        let outer = at_rest(at((side + 2.0 * offset) / side), surf.triangles.clone());
+        let region = region_vertices(&inner);
+        assert_eq!(
+            region.len(),
+            pos.len(),
+            "the whole cube is within the region"
+        );
+        let e = compare(&inner, &region, &outer);
+        assert_eq!(e.points, pos.len());
+        for d in [e.mean_match_mm, e.rms_match_mm, e.max_match_mm] {
+            assert!((d - 0.2).abs() < 1e-9, "{e:?}");
+        }
+        // The same surface matches itself at zero distance.
+        let e = compare(&inner, &region, &inner);
+        assert!(e.max_match_mm < 1e-12, "{e:?}");
     }
 
     #[test]

@@ -249,6 +249,13 @@ pub struct Change {
     pub max_mm: f64,
     /// Largest displacement of the finer level in the region, mm.
     pub ref_max_mm: f64,
+    /// How far the two rest surfaces lie apart over the region (each
+    /// finer-level point to the coarser surface's nearest point): RMS, mm.
+    /// The levels mesh one shape, each at its own resolution, so this is
+    /// the geometry's own discretisation change.
+    pub rest_rms_mm: f64,
+    /// Its maximum, mm.
+    pub rest_max_mm: f64,
     /// Region points compared.
     pub points: usize,
 }
@@ -331,6 +338,8 @@ pub fn evaluate(runs: &[&RunResult]) -> Convergence {
                 rms_mm: e.rms_mm,
                 max_mm: e.max_mm,
                 ref_max_mm: e.ref_max_mm,
+                rest_rms_mm: e.rms_match_mm,
+                rest_max_mm: e.max_match_mm,
                 points: e.points,
             }
         })

@@ -439,13 +439,13 @@ fn convergence_markdown(md: &mut String, c: &Convergence) {
     }
     let _ = writeln!(
         md,
-        "\n| from | to | final force change L / R (%) | peak force change L / R (%) | displacement difference RMS / max (mm) | finer level's largest displacement (mm) | region points |"
+        "\n| from | to | final force change L / R (%) | peak force change L / R (%) | displacement difference RMS / max (mm) | finer level's largest displacement (mm) | rest surfaces apart RMS / max (mm) | region points |"
     );
-    let _ = writeln!(md, "|---|---|---:|---:|---:|---:|---:|");
+    let _ = writeln!(md, "|---|---|---:|---:|---:|---:|---:|---:|");
     for ch in &c.changes {
         let _ = writeln!(
             md,
-            "| {} | {} | {:.2} / {:.2} | {:.2} / {:.2} | {:.3} / {:.3} | {:.2} | {} |",
+            "| {} | {} | {:.2} / {:.2} | {:.2} / {:.2} | {:.3} / {:.3} | {:.2} | {:.3} / {:.3} | {} |",
             ch.from,
             ch.to,
             ch.final_force_change_pct[0],
@@ -455,6 +455,8 @@ fn convergence_markdown(md: &mut String, c: &Convergence) {
             ch.rms_mm,
             ch.max_mm,
             ch.ref_max_mm,
+            ch.rest_rms_mm,
+            ch.rest_max_mm,
             ch.points,
         );
     }
@@ -544,7 +546,7 @@ fn incompressible_markdown(md: &mut String, n: &Incompressible) {
     );
 }
 
-const CONVERGENCE_HEADER: &str = "label,tets,nodes,h_mm,final_force_left_n,final_force_right_n,peak_force_left_n,peak_force_right_n,ms_per_step,iterations_mean,failed_steps,final_change_left_pct,final_change_right_pct,peak_change_left_pct,peak_change_right_pct,rms_diff_mm,max_diff_mm";
+const CONVERGENCE_HEADER: &str = "label,tets,nodes,h_mm,final_force_left_n,final_force_right_n,peak_force_left_n,peak_force_right_n,ms_per_step,iterations_mean,failed_steps,final_change_left_pct,final_change_right_pct,peak_change_left_pct,peak_change_right_pct,rms_diff_mm,max_diff_mm,rest_rms_mm,rest_max_mm";
 
 fn convergence_csv(c: &Convergence) -> String {
     let mut csv = String::from(CONVERGENCE_HEADER);
@@ -556,7 +558,7 @@ fn convergence_csv(c: &Convergence) -> String {
             |v: Option<f64>, digits: usize| v.map_or(String::new(), |v| format!("{v:.digits$}"));
         let _ = writeln!(
             csv,
-            "{},{},{},{:.4},{:.6},{:.6},{:.6},{:.6},{:.1},{:.2},{},{},{},{},{},{},{}",
+            "{},{},{},{:.4},{:.6},{:.6},{:.6},{:.6},{:.1},{:.2},{},{},{},{},{},{},{},{},{}",
             l.label,
             l.tets,
             l.nodes,
@@ -574,6 +576,8 @@ fn convergence_csv(c: &Convergence) -> String {
             opt(ch.map(|c| c.peak_force_change_pct[1]), 3),
             opt(ch.map(|c| c.rms_mm), 4),
             opt(ch.map(|c| c.max_mm), 4),
+            opt(ch.map(|c| c.rest_rms_mm), 4),
+            opt(ch.map(|c| c.rest_max_mm), 4),
         );
     }
     csv
