@@ -52,6 +52,11 @@ pub enum MeshCommand {
         /// proven at 3.2 mm: about twice 204k).
         #[arg(long, value_name = "MM")]
         spacing_mm: Option<f64>,
+        /// Split every tetrahedron into eight at its edge midpoints this
+        /// many times (0 to 2): the same shape and surface at half the
+        /// element size each time, 8 times the tetrahedra.
+        #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=fissure_engine::mesh::refine::MAX_REFINEMENTS as i64))]
+        refine: u32,
     },
     /// Mesh the inside of a closed triangle surface (.obj, .ply, .stl, or a
     /// .vtu of triangles) with tetrahedra (isosurface stuffing, uniform at the
@@ -180,6 +185,7 @@ pub fn run(cmd: MeshCommand) -> anyhow::Result<()> {
             cells,
             proven,
             spacing_mm,
+            refine,
         } => {
             let generated = generate(
                 &preset,
@@ -189,6 +195,7 @@ pub fn run(cmd: MeshCommand) -> anyhow::Result<()> {
                     cells,
                     proven,
                     spacing_m: spacing_mm.map(|h| h * 1e-3),
+                    refine,
                 },
             )?;
             if !generated.repair.is_empty() {
@@ -529,6 +536,8 @@ pub struct PresetOptions {
     pub proven: bool,
     /// A phantom preset's finest lattice spacing, m, in place of its own.
     pub spacing_m: Option<f64>,
+    /// Uniform refinements of the meshed preset ([`fissure_engine::mesh::refine`]).
+    pub refine: u32,
 }
 
 /// The names [`preset_mesh`] knows.
@@ -555,7 +564,7 @@ pub fn preset_mesh_repaired(
     use fissure_engine::mesh::blocks;
     // The single list of presets (keep PRESETS in step).
     let block = |mesh| (mesh, BoundaryRepair::default());
-    Ok(match name {
+    let (mesh, repair) = match name {
         "coarse" | "paper-34k" | "paper-48k" => {
             if let Some(h) = cube.spacing_m {
                 use fissure_engine::scene::{
@@ -589,7 +598,17 @@ pub fn preset_mesh_repaired(
         "v-valley" => block(blocks::v_valley()),
         "u-valley" => block(blocks::u_valley()),
         other => bail!("unknown preset '{other}' (known: {})", PRESETS.join(", ")),
-    })
+    };
+    if cube.refine > fissure_engine::mesh::refine::MAX_REFINEMENTS {
+        bail!(
+            "--refine must be at most {}, got {}",
+            fissure_engine::mesh::refine::MAX_REFINEMENTS,
+            cube.refine
+        );
+    }
+    let mesh = fissure_engine::mesh::refine::uniform_times(mesh, cube.refine)
+        .context("refining the mesh")?;
+    Ok((mesh, repair))
 }
 
 /// A preset as [`generate`] wrote it.
@@ -1042,6 +1061,7 @@ mod tests {
             cells: 8,
             proven,
             spacing_m: None,
+            refine: 0,
         };
         let proven = generate("coarse", &vtu, &opts(true)).unwrap().mesh;
         let plain = preset_mesh("coarse", &opts(false)).unwrap();
@@ -1071,6 +1091,7 @@ mod tests {
                 cells: 8,
                 proven: false,
                 spacing_m: None,
+                refine: 0,
             },
         )
         .unwrap();
@@ -1174,6 +1195,7 @@ mod tests {
                     cells: 2,
                     proven: false,
                     spacing_m: None,
+                    refine: 0,
                 }
             )
             .is_err()
@@ -1187,6 +1209,7 @@ mod tests {
                     cells: 2,
                     proven: false,
                     spacing_m: Some(h),
+                    refine: 0,
                 },
             )
             .unwrap_err();
@@ -1335,6 +1358,7 @@ mod tests {
             cells: 8,
             proven: false,
             spacing_m: None,
+            refine: 0,
         };
         let Generated { mesh, repair, .. } = generate("paper-34k", &vtu, &opts).unwrap();
         assert_eq!(
@@ -1351,6 +1375,29 @@ mod tests {
         assert_eq!(r.tets, mesh.tets.len());
     }
 
+    /// `--refine` splits every tetrahedron into eight and writes a valid
+    /// mesh of the same block; more refinements than allowed are refused.
+    #[test]
+    fn a_refined_preset_has_eight_times_the_tetrahedra_and_no_problem() {
+        let dir = tempfile::tempdir().unwrap();
+        let opts = |refine| PresetOptions {
+            size_m: 0.05,
+            cells: 2,
+            proven: false,
+            spacing_m: None,
+            refine,
+        };
+        let vtu = dir.path().join("cube.vtu");
+        let plain = generate("cube", &vtu, &opts(0)).unwrap();
+        let refined = generate("cube", &vtu, &opts(1)).unwrap();
+        assert_eq!(refined.mesh.tets.len(), 8 * plain.mesh.tets.len());
+        let r = inspect(&vtu, &InspectOptions::default()).unwrap();
+        assert_eq!(r.problems_found, 0, "{:?}", r.problems);
+        assert_eq!(r.tets, refined.mesh.tets.len());
+        let e = generate("cube", &vtu, &opts(3)).unwrap_err().to_string();
+        assert!(e.contains("--refine"), "{e}");
+    }
+
     /// A volume written to a surface format (generate, convert) reports the
     /// vertices and triangles of the surface written, the counts the file
     /// holds when read back, not the tetrahedra it came from.
@@ -1362,6 +1409,7 @@ mod tests {
             cells: 4,
             proven: false,
             spacing_m: None,
+            refine: 0,
         };
         let stl = dir.path().join("cube.stl");
         let g = generate("cube", &stl, &opts).unwrap();

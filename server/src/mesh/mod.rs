@@ -13,6 +13,7 @@ pub mod io;
 pub mod manifold;
 pub mod phantom;
 pub mod quality;
+pub mod refine;
 pub mod sdf;
 pub mod stuffing;
 pub mod units;

@@ -214,6 +214,14 @@ pub enum ModelSpec {
         /// fissure walls touch. Default: the preset's.
         #[serde(default)]
         spacing_m: Option<f64>,
+        /// Uniform refinements of the meshed phantom (each tetrahedron into
+        /// eight at its edge midpoints, [`crate::mesh::refine`]): the same
+        /// shape, surface and landmarks at half the element size each, 8x
+        /// the tetrahedra. At most
+        /// [`MAX_REFINEMENTS`](crate::mesh::refine::MAX_REFINEMENTS).
+        /// Default 0.
+        #[serde(default)]
+        refine: u32,
     },
     /// A tetrahedral mesh file (MSH, VTK/VTU, TetGen), relative to the scene
     /// file. Its boundary must be a closed manifold, and it must be at most
@@ -904,6 +912,17 @@ impl Scene {
                 ));
             }
         }
+        if let ModelSpec::Phantom { refine, .. } = &self.model
+            && *refine > crate::mesh::refine::MAX_REFINEMENTS
+        {
+            return Err(bad(
+                "model.refine".into(),
+                format!(
+                    "must be at most {} (each refinement multiplies the tetrahedra by 8), got {refine}",
+                    crate::mesh::refine::MAX_REFINEMENTS
+                ),
+            ));
+        }
         if let ModelSpec::Phantom {
             spacing_m: Some(h), ..
         } = &self.model
@@ -1361,6 +1380,7 @@ mod tests {
                 preset: "coarse".into(),
                 proven: true,
                 spacing_m: None,
+                refine: 0,
             }
         );
         let model = crate::sim::core::engine::Model::build(&scene).unwrap();
@@ -1410,6 +1430,35 @@ mod tests {
             let msg = e.to_string();
             assert!(msg.contains("model.spacing_m"), "{bad}: {msg}");
         }
+    }
+
+    /// `model.refine` splits every tetrahedron of the meshed phantom into
+    /// eight and keeps its shape (the same volume, the brain stem still
+    /// held); more than the allowed refinements are refused, naming the
+    /// field.
+    #[test]
+    fn a_refined_phantom_keeps_its_shape_with_eight_times_the_elements() {
+        let text = include_str!("../../scenes/sylvian.toml");
+        let with = |extra: &str| {
+            text.replace(
+                "preset = \"paper-48k\"",
+                &format!("preset = \"coarse\"\n{extra}"),
+            )
+        };
+        let plain = Scene::parse(&with(""), "p.toml").unwrap();
+        let refined = Scene::parse(&with("refine = 1"), "p.toml").unwrap();
+        let plain = crate::sim::core::engine::Model::build(&plain).unwrap();
+        let refined = crate::sim::core::engine::Model::build(&refined).unwrap();
+        assert_eq!(refined.mesh.tets.len(), 8 * plain.mesh.tets.len());
+        let volume = |m: &crate::mesh::TetMesh| -> f64 {
+            (0..m.tets.len()).map(|t| m.signed_volume(t)).sum()
+        };
+        let (v0, v1) = (volume(&plain.mesh), volume(&refined.mesh));
+        assert!((v1 - v0).abs() <= 1e-10 * v0, "{v1} vs {v0}");
+        // The fixed region holds the old nodes and the new ones between.
+        assert!(refined.fixed.len() > plain.fixed.len());
+        let e = Scene::parse(&with("refine = 3"), "p.toml").unwrap_err();
+        assert!(e.to_string().contains("model.refine"), "{e}");
     }
 
     #[test]
@@ -1712,6 +1761,7 @@ mod tests {
                 preset: "coarse".into(),
                 proven: false,
                 spacing_m: None,
+                refine: 0,
             };
             let model = crate::sim::core::engine::Model::build(&coarse).unwrap();
             let springs = model.foundation.as_ref().unwrap();

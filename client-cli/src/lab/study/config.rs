@@ -119,6 +119,14 @@ pub struct Config {
     /// (`scene.model.spacing_m`); `None`: the preset's.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub spacing_m: Option<f64>,
+    /// Uniform refinements of the meshed phantom (`scene.model.refine`:
+    /// each tetrahedron into eight, the shape kept exactly); 0: none.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub refine: u32,
+}
+
+fn is_zero(n: &u32) -> bool {
+    *n == 0
 }
 
 fn ser_element<S: serde::Serializer>(e: &Element, ser: S) -> Result<S::Ok, S::Error> {
@@ -171,6 +179,7 @@ impl Config {
             support: Support::Stem,
             proven: false,
             spacing_m: None,
+            refine: 0,
         }
         .labelled()
     }
@@ -190,6 +199,10 @@ impl Config {
                 if proven { "-proven" } else { "" },
                 h * 1e3
             ),
+        };
+        let preset = match self.refine {
+            0 => preset,
+            r => format!("{preset}-r{r}"),
         };
         let strategy = self.strategy.kind().label;
         let mut l = format!("{preset}/{strategy}");
@@ -263,6 +276,7 @@ impl Config {
             preset: self.preset.clone(),
             proven: self.proven,
             spacing_m: self.spacing_m,
+            refine: self.refine,
         };
         scene.material.youngs_modulus_pa = self.youngs_pa;
         scene.material.poisson_ratio = self.nu;

@@ -104,10 +104,11 @@ impl Model {
                 preset,
                 proven,
                 spacing_m,
+                refine,
             } => {
                 let p = crate::mesh::phantom::preset_meshed(preset, *proven, *spacing_m)?;
                 landmarks = Some(p.landmarks);
-                p.mesh
+                crate::mesh::refine::uniform_times(p.mesh, *refine)?
             }
             ModelSpec::File { path, scale } => crate::mesh::io::read_model(path, *scale)?,
         };
@@ -376,6 +377,9 @@ pub enum ModelError {
     /// The model file could not be read.
     #[error("building the model: {0}")]
     ModelFile(#[from] crate::mesh::io::ModelFileError),
+    /// The uniform refinement of the model (`model.refine`) failed.
+    #[error("building the model: refining the mesh: {0}")]
+    Refine(#[from] crate::mesh::MeshError),
     /// An instrument of the scene could not be built.
     #[error("building the model: instrument {name:?}: {source}")]
     Instrument {
