@@ -1394,18 +1394,21 @@ mod tests {
         assert_ne!(model.mesh.tets.len(), plain.tets.len());
     }
 
+    /// The `sylvian` scene on the coarse phantom, with `extra` lines added
+    /// to its `[model]`.
+    fn coarse_sylvian_with(extra: &str) -> String {
+        include_str!("../../scenes/sylvian.toml").replace(
+            "preset = \"paper-48k\"",
+            &format!("preset = \"coarse\"\n{extra}"),
+        )
+    }
+
     /// A finer spacing refines the preset's mesh (more elements, smaller
     /// mean element) and keeps it a valid phantom; a spacing outside the
     /// allowed range is refused, naming the field and the bound.
     #[test]
     fn a_phantom_spacing_refines_the_mesh_and_out_of_range_ones_are_refused() {
-        let text = include_str!("../../scenes/sylvian.toml");
-        let with = |extra: &str| {
-            text.replace(
-                "preset = \"paper-48k\"",
-                &format!("preset = \"coarse\"\n{extra}"),
-            )
-        };
+        let with = coarse_sylvian_with;
         let plain = Scene::parse(&with(""), "p.toml").unwrap();
         let fine = Scene::parse(&with("spacing_m = 0.009"), "p.toml").unwrap();
         assert!(matches!(
@@ -1438,13 +1441,7 @@ mod tests {
     /// field.
     #[test]
     fn a_refined_phantom_keeps_its_shape_with_eight_times_the_elements() {
-        let text = include_str!("../../scenes/sylvian.toml");
-        let with = |extra: &str| {
-            text.replace(
-                "preset = \"paper-48k\"",
-                &format!("preset = \"coarse\"\n{extra}"),
-            )
-        };
+        let with = coarse_sylvian_with;
         let plain = Scene::parse(&with(""), "p.toml").unwrap();
         let refined = Scene::parse(&with("refine = 1"), "p.toml").unwrap();
         let plain = crate::sim::core::engine::Model::build(&plain).unwrap();

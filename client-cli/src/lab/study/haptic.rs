@@ -110,6 +110,23 @@ mod tests {
         Vector3::new(0.0, 0.0, f)
     }
 
+    /// [`at_step_instants`] of these series.
+    fn error(
+        step_t: &[f64],
+        step_force: &[Vec<Vector3<f64>>],
+        step_failed: &[bool],
+        sample_t: &[f64],
+        sample_force: &[Vec<Vector3<f64>>],
+    ) -> Option<HapticError> {
+        at_step_instants(&Series {
+            step_t,
+            step_force,
+            step_failed,
+            sample_t,
+            sample_force,
+        })
+    }
+
     /// Steps every 50 ms from 5 ms, samples every 5 ms from 5 ms (the
     /// study's scenario), as products the way the scenario and the runner
     /// form them.
@@ -131,14 +148,7 @@ mod tests {
                 vec![z(k.map_or(7.0, |k| 0.1 * (k + 1) as f64))]
             })
             .collect();
-        let e = at_step_instants(&Series {
-            step_t: &step_t,
-            step_force: &step_force,
-            step_failed: &[],
-            sample_t: &sample_t,
-            sample_force: &sample_force,
-        })
-        .unwrap();
+        let e = error(&step_t, &step_force, &[], &sample_t, &sample_force).unwrap();
         assert_eq!(e.checked, 4);
         assert_eq!((e.max_pct, e.rms_pct, e.max_n), (0.0, 0.0, 0.0));
     }
@@ -168,14 +178,7 @@ mod tests {
             .unwrap();
         sample_force[j][0].z -= 0.02;
         sample_force[j][1].y += 0.01;
-        let e = at_step_instants(&Series {
-            step_t: &step_t,
-            step_force: &step_force,
-            step_failed: &[],
-            sample_t: &sample_t,
-            sample_force: &sample_force,
-        })
-        .unwrap();
+        let e = error(&step_t, &step_force, &[], &sample_t, &sample_force).unwrap();
         assert_eq!(e.checked, 4);
         assert!((e.max_n - 0.02).abs() < 1e-15);
         assert!((e.max_pct - 5.0).abs() < 1e-12, "{}", e.max_pct);
@@ -196,15 +199,8 @@ mod tests {
                 vec![z(if off { 0.1 } else { 0.2 })]
             })
             .collect();
-        let series = |failed: &[bool]| {
-            at_step_instants(&Series {
-                step_t: &step_t,
-                step_force: &step_force,
-                step_failed: failed,
-                sample_t: &sample_t,
-                sample_force: &sample_force,
-            })
-        };
+        let series =
+            |failed: &[bool]| error(&step_t, &step_force, failed, &sample_t, &sample_force);
         let e = series(&[false, true, false]).unwrap();
         assert_eq!((e.checked, e.max_n), (2, 0.0));
         // Counted as a solve it would give the 0.1 N difference.
@@ -218,27 +214,9 @@ mod tests {
         let (step_t, sample_t) = times(2);
         let zero: Vec<_> = (0..2).map(|_| vec![z(0.0)]).collect();
         let samples: Vec<_> = sample_t.iter().map(|_| vec![z(0.0)]).collect();
-        assert!(
-            at_step_instants(&Series {
-                step_t: &step_t,
-                step_force: &zero,
-                step_failed: &[],
-                sample_t: &sample_t,
-                sample_force: &samples,
-            })
-            .is_none()
-        );
+        assert!(error(&step_t, &zero, &[], &sample_t, &samples).is_none());
         let pushed: Vec<_> = (0..2).map(|_| vec![z(0.1)]).collect();
         let shifted: Vec<f64> = sample_t.iter().map(|t| t + 0.0025).collect();
-        assert!(
-            at_step_instants(&Series {
-                step_t: &step_t,
-                step_force: &pushed,
-                step_failed: &[],
-                sample_t: &shifted,
-                sample_force: &samples,
-            })
-            .is_none()
-        );
+        assert!(error(&step_t, &pushed, &[], &shifted, &samples).is_none());
     }
 }
