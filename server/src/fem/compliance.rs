@@ -12,6 +12,16 @@
 //! `u = sum_j K0^-1[:, j] r_j` from the node reactions `r_j`. Exact for linear
 //! elasticity.
 //!
+//! Nodes that only ever meet contact along one fixed direction each (the
+//! rigid skull surface's nodes along their rest normals) may instead hold
+//! their normal compliance, computed once ([`Compliance::hold_normals`],
+//! [`super::held_normals`]): a row along such a direction needs no column,
+//! its entries of `W` with the other held rows come from the held matrix and
+//! with any other row from that row's columns, and a solve with force on a
+//! held node recovers `u` by one sparse solve with the factor instead of
+//! combining columns. The held matrix is outside the cache and never
+//! evicted.
+//!
 //! The cache is bounded (least recently used node evicted, see
 //! [`Compliance::set_cache_limit`]; default [`DEFAULT_CACHE_BYTES`]). Apart
 //! from filling the cache for new contact nodes (and growing the block
@@ -25,6 +35,7 @@ use super::column_queue::{SharedQueue, Urgency};
 use super::constraint::{Constraint, StepRows};
 use super::contact::{self, CompliancePatch, ContactAnswer, ContactRow, SharedBlocks};
 use super::factor::{SharedFactor, SparseLlt};
+use super::held_normals::HeldNormals;
 use super::lcp::{ContactSolver, RowKind, Tolerances};
 use super::model::Model;
 use super::par::{Par, for_each_chunk};
@@ -202,6 +213,8 @@ pub struct Compliance {
     missing: Vec<u32>,
     /// [`Self::ask`]'s nodes to send (reused).
     todo: Vec<u32>,
+    /// A contact solve's nodes that need columns (reused).
+    want: Vec<u32>,
     par: Par,
     rows: StepRows,
     cmat: Mat<f64>,
@@ -249,6 +262,16 @@ pub struct Compliance {
     kinds: Vec<RowKind>,
     lam: Vec<f64>,
     lcp: ContactSolver,
+    /// The held normal compliance of the skull's nodes
+    /// ([`Compliance::hold_normals`]): rows along those normals need no
+    /// column.
+    held: Option<HeldNormals>,
+    /// A full DOF vector for the response of forces at held nodes (one
+    /// sparse solve; allocated with `held`).
+    held_rhs: Vec<f64>,
+    /// Nodes whose columns were solved (here or by the worker) since
+    /// construction.
+    columns_solved: u64,
 }
 
 impl std::fmt::Debug for Compliance {
@@ -365,6 +388,7 @@ impl Compliance {
             cache_limit: default_cache_limit(rec_nodes.len()),
             missing: Vec::new(),
             todo: Vec::new(),
+            want: Vec::new(),
             par: Par::Seq,
             cmat: Mat::zeros(0, 0),
             chol_buf: MemBuffer::new(llt::factor::cholesky_in_place_scratch::<f64>(
@@ -417,6 +441,9 @@ impl Compliance {
             kinds: Vec::new(),
             lam: Vec::new(),
             lcp: ContactSolver::new(),
+            held: None,
+            held_rhs: Vec::new(),
+            columns_solved: 0,
             rec_nodes,
             rec_of,
             factor,
@@ -432,6 +459,70 @@ impl Compliance {
     /// Number of nodes whose columns of `K0^-1` are cached.
     pub fn cached_nodes(&self) -> usize {
         self.n_slots
+    }
+
+    /// Nodes whose columns of `K0^-1` were solved since construction (on
+    /// the calling thread or taken from the background worker; the held
+    /// normals of [`Self::hold_normals`] are not columns and not counted).
+    pub fn columns_solved(&self) -> u64 {
+        self.columns_solved
+    }
+
+    /// Computes and holds the normal compliance of `nodes` (volume node and
+    /// unit direction: the skull surface's supported nodes and their rest
+    /// normals; [`HeldNormals`]). From then on a contact row at one such
+    /// node along its direction needs no column of `K0^-1`: its entries of
+    /// `W` with other such rows come from the held matrix, with any other
+    /// row from that row's nodes' columns, and the response to its force
+    /// from one sparse solve per contact solve. The held matrix is never
+    /// evicted ([`Self::held_bytes`]). Replaces what was held before.
+    pub fn hold_normals(&mut self, nodes: &[(u32, Vector3<f64>)]) -> Result<(), SolveError> {
+        let n_nodes = self.model.n_nodes();
+        for &(v, d) in nodes {
+            if v as usize >= n_nodes || self.rec_of[v as usize] == NONE {
+                return Err(SolveError::BadConstraint {
+                    node: v,
+                    reason: "held normal: the node is out of range or not recovered".into(),
+                });
+            }
+            if self.model.support[3 * v as usize..3 * v as usize + 3]
+                .iter()
+                .any(|&f| f)
+            {
+                return Err(SolveError::BadConstraint {
+                    node: v,
+                    reason: "held normal: the node is a fixed support".into(),
+                });
+            }
+            let len = d.norm();
+            if !len.is_finite() || (len - 1.0).abs() > 1e-9 {
+                return Err(SolveError::BadConstraint {
+                    node: v,
+                    reason: format!("held normal: direction of length {}", d.norm()),
+                });
+            }
+        }
+        let start = std::time::Instant::now();
+        let held = HeldNormals::compute(&self.factor.share(), n_nodes, nodes, self.par);
+        tracing::info!(
+            nodes = held.len(),
+            bytes = held.bytes(),
+            seconds = start.elapsed().as_secs_f64(),
+            "skull compliance held"
+        );
+        self.held_rhs = vec![0.0; self.model.pattern.n_dofs];
+        // The kept rows of `W` may involve the old held entries.
+        self.w_sig.clear();
+        self.w_c.clear();
+        self.lcp.forget();
+        self.held = Some(held);
+        Ok(())
+    }
+
+    /// Bytes of the held normal compliance ([`Self::hold_normals`]; 0
+    /// without).
+    pub fn held_bytes(&self) -> usize {
+        self.held.as_ref().map_or(0, HeldNormals::bytes) + 8 * self.held_rhs.len()
     }
 
     /// Drops the cached columns (memory: `9 x recovered nodes x 8` bytes per
@@ -517,6 +608,56 @@ impl Compliance {
         b
     }
 
+    /// Block `C[i][j]` (3 x 3) for any two recovered nodes of which one is
+    /// cached or both are held ([`Self::hold_normals`]); for two held nodes
+    /// without columns only its part along their directions,
+    /// `n_i N[i][j] n_j^T` (what rows along them read).
+    fn any_block(&self, i: u32, j: u32) -> nalgebra::Matrix3<f64> {
+        if self.cache_slot[j as usize] != NONE {
+            return self.block(i, j);
+        }
+        if self.cache_slot[i as usize] != NONE {
+            return self.block(j, i).transpose();
+        }
+        match &self.held {
+            Some(h) => match (h.index_of(i), h.index_of(j)) {
+                (Some(a), Some(b)) => h.normals[a] * h.entry(a, b) * h.normals[b].transpose(),
+                _ => nalgebra::Matrix3::zeros(),
+            },
+            None => nalgebra::Matrix3::zeros(),
+        }
+    }
+
+    /// A row at one held node along its held direction: its held index and
+    /// `weight x dir . n`.
+    #[inline]
+    fn held_row(&self, r: &ContactRow) -> Option<(usize, f64)> {
+        if r.is_point() {
+            return None;
+        }
+        self.held.as_ref()?.along(r.node, &(r.dir * r.weight))
+    }
+
+    /// `W` entry of two rows whose nodes are cached or held (held rows):
+    /// `sum_ab w_a w_b d_a^T C[a][b] d_b`.
+    fn row_pair(&self, ra: &ContactRow, rc: &ContactRow) -> f64 {
+        if let (Some(h), Some((ka, sa)), Some((kc, sc))) =
+            (&self.held, self.held_row(ra), self.held_row(rc))
+        {
+            // Both along held directions: from the held matrix whether or
+            // not their columns are cached too (the same answer either way).
+            return sa * sc * h.entry(ka, kc);
+        }
+        let mut v = 0.0;
+        for (na, wa) in ra.nodes() {
+            for (nc, wc) in rc.nodes() {
+                let b = self.any_block(na, nc);
+                v += wa * wc * ra.dir.dot(&(b * rc.dir));
+            }
+        }
+        v
+    }
+
     /// Marks the step's nodes as used and computes the columns of those not
     /// cached (the equality path always computes).
     fn fill_cache(&mut self) {
@@ -551,6 +692,7 @@ impl Compliance {
         let got: Vec<(u32, Vec<f64>)> = worker.rx.try_iter().collect();
         let n_dofs = self.model.pattern.n_dofs;
         let n3 = self.nrec3();
+        self.columns_solved += got.len() as u64;
         for (n, cols) in got {
             self.asked[n as usize] = NOT_ASKED;
             if self.cache_slot[n as usize] != NONE {
@@ -643,6 +785,7 @@ impl Compliance {
                 }
             }
             self.factor.solve_many(&mut block, ncols);
+            self.columns_solved += chunk.len() as u64;
             for (k, &n) in chunk.iter().enumerate() {
                 let s = self.take_slot();
                 self.cache_slot[n as usize] = s as u32;
@@ -1038,9 +1181,16 @@ impl Compliance {
             }
         }
         self.stamp += 1;
-        let nodes = std::mem::take(&mut self.c_nodes);
-        self.use_columns(&nodes, self.policy, Urgency::Row);
-        self.c_nodes = nodes;
+        // Rows along a held direction need no column.
+        let mut want = std::mem::take(&mut self.want);
+        want.clear();
+        for r in rows {
+            if self.held_row(r).is_none() {
+                want.extend(r.nodes().map(|(n, _)| n));
+            }
+        }
+        self.use_columns(&want, self.policy, Urgency::Row);
+        self.want = want;
         // Rows whose nodes all have their columns take part; the others wait.
         // Rows with their own compliance (ties) come first: they are the same
         // rows from one solve to the next, so the rows of `W` and the place
@@ -1056,7 +1206,9 @@ impl Compliance {
                 if (r.compliance_m_per_n > 0.0) != pass {
                     continue;
                 }
-                if r.nodes().any(|(n, _)| self.cache_slot[n as usize] == NONE) {
+                if self.held_row(r).is_none()
+                    && r.nodes().any(|(n, _)| self.cache_slot[n as usize] == NONE)
+                {
                     answer.pending.push(i as u32);
                     continue;
                 }
@@ -1100,13 +1252,7 @@ impl Compliance {
             let ra = &rows[self.inc[a]];
             for c in 0..=a {
                 let rc = &rows[self.inc[c]];
-                let mut v = 0.0;
-                for (na, wa) in ra.nodes() {
-                    for (nc, wc) in rc.nodes() {
-                        let b = self.block(na, nc);
-                        v += wa * wc * ra.dir.dot(&(b * rc.dir));
-                    }
-                }
+                let v = self.row_pair(ra, rc);
                 self.w[a * stride + c] = v;
                 self.w[c * stride + a] = v;
             }
@@ -1168,15 +1314,37 @@ impl Compliance {
             std::mem::take(&mut self.c_nodes),
             std::mem::take(&mut self.c_force),
         );
-        // Pending nodes have no columns: they carry no force.
-        let cached: Vec<(u32, Vector3<f64>)> = nodes
+        // Forces at held nodes without columns: the whole response by one
+        // sparse solve (exact; pending nodes carry no force).
+        let zero = Vector3::zeros();
+        let by_solve = nodes
             .iter()
             .zip(&force)
-            .filter(|(n, _)| self.cache_slot[**n as usize] != NONE)
-            .map(|(n, f)| (*n, *f))
-            .collect();
-        let (cn, cf): (Vec<u32>, Vec<Vector3<f64>>) = cached.into_iter().unzip();
-        self.add_response_at(&cn, &cf, 1.0, &mut u, false);
+            .any(|(n, f)| self.cache_slot[*n as usize] == NONE && *f != zero);
+        if by_solve {
+            self.held_rhs.fill(0.0);
+            for (&n, f) in nodes.iter().zip(&force) {
+                let b = 3 * n as usize;
+                for a in 0..3 {
+                    self.held_rhs[b + a] += f[a];
+                }
+            }
+            self.factor.solve(&mut self.held_rhs);
+            for (i, &nd) in self.rec_nodes.iter().enumerate() {
+                let b = 3 * nd as usize;
+                u[3 * i..3 * i + 3].copy_from_slice(&self.held_rhs[b..b + 3]);
+            }
+        } else {
+            // Pending nodes have no columns: they carry no force.
+            let cached: Vec<(u32, Vector3<f64>)> = nodes
+                .iter()
+                .zip(&force)
+                .filter(|(n, _)| self.cache_slot[**n as usize] != NONE)
+                .map(|(n, f)| (*n, *f))
+                .collect();
+            let (cn, cf): (Vec<u32>, Vec<Vector3<f64>>) = cached.into_iter().unzip();
+            self.add_response_at(&cn, &cf, 1.0, &mut u, false);
+        }
         self.c_nodes = nodes;
         self.c_force = force;
         if !u.iter().all(|v| v.is_finite()) {
@@ -1252,7 +1420,18 @@ impl Compliance {
         for &n in &distinct {
             self.listed[n as usize] = false;
         }
-        self.use_columns(&distinct, self.policy, Urgency::Patch);
+        // Held nodes take part without columns (rows along their
+        // directions only; `patch.axes`).
+        let mut want = std::mem::take(&mut self.want);
+        want.clear();
+        want.extend(
+            distinct
+                .iter()
+                .copied()
+                .filter(|&n| self.held.as_ref().is_none_or(|h| h.index_of(n).is_none())),
+        );
+        self.use_columns(&want, self.policy, Urgency::Patch);
+        self.want = want;
         self.build_shared();
         patch.nodes.clear();
         patch.shared = self.shared.clone();
@@ -1260,11 +1439,21 @@ impl Compliance {
             patch.nodes.extend_from_slice(&sh.nodes);
         }
         let s = patch.nodes.len();
+        let held = |n: u32| self.held.as_ref().and_then(|h| h.index_of(n));
         for &n in &distinct {
-            if self.cache_slot[n as usize] != NONE && !(s > 0 && self.is_shared[n as usize]) {
+            if (self.cache_slot[n as usize] != NONE || held(n).is_some())
+                && !(s > 0 && self.is_shared[n as usize])
+            {
                 patch.nodes.push(n);
             }
         }
+        patch.axes.clear();
+        patch.axes.extend(patch.nodes.iter().map(|&n| {
+            match (self.cache_slot[n as usize], held(n), &self.held) {
+                (NONE, Some(k), Some(h)) => h.normals[k],
+                _ => Vector3::zeros(),
+            }
+        }));
         let m = patch.nodes.len();
         let m3 = 3 * m;
         patch.blocks.clear();
@@ -1277,7 +1466,7 @@ impl Compliance {
                 if j >= s && j > i {
                     continue;
                 }
-                let b = self.block(patch.nodes[j], patch.nodes[i]);
+                let b = self.any_block(patch.nodes[j], patch.nodes[i]);
                 for a in 0..3 {
                     for c in 0..3 {
                         patch.blocks[(r + a) * m3 + 3 * j + c] = b[(c, a)];
@@ -1395,6 +1584,19 @@ impl DeformationSolver for Compliance {
         hook: Option<Arc<dyn Fn() + Send + Sync>>,
     ) {
         Compliance::set_column_policy(self, policy, hook);
+    }
+
+    fn hold_normals(&mut self, nodes: &[(u32, Vector3<f64>)]) -> Result<bool, SolveError> {
+        Compliance::hold_normals(self, nodes)?;
+        Ok(true)
+    }
+
+    fn held_bytes(&self) -> usize {
+        Compliance::held_bytes(self)
+    }
+
+    fn columns_solved(&self) -> u64 {
+        Compliance::columns_solved(self)
     }
 
     fn prefetch(&mut self, nodes: &[u32]) {

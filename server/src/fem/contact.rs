@@ -188,6 +188,12 @@ pub struct CompliancePatch {
     /// Whether the strategy is linear (then `free_positions` are the rest
     /// positions and the blocks never change).
     pub linear: bool,
+    /// Per node, the only direction its blocks hold for (a held skull node
+    /// without columns: `C[i][j]` is given as `n_i (n_i^T C[i][j] n_j)
+    /// n_j^T` between two such nodes), or zero: every direction. Empty:
+    /// zero for every node. A row at such a node along another direction
+    /// must wait like a row on a node outside the patch.
+    pub axes: Vec<Vector3<f64>>,
 }
 
 /// Blocks of a linear strategy's compliance among a fixed set of nodes

@@ -65,6 +65,7 @@ pub mod direct;
 pub mod element;
 pub mod factor;
 pub mod foundation;
+pub mod held_normals;
 pub mod lcp;
 pub mod model;
 pub mod neo_hookean;
@@ -295,6 +296,24 @@ pub trait DeformationSolver: Send {
     /// in the background where the strategy defers it). The default does
     /// nothing.
     fn prefetch(&mut self, _nodes: &[u32]) {}
+    /// Computes once and holds the compliance of `nodes` along their unit
+    /// directions (the skull surface's supported nodes and rest normals,
+    /// [`held_normals`]), so that contact rows along them need no
+    /// compliance column in a step or a patch. `Ok(false)` (the default):
+    /// the strategy does not hold any.
+    fn hold_normals(&mut self, _nodes: &[(u32, Vector3<f64>)]) -> Result<bool, SolveError> {
+        Ok(false)
+    }
+    /// Bytes of what [`Self::hold_normals`] holds (never evicted; not in
+    /// [`Self::cache_bytes`]). The default is 0.
+    fn held_bytes(&self) -> usize {
+        0
+    }
+    /// Nodes whose compliance columns the strategy solved since it was
+    /// built (0 where it has none).
+    fn columns_solved(&self) -> u64 {
+        0
+    }
     /// Bytes the strategy holds in caches that grow with use (the
     /// compliance columns of the nodes contact has reached), so that memory
     /// growth from them can be told from any other. The default is 0.

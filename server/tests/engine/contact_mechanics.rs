@@ -486,6 +486,18 @@ fn a_plate_dragged_with_friction_slides_with_mu_times_the_normal_force() {
 /// the cube's scene text extended by `extra`: the model and the last
 /// snapshot.
 fn pressed_cube(extra: &str) -> (Arc<Model>, fissure_engine::sim::core::snapshot::Snapshot) {
+    let (model, snap, _) = pressed_cube_columns(extra);
+    (model, snap)
+}
+
+/// [`pressed_cube`], and the nodes whose compliance columns the steps solved.
+fn pressed_cube_columns(
+    extra: &str,
+) -> (
+    Arc<Model>,
+    fissure_engine::sim::core::snapshot::Snapshot,
+    u64,
+) {
     let text = format!("{}\n{extra}", include_str!("../../scenes/cube.toml"));
     let scene = Scene::parse(&text, "cube (skull variant)").expect("the variant parses");
     let model = Arc::new(Model::build(&scene).expect("the model builds"));
@@ -493,14 +505,78 @@ fn pressed_cube(extra: &str) -> (Arc<Model>, fissure_engine::sim::core::snapshot
         .expect("the engine starts");
     let mut snap = engine.rest(0.0);
     let n = scene.instruments.len();
+    let mut columns = 0;
     for k in 1..=8 {
         let mut poses: Vec<Isometry3<f64>> = (0..n).map(|i| home_pose(&scene, i)).collect();
         poses[0] = flat(0.02, 0.005, TOUCH_Z - 0.003 * k as f64 / 8.0);
         let (next, report) = engine.step(&snap, 0.02 * k as f64, &poses, vec![None; n]);
-        assert!(report.is_some(), "step {k} failed");
+        columns = report.expect("the step solves").columns_solved;
         snap = next;
     }
-    (model, snap)
+    (model, snap, columns)
+}
+
+/// The skull surface's nodes hold their normal compliance from load
+/// (DESIGN.md section 3c): pressed with tens of skull rows pushing, the
+/// steps solve no more compliance columns than without the skull (those of
+/// the plate's nodes and their patch), and the skull rows have no row
+/// pending.
+#[test]
+fn the_skull_surface_costs_the_steps_no_compliance_column() {
+    let (_, _, free) = pressed_cube_columns("");
+    let (_, held, with_skull) = pressed_cube_columns("[skull.surface]\ncsf_gap_m = 5e-5\n");
+    let fm = &held.force_model;
+    let pushing = fm
+        .step_rows
+        .iter()
+        .zip(&fm.step_lambda)
+        .filter(|(r, l)| r.owner == fissure_engine::sim::core::rows::SKULL_OWNER && **l > 0.0)
+        .count();
+    assert!(pushing >= 10, "{pushing} skull rows push");
+    assert!(free > 0);
+    assert!(
+        with_skull <= free,
+        "columns with the skull {with_skull}, without {free}"
+    );
+}
+
+/// With the skull surface held by normal compliance, a plate held still
+/// in a press: every force sample equals a full solve at its pose (the
+/// force loop's patch gives the held nodes' blocks along their normals,
+/// and the skull's contact set is the last step's, which at a still pose
+/// is the full solve's).
+#[test]
+fn with_the_skull_surface_a_sample_of_a_held_press_equals_a_full_solve() {
+    let text = format!(
+        "{}\n[skull.surface]\ncsf_gap_m = 5e-5\n",
+        include_str!("../../scenes/cube.toml")
+    );
+    let scene = Scene::parse(&text, "cube (skull variant)").expect("the variant parses");
+    let ts = times(0.37, 0.005);
+    let track: Vec<Isometry3<f64>> = ts
+        .iter()
+        .map(|&t| flat(0.02, 0.005, TOUCH_Z - press_depth(t.min(0.3), 0.003)))
+        .collect();
+    let r = run(&scene, &ts, &[track], true);
+    let peak = r.full.iter().map(|f| f[0].norm()).fold(0.0, f64::max);
+    assert!(peak > 0.05, "the plate presses: peak {peak} N");
+    let mut held = 0;
+    for (k, (s, f)) in r.force.iter().zip(&r.full).enumerate() {
+        // Still from 0.3 s; two steps at the still pose first.
+        if r.t[k] < 0.345 {
+            continue;
+        }
+        held += 1;
+        let e = (s[0] - f[0]).norm() / peak;
+        assert!(
+            e <= 1e-6,
+            "t = {}: sample {:?} N, full solve {:?} N ({e} of the peak)",
+            r.t[k],
+            s[0],
+            f[0]
+        );
+    }
+    assert!(held >= 4, "{held} samples held still");
 }
 
 /// The skull surface (the rest surface offset outward by the CSF gap,

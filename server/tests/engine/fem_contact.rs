@@ -239,3 +239,110 @@ fn point_rows_compliance_equals_direct() {
         assert!((a - b).abs() < 1e-8 * scale, "{a} vs {b}");
     }
 }
+
+/// The cube's side nodes off the fixed bottom, with their unit outward
+/// normals (the sum of the normals of the side faces they lie on).
+fn sides(mesh: &TetMesh) -> Vec<(u32, Vector3<f64>)> {
+    (0..mesh.nodes.len() as u32)
+        .filter_map(|i| {
+            let p = mesh.nodes[i as usize];
+            if p.z < 1e-12 {
+                return None;
+            }
+            let mut n = Vector3::zeros();
+            for (c, axis) in [(p.x, Vector3::x()), (p.y, Vector3::y())] {
+                if c.abs() < 1e-12 {
+                    n -= axis;
+                } else if (c - L).abs() < 1e-12 {
+                    n += axis;
+                }
+            }
+            (n != Vector3::zeros()).then(|| (i, n.normalize()))
+        })
+        .collect()
+}
+
+/// The skull's held normal compliance (`Compliance::hold_normals`) is the
+/// on-demand columns' `n_i^T C[i][j] n_j` to 1e-12 of the largest entry,
+/// and costs no column: a patch over the held nodes solves none.
+#[test]
+fn held_normals_equal_the_on_demand_columns_and_solve_none() {
+    let (mesh, fixed, _) = block(4);
+    let held = sides(&mesh);
+    let nodes: Vec<u32> = held.iter().map(|h| h.0).collect();
+    let mut on_demand = solver(Strategy::Compliance, &mesh, &fixed, 0.45);
+    let mut holding = solver(Strategy::Compliance, &mesh, &fixed, 0.45);
+    assert!(holding.hold_normals(&held).unwrap());
+    let mut a = fissure_engine::fem::CompliancePatch::default();
+    let mut b = fissure_engine::fem::CompliancePatch::default();
+    assert!(on_demand.compliance_patch(&nodes, &mut a));
+    assert!(holding.compliance_patch(&nodes, &mut b));
+    assert_eq!(on_demand.columns_solved(), nodes.len() as u64);
+    assert_eq!(holding.columns_solved(), 0, "the held nodes need no column");
+    assert_eq!(a.nodes, b.nodes);
+    let normal = |v: u32| held.iter().find(|h| h.0 == v).unwrap().1;
+    assert!(b.axes.iter().zip(&b.nodes).all(|(x, &v)| *x == normal(v)));
+    let mut largest: f64 = 0.0;
+    let mut worst: f64 = 0.0;
+    for i in 0..a.nodes.len() {
+        for j in 0..a.nodes.len() {
+            let (ni, nj) = (normal(a.nodes[i]), normal(a.nodes[j]));
+            let want = ni.dot(&(a.block(i, j) * nj));
+            let got = ni.dot(&(b.block(i, j) * nj));
+            largest = largest.max(want.abs());
+            worst = worst.max((got - want).abs());
+        }
+    }
+    assert!(largest > 0.0);
+    assert!(worst <= 1e-12 * largest, "{worst} m/N of {largest} m/N");
+}
+
+/// A press of the cube with the skull's rows on its bulging sides: the
+/// solver holding the sides' normal compliance gives the multipliers and
+/// displacements of the solver that computes every row's columns (to
+/// 1e-12 of the largest), and solves columns for the plate's nodes only.
+#[test]
+fn skull_rows_on_held_normals_solve_as_on_demand_columns_without_a_column() {
+    let (mesh, fixed, top) = block(4);
+    let held = sides(&mesh);
+    let gap = 2e-5;
+    let mut rows = plane_rows(&mesh, &top, 2e-3, 0.0);
+    // Top nodes on the sides are the plate's; the skull holds the others.
+    let skull: Vec<(u32, Vector3<f64>)> = held
+        .iter()
+        .copied()
+        .filter(|h| !top.contains(&h.0))
+        .collect();
+    rows.extend(
+        skull
+            .iter()
+            .map(|&(v, n)| ContactRow::at_node(v, -n, gap, RowKind::Unilateral)),
+    );
+    let mut on_demand = solver(Strategy::Compliance, &mesh, &fixed, 0.45);
+    let mut holding = solver(Strategy::Compliance, &mesh, &fixed, 0.45);
+    assert!(holding.hold_normals(&held).unwrap());
+    let (mut a, mut b) = (ContactAnswer::default(), ContactAnswer::default());
+    on_demand.solve_contact(&rows, &mut a).unwrap();
+    holding.solve_contact(&rows, &mut b).unwrap();
+    assert!(b.pending.is_empty());
+    let pushing = a.multipliers[top.len()..]
+        .iter()
+        .filter(|&&l| l > 0.0)
+        .count();
+    assert!(
+        pushing > 4,
+        "the skull holds the bulge: {pushing} rows push"
+    );
+    let largest = a.multipliers.iter().fold(0.0f64, |m, l| m.max(l.abs()));
+    for (x, y) in a.multipliers.iter().zip(&b.multipliers) {
+        assert!((x - y).abs() <= 1e-12 * largest, "{x} N against {y} N");
+    }
+    let ua = &on_demand.last_solution().unwrap().displacements;
+    let ub = &holding.last_solution().unwrap().displacements;
+    let umax = ua.iter().fold(0.0f64, |m, u| m.max(u.norm()));
+    for (x, y) in ua.iter().zip(ub) {
+        assert!((x - y).norm() <= 1e-12 * umax, "{x:?} m against {y:?} m");
+    }
+    assert_eq!(on_demand.columns_solved(), (top.len() + skull.len()) as u64);
+    assert_eq!(holding.columns_solved(), top.len() as u64);
+}

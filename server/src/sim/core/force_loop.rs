@@ -263,7 +263,17 @@ impl ForceLoop {
                 None => rows::append_owner(&mut self.all, &fm.step_rows, j as u16),
             }
         }
-        rows::append_owner(&mut self.all, &fm.step_rows, SKULL_OWNER);
+        // The skull's rows the step found pushing: its contact set holds
+        // from one step to the next (its rows are far from the spatulas and
+        // a sample solves with the few that carry the brain, not with the
+        // hundreds to thousands within the band of the skull).
+        self.all.extend(
+            fm.step_rows
+                .iter()
+                .zip(&fm.step_lambda)
+                .filter(|(r, l)| r.owner == SKULL_OWNER && **l > 0.0)
+                .map(|(r, _)| *r),
+        );
         // The ties as the step left them (torn ones have no row), less
         // those a blade cut since.
         let tie_start = self.all.len();

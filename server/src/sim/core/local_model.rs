@@ -126,6 +126,18 @@ impl ForceModel {
     }
 }
 
+/// Whether `row` may read the blocks of patch node `ix`: the node's blocks
+/// hold for every direction ([`crate::fem::CompliancePatch::axes`]), or
+/// the row is at that node alone along its direction.
+#[inline]
+fn along_axis(axes: &[Vector3<f64>], ix: usize, row: &crate::fem::ContactRow) -> bool {
+    let Some(n) = axes.get(ix).filter(|n| **n != Vector3::zeros()) else {
+        return true;
+    };
+    let d = row.dir * row.weight;
+    !row.is_point() && (d - n * d.dot(n)).norm() <= 1e-12 * d.norm()
+}
+
 /// The answer of one sample's contact problem (buffers reused).
 #[derive(Debug, Clone, Default)]
 pub struct SampleAnswer {
@@ -309,6 +321,9 @@ impl ForceSolver {
             let mut complete = true;
             for (a, (n, wn)) in r.row.nodes().enumerate() {
                 match model.patch_slot(n) {
+                    // A node whose blocks hold along one direction only (a
+                    // held skull node) serves rows along it.
+                    Some(ix) if !along_axis(&model.patch.axes, ix, &r.row) => complete = false,
                     Some(ix) => {
                         p[a] = ix as u32;
                         v[a] = n;

@@ -22,12 +22,12 @@ pub struct PatchNodes {
 }
 
 impl PatchNodes {
-    /// Every node a row names; the plates' and the skull's rows with their
-    /// surface neighbours (a contact slides onto them), the ties' alone
-    /// (their rows never move).
-    pub fn add_rows(&mut self, rows: &[Row]) {
+    /// Every node a row names; the plates' rows with their surface
+    /// neighbours (a contact slides onto them), the ties' and the skull's
+    /// alone (their rows never move: each stays at its node).
+    pub fn add_rows<'a>(&mut self, rows: impl IntoIterator<Item = &'a Row>) {
         for r in rows {
-            let to = if r.owner == super::rows::TIE_OWNER {
+            let to = if r.owner == super::rows::TIE_OWNER || r.owner == super::rows::SKULL_OWNER {
                 &mut self.exact
             } else {
                 &mut self.near
@@ -129,6 +129,12 @@ impl Deformer {
         let mut solver = fem::build_solver(strategy, &model.mesh, material, &model.fixed, &options)
             .map_err(ModelError::Solver)?;
         solver.set_column_policy(columns, hook);
+        // The skull's nodes never move: their compliance along their
+        // normals is computed once here, so that the skull's rows cost a
+        // step and the force loop no column (DESIGN.md section 3c).
+        if let Some(s) = model.skull_surface.as_ref().filter(|s| !s.nodes.is_empty()) {
+            solver.hold_normals(&s.nodes).map_err(ModelError::Solver)?;
+        }
         Ok(Self {
             solver,
             answer: ContactAnswer::default(),
@@ -210,6 +216,17 @@ impl Deformer {
     /// Bytes the strategy's caches hold ([`fem::DeformationSolver::cache_bytes`]).
     pub fn cache_bytes(&self) -> usize {
         self.solver.cache_bytes()
+    }
+
+    /// Bytes the strategy holds for the skull ([`fem::DeformationSolver::held_bytes`]).
+    pub fn held_bytes(&self) -> usize {
+        self.solver.held_bytes()
+    }
+
+    /// Nodes whose compliance columns the strategy has solved
+    /// ([`fem::DeformationSolver::columns_solved`]).
+    pub fn columns_solved(&self) -> u64 {
+        self.solver.columns_solved()
     }
 }
 

@@ -60,6 +60,9 @@ pub struct StepReport {
     pub patch_nodes: usize,
     /// Bytes the solver's caches hold after the step.
     pub cache_bytes: usize,
+    /// Nodes whose compliance columns the solver has solved since it was
+    /// built, after the step (the skull's held normals are not columns).
+    pub columns_solved: u64,
 }
 
 /// The deformation step of a scene: collision of every instrument, the
@@ -345,6 +348,7 @@ impl StepEngine {
             check: fresh.check,
             patch_nodes: fresh.patch.patch.nodes.len(),
             cache_bytes: self.deformer.cache_bytes(),
+            columns_solved: self.deformer.columns_solved(),
         };
         let total_us = started.elapsed().as_secs_f64() * 1e6;
         let snap = self.snapshot(
@@ -523,7 +527,15 @@ impl StepEngine {
             tracing::debug_span!("refit").in_scope(|| self.bvhs.as_mut().map(|b| b.fit(&surface)));
         let mut selection = deform::PatchNodes::default();
         let band2 = 2.0 * self.scene.contact.band_m;
-        selection.add_rows(&self.rows);
+        // The skull's rows without force stay out of the force loops'
+        // problem (`ForceLoop::solve`), and so out of the patch.
+        selection.add_rows(
+            self.rows
+                .iter()
+                .zip(&self.lambda)
+                .filter(|(r, l)| r.owner != rows::SKULL_OWNER || **l > 0.0)
+                .map(|(r, _)| r),
+        );
         selection.add_nearby(nearby, band2);
         // (A linearized contact finds the same rows on any shape.)
         if model.contact_rest.is_none() {
