@@ -4,6 +4,12 @@
 //! that re-assembling values each step allocates nothing.
 //!
 //! Global DOF of node `n` along axis `i` is `3 n + i`.
+//!
+//! The groups a pattern may couple beyond the elements (the stars of the
+//! nodal-pressure element) get a scatter map too, one value index per node
+//! pair ([`Pattern::group_pairs`]): their rank-one matrices are scattered
+//! every Newton iteration, and a binary search of the column per entry cost
+//! more than the arithmetic.
 
 use super::element::ElementMatrix;
 use faer::sparse::SymbolicSparseColMatRef;
@@ -39,6 +45,13 @@ pub struct Pattern {
     pub diag: Vec<usize>,
     /// Per element, the value index of each pair of [`LOCAL_PAIRS`].
     pub scatter: Vec<[u32; 78]>,
+    /// Per group of [`Pattern::with_groups`], the range of its node pairs
+    /// in `group_pair_index` (length groups + 1).
+    group_start: Vec<usize>,
+    /// Per group with sorted nodes `n_0 < n_1 < ...`, for each pair `k < l`
+    /// (`k` ascending, then `l`), the value index of entry `(3 n_l, 3 n_k)`
+    /// ([`Pattern::group_pairs`]).
+    group_pair_index: Vec<u32>,
 }
 
 impl Pattern {
@@ -50,12 +63,24 @@ impl Pattern {
 
     /// The pattern of [`Pattern::new`] widened to couple every pair of nodes
     /// within each of `groups` too (the stars of
-    /// [`super::nodal_pressure::NodalPressure`]); the element scatter map is
-    /// the same.
+    /// [`super::nodal_pressure::NodalPressure`], each sorted ascending); the
+    /// element scatter map is the same, and each group gets its pairs' map
+    /// ([`Pattern::group_pairs`]).
     pub fn with_groups<'a>(
         n_nodes: usize,
         tets: &[[u32; 4]],
-        groups: impl Iterator<Item = &'a [u32]>,
+        groups: impl Iterator<Item = &'a [u32]> + Clone,
+    ) -> Self {
+        Self::coupled(n_nodes, tets, groups, &[])
+    }
+
+    /// The pattern of the elements `tets`, the sorted `groups` and the node
+    /// `pairs` (see [`Pattern::with_groups`], [`Pattern::with_pairs`]).
+    fn coupled<'a>(
+        n_nodes: usize,
+        tets: &[[u32; 4]],
+        groups: impl Iterator<Item = &'a [u32]> + Clone,
+        pairs: &[[u32; 2]],
     ) -> Self {
         // Node adjacency (j >= i), sorted and deduplicated.
         let mut adj: Vec<Vec<u32>> = (0..n_nodes).map(|i| vec![i as u32]).collect();
@@ -71,8 +96,11 @@ impl Pattern {
         for t in tets {
             couple(t);
         }
-        for g in groups {
+        for g in groups.clone() {
             couple(g);
+        }
+        for p in pairs {
+            couple(p);
         }
         for a in &mut adj {
             a.sort_unstable();
@@ -104,8 +132,23 @@ impl Pattern {
             row_idx,
             diag,
             scatter: Vec::new(),
+            group_start: vec![0],
+            group_pair_index: Vec::new(),
         };
         pattern.scatter = tets.iter().map(|t| pattern.scatter_of(t)).collect();
+        for g in groups {
+            assert!(
+                g.windows(2).all(|w| w[0] < w[1]),
+                "a coupled group's nodes are sorted and distinct"
+            );
+            for (k, &a) in g.iter().enumerate() {
+                for &b in &g[k + 1..] {
+                    let idx = pattern.index(3 * b as usize, 3 * a as usize) as u32;
+                    pattern.group_pair_index.push(idx);
+                }
+            }
+            pattern.group_start.push(pattern.group_pair_index.len());
+        }
         pattern
     }
 
@@ -124,11 +167,10 @@ impl Pattern {
     pub fn with_groups_and_pairs<'a>(
         n_nodes: usize,
         tets: &[[u32; 4]],
-        groups: impl Iterator<Item = &'a [u32]>,
-        pairs: &'a [[u32; 2]],
+        groups: impl Iterator<Item = &'a [u32]> + Clone,
+        pairs: &[[u32; 2]],
     ) -> Self {
-        let mut pattern =
-            Self::with_groups(n_nodes, tets, groups.chain(pairs.iter().map(|p| &p[..])));
+        let mut pattern = Self::coupled(n_nodes, tets, groups, pairs);
         let extra: Vec<[u32; 78]> = pairs
             .iter()
             .map(|&[a, b]| pattern.scatter_of(&[a, b, a, b]))
@@ -156,6 +198,25 @@ impl Pattern {
         a + self.row_idx[a..b]
             .binary_search(&row)
             .expect("entry in the mesh pattern")
+    }
+
+    /// The value indices of group `g`'s node pairs (`k < l`, `k`
+    /// ascending, then `l`): entry `(3 n_l, 3 n_k)` of its sorted nodes
+    /// `n_0 < n_1 < ...`. The other entries of the pair's block follow from
+    /// it ([`Pattern::group_column_offset`]); those of a node's own block
+    /// from [`Pattern::diag`].
+    pub fn group_pairs(&self, g: usize) -> &[u32] {
+        &self.group_pair_index[self.group_start[g]..self.group_start[g + 1]]
+    }
+
+    /// The offset of column `3 n + c` (`c` < 3) from column `3 n` for the
+    /// rows of a node `m > n`: entry `(3 m + r, 3 n + c)` lies at
+    /// `index(3 m, 3 n) + offset + r`. Each node's rows are stored as one
+    /// block of three in every column it couples with (sorted rows), and
+    /// column `3 n + c` holds `c` rows fewer of node `n`'s own block.
+    #[inline]
+    pub fn group_column_offset(&self, n: usize, c: usize) -> usize {
+        self.col_ptr[3 * n + c] - self.col_ptr[3 * n] - c
     }
 
     /// Number of stored nonzeros.

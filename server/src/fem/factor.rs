@@ -115,6 +115,11 @@ impl SparseLlt {
         }
     }
 
+    /// Whether the last [`SparseLlt::factorize`] succeeded (a factor is held).
+    pub fn is_factored(&self) -> bool {
+        self.factored
+    }
+
     /// Nonzeros of the factor L.
     pub fn factor_nnz(&self) -> usize {
         self.l_values.len()

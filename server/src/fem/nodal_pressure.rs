@@ -164,7 +164,7 @@ impl NodalPressure {
     }
 
     /// Every node's star (node lists), for the stiffness pattern.
-    pub fn stars(&self) -> impl Iterator<Item = &[u32]> + '_ {
+    pub fn stars(&self) -> impl Iterator<Item = &[u32]> + Clone + '_ {
         (0..self.n_nodes()).map(|a| self.star(a).0)
     }
 
@@ -298,24 +298,49 @@ impl NodalPressure {
             }));
             // Local DOF p = 3 k + i of star node k; sorted nodes make the
             // local order the global order, so p <= q is the lower triangle.
-            let m = 3 * nodes.len();
-            let dof = |p: usize| 3 * nodes[p / 3] as usize + p % 3;
-            for q in 0..m {
-                let gq = dof(q);
-                let wq = scratch[q / 3][q % 3];
-                if wq == 0.0 {
-                    continue;
-                }
-                for p in q..m {
-                    let gp = dof(p);
-                    let v = c * scratch[p / 3][p % 3] * wq;
-                    let (cp, cq) = (frame.fixed[gp], frame.fixed[gq]);
-                    if !cp && !cq || p == q {
-                        values[pattern.index(gp, gq)] += v;
-                    } else if !cp && cq {
-                        rhs[gp] -= v * lift[gq];
-                    } else if cp && !cq {
-                        rhs[gq] -= v * lift[gp];
+            // Column q = 3 k + ci, rows p >= q: node k's own rows from the
+            // diagonal, each later node l's three from the pattern's map of
+            // the star's pairs (the star is group `a` of the pattern).
+            let pairs = pattern.group_pairs(a);
+            let s = nodes.len();
+            let mut first = 0;
+            for k in 0..s {
+                let nk = nodes[k] as usize;
+                let row_pairs = &pairs[first..first + (s - k - 1)];
+                first += s - k - 1;
+                for ci in 0..3 {
+                    let gq = 3 * nk + ci;
+                    let wq = scratch[k][ci];
+                    if wq == 0.0 {
+                        continue;
+                    }
+                    let cq = frame.fixed[gq];
+                    let mut put = |gp: usize, index: usize, diagonal: bool, v: f64| {
+                        let cp = frame.fixed[gp];
+                        if !cp && !cq || diagonal {
+                            values[index] += v;
+                        } else if !cp && cq {
+                            rhs[gp] -= v * lift[gq];
+                        } else if cp && !cq {
+                            rhs[gq] -= v * lift[gp];
+                        }
+                    };
+                    let diag = pattern.diag[gq];
+                    for rj in ci..3 {
+                        put(
+                            3 * nk + rj,
+                            diag + rj - ci,
+                            rj == ci,
+                            c * scratch[k][rj] * wq,
+                        );
+                    }
+                    let offset = pattern.group_column_offset(nk, ci);
+                    for (l, &s0) in (k + 1..s).zip(row_pairs) {
+                        let gl = 3 * nodes[l] as usize;
+                        let base = s0 as usize + offset;
+                        for rj in 0..3 {
+                            put(gl + rj, base + rj, false, c * scratch[l][rj] * wq);
+                        }
                     }
                 }
             }
@@ -578,6 +603,122 @@ mod tests {
             &vec![2e5; mesh.tets.len()],
         );
         (mesh, p)
+    }
+
+    /// The rank-one scatter as first written: each entry's value index by a
+    /// binary search of its column ([`Pattern::index`]), the loop order of
+    /// [`NodalPressure::scatter_rank_one`].
+    fn scatter_by_search(
+        p: &NodalPressure,
+        out: Eliminated<'_>,
+        weights: &[Vector3<f64>],
+        coef: impl Fn(usize) -> f64,
+    ) {
+        let Eliminated {
+            frame,
+            pattern,
+            lift,
+            values,
+            rhs,
+        } = out;
+        for a in 0..p.n_nodes() {
+            let r = p.start[a]..p.start[a + 1];
+            let nodes = &p.nodes[r.clone()];
+            let w: Vec<Vector3<f64>> = nodes
+                .iter()
+                .zip(&weights[r])
+                .map(|(&b, w)| {
+                    if frame.rotated[b as usize] {
+                        frame.basis[b as usize].transpose() * w
+                    } else {
+                        *w
+                    }
+                })
+                .collect();
+            let c = coef(a);
+            let m = 3 * nodes.len();
+            let dof = |p: usize| 3 * nodes[p / 3] as usize + p % 3;
+            for q in 0..m {
+                let (gq, wq) = (dof(q), w[q / 3][q % 3]);
+                if wq == 0.0 {
+                    continue;
+                }
+                for pp in q..m {
+                    let gp = dof(pp);
+                    let v = c * w[pp / 3][pp % 3] * wq;
+                    let (cp, cq) = (frame.fixed[gp], frame.fixed[gq]);
+                    if !cp && !cq || pp == q {
+                        values[pattern.index(gp, gq)] += v;
+                    } else if !cp && cq {
+                        rhs[gp] -= v * lift[gq];
+                    } else if cp && !cq {
+                        rhs[gq] -= v * lift[gp];
+                    }
+                }
+            }
+        }
+    }
+
+    /// The scatter through the pattern's map of the stars' node pairs adds
+    /// the same numbers in the same order as the binary search of each
+    /// entry: values and right-hand side equal bit for bit, on a pattern
+    /// with the stars alone and one with a tie pair beside them, under a
+    /// frame with fixed supports, constrained DOFs and rotated node bases.
+    #[test]
+    fn the_mapped_scatter_equals_the_searched_one_bit_for_bit() {
+        let (mesh, p) = operator(3);
+        let n = mesh.nodes.len();
+        let mut r = crate::test_rng::unit(29);
+        let mut frame = Frame::new((0..3 * n).map(|d| d < 6).collect());
+        for node in (0..n).step_by(5) {
+            frame.fixed[3 * node + node % 3] = true;
+            if node % 2 == 0 {
+                frame.rotated[node] = true;
+                frame.basis[node] =
+                    nalgebra::Rotation3::from_euler_angles(r(), r() - 0.5, 2.0 * r()).into_inner();
+            }
+        }
+        let lift: Vec<f64> = (0..3 * n).map(|_| (r() - 0.5) * 1e-4).collect();
+        let weights: Vec<Vector3<f64>> = p.weights.iter().map(|w| w * (1.0 + 0.1 * r())).collect();
+        let coef: Vec<f64> = (0..n).map(|_| 1.0 + r()).collect();
+        let last = n as u32 - 1;
+        for pattern in [
+            Pattern::with_groups(n, &mesh.tets, p.stars()),
+            Pattern::with_groups_and_pairs(n, &mesh.tets, p.stars(), &[[last, 0]]),
+        ] {
+            let mut got = (vec![0.0; pattern.nnz()], vec![0.0; 3 * n]);
+            let mut want = got.clone();
+            fn out<'a>(
+                frame: &'a Frame,
+                pattern: &'a Pattern,
+                lift: &'a [f64],
+                v: &'a mut (Vec<f64>, Vec<f64>),
+            ) -> Eliminated<'a> {
+                Eliminated {
+                    frame,
+                    pattern,
+                    lift,
+                    values: &mut v.0,
+                    rhs: &mut v.1,
+                }
+            }
+            // Twice, so that the second pass adds into non-zero sums.
+            for _ in 0..2 {
+                let (f, pt, l) = (&frame, &pattern, &lift[..]);
+                p.scatter_rank_one(
+                    out(f, pt, l, &mut got),
+                    &weights,
+                    |a| coef[a],
+                    &mut Vec::new(),
+                );
+                scatter_by_search(&p, out(f, pt, l, &mut want), &weights, |a| coef[a]);
+            }
+            assert!(got.0.iter().any(|v| *v != 0.0));
+            assert!(got.1.iter().any(|v| *v != 0.0));
+            for (a, b) in got.0.iter().zip(&want.0).chain(got.1.iter().zip(&want.1)) {
+                assert_eq!(a.to_bits(), b.to_bits(), "{a:e} vs {b:e}");
+            }
+        }
     }
 
     #[test]

@@ -18,7 +18,10 @@
 //! `3 m` triangular solves for `m` patch nodes, in batches of
 //! [`BATCH_NODES`] nodes (`3 x 16` right-hand sides, to bound the memory).
 //! The factorization is made when a patch is first asked for after a step,
-//! not at the step itself. A tangent that is not positive definite (an
+//! not at the step itself, and `neo-hookean` keeps it over steps that end
+//! in the same state to the bit (at rest before the first contact) and
+//! makes none for a patch without free nodes; it preconditions the next
+//! step's Newton iterations ([`TangentPatch::factor_mut`]). A tangent that is not positive definite (an
 //! element near collapse under neo-Hookean) falls back to the rest stiffness
 //! there, as the Newton iteration does. The tangent holds every term of
 //! the strategy's energy: the tissue's elements, the springs of an elastic
@@ -73,6 +76,13 @@ impl TangentPatch {
     /// [`Self::refactor`] does nothing).
     pub fn is_fresh(&self) -> bool {
         self.fresh
+    }
+
+    /// The factor of the last [`Self::refactor`], whether or not the state
+    /// moved since (`None` before the first or after a failed one): a
+    /// preconditioner for a nearby tangent.
+    pub fn factor_mut(&mut self) -> Option<&mut SparseLlt> {
+        self.factor.is_factored().then_some(&mut self.factor)
     }
 
     /// The state moved (a step, a reset): the next patch refactors.
