@@ -1016,18 +1016,7 @@ mod tests {
         k: Option<f64>,
     ) -> (Vec<Vector3<f64>>, f64) {
         let fixed = nodes_where(mesh, |p| p.z < 1e-12);
-        let cons: Vec<Prescribed> = nodes_where(mesh, |p| (p.z - l).abs() < 1e-12)
-            .into_iter()
-            .map(|node| {
-                let p = mesh.nodes[node as usize];
-                let s =
-                    (std::f64::consts::PI * p.x / l).sin() * (std::f64::consts::PI * p.y / l).sin();
-                Prescribed {
-                    node,
-                    displacement: Vector3::new(0.0, 0.0, -d * s),
-                }
-            })
-            .collect();
+        let cons = press_rows(mesh, l, d);
         let material = Material {
             youngs_modulus_pa: 3000.0,
             poisson_ratio: nu,

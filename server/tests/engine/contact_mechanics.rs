@@ -61,6 +61,18 @@ struct Run {
     steps: Vec<(Vec<Vector3<f64>>, Vec<u64>)>,
 }
 
+/// The first instrument's force sample `k` of `r` is its full solve's to
+/// 1e-6 of `peak` (N): a force sample equals a full solve at its poses.
+fn assert_sample_is_the_full_solve(r: &Run, k: usize, peak: f64) {
+    let (s, f) = (r.force[k][0], r.full[k][0]);
+    let e = (s - f).norm() / peak;
+    assert!(
+        e <= 1e-6,
+        "t = {} s: sample {s:?} N, full solve {f:?} N ({e} of the peak)",
+        r.t[k]
+    );
+}
+
 /// Runs `tracks[i]` (instrument `i`'s poses at the shared times `times`)
 /// through a stepped runner; with `reference`, also a full solve at every
 /// sample (a second engine stepped at each sample's time and poses).
@@ -395,15 +407,8 @@ fn every_sample_of_the_v_valley_insertion_equals_a_full_solve() {
     let r = run(&scene, &ts, &[track], true);
     let peak = r.full.iter().map(|f| f[0].norm()).fold(0.0, f64::max);
     assert!(peak > 0.05, "the plate meets the walls: peak {peak} N");
-    for (k, (s, f)) in r.force.iter().zip(&r.full).enumerate() {
-        let e = (s[0] - f[0]).norm() / peak;
-        assert!(
-            e <= 1e-6,
-            "t = {} s: sample {:?} N, full solve {:?} N ({e} of the peak)",
-            r.t[k],
-            s[0],
-            f[0]
-        );
+    for k in 0..r.force.len() {
+        assert_sample_is_the_full_solve(&r, k, peak);
         assert_eq!(r.flags[k], 0, "t = {}: flags {}", r.t[k], r.flags[k]);
     }
     // Row keys: node << 32 | owner << 16 | face << 12 | component; face 0
@@ -561,20 +566,13 @@ fn with_the_skull_surface_a_sample_of_a_held_press_equals_a_full_solve() {
     let peak = r.full.iter().map(|f| f[0].norm()).fold(0.0, f64::max);
     assert!(peak > 0.05, "the plate presses: peak {peak} N");
     let mut held = 0;
-    for (k, (s, f)) in r.force.iter().zip(&r.full).enumerate() {
+    for k in 0..r.force.len() {
         // Still from 0.3 s; two steps at the still pose first.
         if r.t[k] < 0.345 {
             continue;
         }
         held += 1;
-        let e = (s[0] - f[0]).norm() / peak;
-        assert!(
-            e <= 1e-6,
-            "t = {}: sample {:?} N, full solve {:?} N ({e} of the peak)",
-            r.t[k],
-            s[0],
-            f[0]
-        );
+        assert_sample_is_the_full_solve(&r, k, peak);
     }
     assert!(held >= 4, "{held} samples held still");
 }
@@ -677,15 +675,8 @@ fn with_ties_every_sample_of_an_opening_equals_a_full_solve() {
     let r = run(&scene, &ts, &[lift_in_fissure(&scene, &ts)], true);
     let peak = r.full.iter().map(|f| f[0].norm()).fold(0.0, f64::max);
     assert!(peak > 0.05, "the plate opens the fissure: peak {peak} N");
-    for (k, (s, f)) in r.force.iter().zip(&r.full).enumerate() {
-        let e = (s[0] - f[0]).norm() / peak;
-        assert!(
-            e <= 1e-6,
-            "t = {}: sample {:?} N, full solve {:?} N ({e} of the peak)",
-            r.t[k],
-            s[0],
-            f[0]
-        );
+    for k in 0..r.force.len() {
+        assert_sample_is_the_full_solve(&r, k, peak);
     }
 }
 
