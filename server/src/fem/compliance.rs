@@ -498,7 +498,7 @@ impl Compliance {
             if !len.is_finite() || (len - 1.0).abs() > 1e-9 {
                 return Err(SolveError::BadConstraint {
                     node: v,
-                    reason: format!("held normal: direction of length {}", d.norm()),
+                    reason: format!("held normal: direction of length {len}"),
                 });
             }
         }
