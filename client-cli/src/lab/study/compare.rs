@@ -284,6 +284,36 @@ pub fn compare(reference: &RunResult, region: &[usize], run: &RunResult) -> Erro
 }
 
 #[cfg(test)]
+/// A run at rest (no step) on surface `pos`, `triangles`.
+pub(super) fn at_rest(pos: Vec<Point3<f64>>, triangles: Vec<[u32; 3]>) -> RunResult {
+    RunResult {
+        config: super::config::Config::baseline(),
+        tets: 0,
+        nodes: pos.len(),
+        rest_surface: pos,
+        triangles,
+        step_t: Vec::new(),
+        step_force: Vec::new(),
+        surface_u: Vec::new(),
+        step_ms: Vec::new(),
+        collision_ms: Vec::new(),
+        step_failed: Vec::new(),
+        iterations: Vec::new(),
+        sample_t: Vec::new(),
+        sample_force: Vec::new(),
+        sample_us: Vec::new(),
+        min_det_f: 1.0,
+        finite: true,
+        failed_steps: 0,
+        failure: None,
+        dropped_outside_roi: 0,
+        setup_ms: 0.0,
+        backend_used: String::new(),
+        has_local_model: true,
+    }
+}
+
+#[cfg(test)]
 mod tests {
     use super::*;
 
@@ -303,35 +333,6 @@ mod tests {
         // Beyond the hypotenuse: its midpoint.
         let w = closest_on_triangle(&Point3::new(1.0, 1.0, 0.0), &a, &b, &c);
         assert!((w[1] - 0.5).abs() < 1e-12 && (w[2] - 0.5).abs() < 1e-12);
-    }
-
-    /// A run at rest (no step) on surface `pos`, `triangles`.
-    fn at_rest(pos: Vec<Point3<f64>>, triangles: Vec<[u32; 3]>) -> RunResult {
-        RunResult {
-            config: super::super::config::Config::baseline(),
-            tets: 0,
-            nodes: pos.len(),
-            rest_surface: pos,
-            triangles,
-            step_t: Vec::new(),
-            step_force: Vec::new(),
-            surface_u: Vec::new(),
-            step_ms: Vec::new(),
-            collision_ms: Vec::new(),
-            step_failed: Vec::new(),
-            iterations: Vec::new(),
-            sample_t: Vec::new(),
-            sample_force: Vec::new(),
-            sample_us: Vec::new(),
-            min_det_f: 1.0,
-            finite: true,
-            failed_steps: 0,
-            failure: None,
-            dropped_outside_roi: 0,
-            setup_ms: 0.0,
-            backend_used: String::new(),
-            has_local_model: true,
-        }
     }
 
     #[test]

@@ -2,8 +2,19 @@
 //! contact, the scene's elastic foundation, the `tet4-nodal-pressure`
 //! element) on successively finer meshes, coarsest first ([`LEVELS`]):
 //! paper-34k, paper-48k, then paper-48k meshed by the proven mesher at a
-//! 4 mm (the 204k level, the study's reference), 3.6 mm and 3.2 mm
-//! spacing.
+//! 4 mm (the 204k level), 3.6 mm and 3.2 mm spacing.
+//!
+//! **One shape refined** ([`refined`]): each of the product's two meshes
+//! (paper-34k, paper-48k) also with its uniform refinements
+//! ([`fissure_engine::mesh::refine`]: each tetrahedron into eight at its
+//! edge midpoints, the surface kept exactly), a family of its own in which
+//! only `h` changes, halved at each refinement. The mesher's levels above
+//! do not share one shape (each lattice snaps onto the surface anew: their
+//! rest surfaces near the fissure lie 0.1 to 0.3 mm apart), so only these
+//! families separate the discretisation's share of the force from the
+//! geometry's. The study's reference is paper-48k refined once
+//! ([`REFERENCE_REFINEMENTS`]): the product's own shape, about 8 times
+//! finer.
 //!
 //! The material law is linear elasticity, solved by `compliance` (the
 //! supported stiffness factored once, the contact condensed exactly onto
@@ -99,12 +110,59 @@ pub const LEVELS: [(&str, bool, Option<f64>); 5] = [
     ("paper-48k", true, Some(0.0032)),
 ];
 
-/// The index in [`LEVELS`] of the study's reference, the 204k level: the
-/// grid and the incompressibility sweep run against it, and the finer
-/// levels after it measure how far from converged it is (a grid against
-/// the finest level would cost about four times its reference run, and the
-/// sweep's seven runs as much again).
-pub const REFERENCE_LEVEL: usize = 2;
+/// The index in [`LEVELS`] of the 204k level, where the incompressibility
+/// sweep and the finest-mesh extremes run (on the finer levels each run
+/// costs about four times as much, and the sweep has seven).
+pub const SWEEP_LEVEL: usize = 2;
+
+/// The indices in [`LEVELS`] of the product's meshes, refined uniformly in
+/// the one-shape families ([`refined`]).
+pub const REFINED_LEVELS: [usize; 2] = [0, 1];
+
+/// The uniform refinements planned by default per family: one (paper-48k
+/// refined once has 402k tetrahedra and 83k nodes and peaks at 16 GB;
+/// twice, 3.2 M and about 650k, needs a larger machine).
+pub const DEFAULT_REFINEMENTS: u32 = 1;
+
+/// The reference: paper-48k ([`LEVELS`]`[1]`) refined this many times.
+pub const REFERENCE_REFINEMENTS: u32 = 1;
+
+/// The one-shape families of the full study around `base`: each of
+/// [`REFINED_LEVELS`] refined `1..=refinements` times, coarsest first
+/// within each family.
+pub fn refined(base: &Config, refinements: u32) -> Vec<Config> {
+    let levels = levels(base);
+    REFINED_LEVELS
+        .iter()
+        .flat_map(|&i| {
+            let level = levels[i].clone();
+            (1..=refinements).map(move |r| {
+                Config {
+                    refine: r,
+                    ..level.clone()
+                }
+                .labelled()
+            })
+        })
+        .collect()
+}
+
+/// The study's reference around `base`: paper-48k refined
+/// [`REFERENCE_REFINEMENTS`] times, with the reference physics.
+pub fn reference(base: &Config) -> Config {
+    Config {
+        refine: REFERENCE_REFINEMENTS,
+        sweep: "reference".into(),
+        ..levels(base)[1].clone()
+    }
+    .labelled()
+}
+
+/// Whether `a` and `b` mesh the same shape the same way (preset, mesher,
+/// spacing), whatever the refinements.
+pub fn same_shape(a: &Config, b: &Config) -> bool {
+    a.preset == b.preset && a.proven == b.proven && a.spacing_m == b.spacing_m
+}
 
 /// The convergence levels of the full study around `base`, coarsest first
 /// ([`LEVELS`]).
@@ -291,6 +349,9 @@ pub struct Convergence {
     /// Whether the final net force of both spatulas changes by under the
     /// criterion between the last two levels.
     pub met: bool,
+    /// The one-shape families ([`refined`]): each a level and its uniform
+    /// refinements, evaluated alike (their own `refined` is empty).
+    pub refined: Vec<Convergence>,
 }
 
 fn peak(run: &RunResult, i: usize) -> f64 {
@@ -384,7 +445,30 @@ pub fn evaluate(runs: &[&RunResult]) -> Convergence {
         changes,
         criterion_pct: FORCE_CRITERION_PCT,
         met,
+        refined: Vec::new(),
     }
+}
+
+/// The one-shape families among `runs` (levels and refinements, in any
+/// order): each unrefined run with the refinements of its shape, coarsest
+/// first; a family needs its unrefined level and one refinement.
+pub fn families<'a>(runs: &[&'a RunResult]) -> Vec<Vec<&'a RunResult>> {
+    let mut out = Vec::new();
+    for base in runs.iter().filter(|r| r.config.refine == 0) {
+        let mut family: Vec<&RunResult> = runs
+            .iter()
+            .filter(|r| r.config.refine > 0 && same_shape(&r.config, &base.config))
+            .copied()
+            .collect();
+        if family.is_empty() {
+            continue;
+        }
+        family.sort_by_key(|r| r.config.refine);
+        family.dedup_by_key(|r| r.config.refine);
+        family.insert(0, base);
+        out.push(family);
+    }
+    out
 }
 
 #[cfg(test)]
@@ -474,6 +558,58 @@ mod tests {
     }
 
     #[test]
+    fn one_shape_families_gather_each_level_with_its_refinements_coarsest_first() {
+        let levels = levels(&Config::baseline());
+        let run = |c: &Config| RunResult {
+            config: c.clone(),
+            ..compare::at_rest(Vec::new(), Vec::new())
+        };
+        let refined = refined(&Config::baseline(), 2);
+        let reference = reference(&Config::baseline());
+        // In plan order, the reference first (as the merge finds it), the
+        // 204k level without refinements, 48k-r2 before 48k.
+        let runs: Vec<RunResult> = [
+            &reference,
+            &levels[0],
+            &levels[SWEEP_LEVEL],
+            &refined[3],
+            &refined[1],
+            &refined[0],
+            &levels[1],
+        ]
+        .into_iter()
+        .map(run)
+        .collect();
+        let refs: Vec<&RunResult> = runs.iter().collect();
+        let labels: Vec<Vec<&str>> = families(&refs)
+            .iter()
+            .map(|f| f.iter().map(|r| r.config.label.as_str()).collect())
+            .collect();
+        assert_eq!(
+            labels,
+            [
+                vec![
+                    "34k/lin/n150/np/foundation",
+                    "34k-r1/lin/n150/np/foundation",
+                    "34k-r2/lin/n150/np/foundation"
+                ],
+                vec![
+                    "48k/lin/n150/np/foundation",
+                    "48k-r1/lin/n150/np/foundation",
+                    "48k-r2/lin/n150/np/foundation"
+                ],
+            ]
+        );
+        // A level without its unrefined run makes no family.
+        let lone: Vec<&RunResult> = vec![&runs[3]];
+        assert!(families(&lone).is_empty());
+        // The reference is the product's shape refined once, with the
+        // reference physics.
+        assert_eq!(reference.label, "48k-r1/lin/n150/np/foundation");
+        assert!(same_shape(&reference, &levels[1]) && !same_shape(&reference, &levels[2]));
+    }
+
+    #[test]
     fn the_levels_carry_the_reference_physics_and_distinct_labels() {
         let levels = levels(&Config::baseline());
         let labels: Vec<&str> = levels.iter().map(|c| c.label.as_str()).collect();
@@ -487,10 +623,8 @@ mod tests {
                 "48k-proven-3.2mm/lin/n150/np/foundation",
             ]
         );
-        assert_eq!(labels[REFERENCE_LEVEL], "204k/lin/n150/np/foundation");
-        let scene = levels[REFERENCE_LEVEL]
-            .scene()
-            .expect("the 204k level's scene");
+        assert_eq!(labels[SWEEP_LEVEL], "204k/lin/n150/np/foundation");
+        let scene = levels[SWEEP_LEVEL].scene().expect("the 204k level's scene");
         assert!(scene.foundation.is_some());
         let finest = levels[4].scene().expect("the finest level's scene");
         assert!(matches!(

@@ -1,7 +1,7 @@
-//! Poisson's ratio towards incompressibility on the reference's mesh, with
+//! Poisson's ratio towards incompressibility on the 204k level, with
 //! both elements: the reference physics ([`convergence::reference_physics`]:
 //! frictionless contact, the scene's foundation, linear elasticity) on the
-//! 204k level ([`convergence::REFERENCE_LEVEL`]) at `nu` in [`NUS`], with
+//! 204k level ([`convergence::SWEEP_LEVEL`]) at `nu` in [`NUS`], with
 //! `tet4` and with `tet4-nodal-pressure`.
 //!
 //! The measure is the stiffening ratio `R(nu) = F(nu) / F(0.45)`, with `F`
@@ -108,7 +108,7 @@ fn total_force_n(r: &RunResult) -> f64 {
 }
 
 fn same_level(a: &Config, b: &Config) -> bool {
-    a.preset == b.preset && a.proven == b.proven && a.spacing_m == b.spacing_m
+    convergence::same_shape(a, b) && a.refine == b.refine
 }
 
 /// Evaluates the sweep on the level `at` (its configuration) from the
@@ -190,7 +190,7 @@ mod tests {
     #[test]
     fn the_sweep_adds_only_the_runs_the_levels_lack() {
         let levels = convergence::levels(&Config::baseline());
-        let runs = configs(&levels, convergence::REFERENCE_LEVEL);
+        let runs = configs(&levels, convergence::SWEEP_LEVEL);
         // 4 nu with tet4 and 3 with nodal pressure on 204k, and the limit
         // on the 4 other levels.
         assert_eq!(runs.len(), 11);

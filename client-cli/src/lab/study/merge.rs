@@ -85,7 +85,7 @@ pub fn merge(dir: &Path, out: &Path, allow_missing: bool) -> Result<StudyResult,
     for (run, rec) in plan.runs.iter().zip(&records) {
         let Some(rec) = rec else { continue };
         total_s += rec.wall_s;
-        if run.role == Role::Convergence {
+        if matches!(run.role, Role::Convergence | Role::Refined) {
             plots.push((run.config.label.clone(), rec.result.forces_for_plot()));
             levels.push(&rec.result);
             continue;
@@ -112,20 +112,29 @@ pub fn merge(dir: &Path, out: &Path, allow_missing: bool) -> Result<StudyResult,
                 grid.push(row);
             }
             Role::Stability => stab.push(row),
-            Role::Convergence | Role::Incompressible => {}
+            Role::Convergence | Role::Refined | Role::Incompressible => {}
         }
     }
     let planned = Plan::new(plan.quick);
-    // The reference takes its place among the levels when it is one of
-    // them: after the levels that are coarser (planned before it).
-    if let (Some(at), Some(r), false) = (planned.reference_level(), reference, levels.is_empty()) {
-        let coarser = &planned.convergence[..at];
-        let place = levels
-            .iter()
-            .take_while(|l| coarser.iter().any(|c| c.label == l.config.label))
-            .count();
-        levels.insert(place, &r.result);
+    // The reference is one of the levels when the plan made it one.
+    let shared = planned
+        .convergence
+        .iter()
+        .chain(&planned.refined)
+        .any(|c| planned.is_reference(c));
+    if let (true, Some(r), false) = (shared, reference, levels.is_empty()) {
+        levels.push(&r.result);
     }
+    // The mesher's levels in the planned order; the one-shape families.
+    let main: Vec<_> = planned
+        .convergence
+        .iter()
+        .filter_map(|c| levels.iter().find(|r| r.config.label == c.label).copied())
+        .collect();
+    let families: Vec<_> = convergence::families(&levels)
+        .iter()
+        .map(|f| convergence::evaluate(f))
+        .collect();
     let (stability, checks) = stability::evaluate(&planned.stability, stab);
     let pairs: Vec<_> = grid_runs.into_iter().zip(&grid).collect();
     let contact_rules = rules::evaluate(&pairs);
@@ -135,15 +144,19 @@ pub fn merge(dir: &Path, out: &Path, allow_missing: bool) -> Result<StudyResult,
         grid,
         stability,
         checks,
-        convergence: (levels.len() >= 2).then(|| convergence::evaluate(&levels)),
         incompressible: (!nu_runs.is_empty())
             .then(|| {
                 let at = planned
-                    .reference_level()
-                    .map_or(&planned.reference, |i| &planned.convergence[i]);
-                incompressible::evaluate(&levels, at, &nu_runs)
+                    .convergence
+                    .get(convergence::SWEEP_LEVEL)
+                    .unwrap_or(&planned.reference);
+                incompressible::evaluate(&main, at, &nu_runs)
             })
             .flatten(),
+        convergence: (main.len() >= 2 || !families.is_empty()).then(|| convergence::Convergence {
+            refined: families,
+            ..convergence::evaluate(&main)
+        }),
         total_s,
         window_s: plan.window_s,
         rate_hz: plan.rate_hz,

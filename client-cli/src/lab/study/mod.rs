@@ -13,18 +13,20 @@
 //!   `neo-hookean`, on the foundation; `neo-hookean` also with the
 //!   nodal-pressure element, the reference's physics with the nonlinear
 //!   law) and tolerance, nodes a face, region of interest, ray
-//!   backend, threads. Every run is compared with the **reference**, the
-//!   204k convergence level below ([`compare`]).
+//!   backend, threads. Every run is compared with the **reference**,
+//!   paper-48k refined once, below ([`compare`]).
 //! * **Convergence of the reference** ([`convergence`]): the reference
 //!   physics of the product's scene (frictionless contact, the elastic
 //!   foundation, the `tet4-nodal-pressure` element, linear elasticity) on
 //!   paper-34k, paper-48k and paper-48k meshed by the proven mesher at 4
 //!   (the 204k level), 3.6 and 3.2 mm: force and displacement changes between
-//!   levels and a Richardson estimate over the proven family (the 204k
-//!   level is the grid's reference, run once; the finer levels measure how
-//!   converged it is); and Poisson's ratio towards incompressibility on the
-//!   204k level with both elements ([`incompressible`]). The full study plans
-//!   them (`--convergence-only`: only them); the quick one does not.
+//!   levels and a Richardson estimate over the proven family; on the
+//!   one-shape families, paper-34k and paper-48k each with its uniform
+//!   refinements (`--refinements`, one by default; paper-48k refined once
+//!   is the grid's reference, run once); and Poisson's ratio towards
+//!   incompressibility on the 204k level with both elements
+//!   ([`incompressible`]). The full study plans them (`--convergence-only`:
+//!   only them); the quick one does not.
 //! * **Stability**: Poisson's ratio, Young's modulus and spatula speed swept
 //!   to their extremes ([`stability`]); each run reports whether it stayed
 //!   finite, the worst element volume ratio `min det F`, the solver
@@ -274,8 +276,11 @@ pub struct Plan {
     /// The reference physics on successively finer meshes, coarsest first
     /// ([`convergence`]).
     pub convergence: Vec<Config>,
-    /// Poisson's ratio towards incompressibility on the reference's level,
-    /// both elements ([`incompressible`]).
+    /// The product's meshes refined uniformly, the one-shape families
+    /// ([`convergence::refined`]).
+    pub refined: Vec<Config>,
+    /// Poisson's ratio towards incompressibility on the 204k level, both
+    /// elements ([`incompressible`]).
     pub incompressible: Vec<Config>,
 }
 
@@ -313,6 +318,7 @@ impl Plan {
                 // has no convergence part (its arithmetic is a unit test of
                 // [`convergence`]).
                 convergence: Vec::new(),
+                refined: Vec::new(),
                 incompressible: Vec::new(),
             }
         } else {
@@ -329,11 +335,9 @@ impl Plan {
                 c.sweep = sweep.into();
                 c.labelled()
             };
-            // The 204k convergence level is the reference, run once.
-            let reference = Config {
-                sweep: "reference".into(),
-                ..levels[convergence::REFERENCE_LEVEL].clone()
-            };
+            // The product's shape refined: one of the one-shape levels,
+            // run once as the reference.
+            let reference = convergence::reference(&Config::baseline());
             let mut grid = vec![
                 v(&|_| {}, "baseline"),
                 v(&|c| c.preset = "coarse".into(), "preset"),
@@ -400,22 +404,24 @@ impl Plan {
                 rate_hz: 200.0,
                 dt_s: 0.05,
                 stability: stability::Sweep::full(),
-                incompressible: incompressible::configs(&levels, convergence::REFERENCE_LEVEL),
+                incompressible: incompressible::configs(&levels, convergence::SWEEP_LEVEL),
+                refined: convergence::refined(
+                    &Config::baseline(),
+                    convergence::DEFAULT_REFINEMENTS,
+                ),
                 convergence: levels,
             }
         }
     }
 
-    /// The convergence level the reference is (the full study's 204k
-    /// level), if any: it is then run once, as the reference, and takes
-    /// its place among the levels.
-    pub fn reference_level(&self) -> Option<usize> {
-        self.convergence.iter().position(|l| {
-            Config {
-                sweep: self.reference.sweep.clone(),
-                ..l.clone()
-            } == self.reference
-        })
+    /// Whether the level `c` (a convergence level or a refinement) is the
+    /// reference (the full study's paper-48k refined once): it is then run
+    /// once, as the reference, and takes its place among the levels.
+    pub fn is_reference(&self, c: &Config) -> bool {
+        Config {
+            sweep: self.reference.sweep.clone(),
+            ..c.clone()
+        } == self.reference
     }
 }
 
@@ -440,7 +446,7 @@ pub struct StudyResult {
     /// Convergence of the reference over the mesh levels (two levels at
     /// least).
     pub convergence: Option<convergence::Convergence>,
-    /// Poisson's ratio towards incompressibility on the reference's level.
+    /// Poisson's ratio towards incompressibility on the 204k level.
     pub incompressible: Option<incompressible::Incompressible>,
     /// Wall time of the runs, s (their sum, wherever they ran).
     pub total_s: f64,

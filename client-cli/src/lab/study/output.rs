@@ -1,8 +1,9 @@
 //! Outputs of the study: CSV, a markdown report, PNG plots.
 //!
 //! * `grid.csv`, `stability.csv`: one row per run (units in the headers);
-//!   `convergence.csv`: one row per mesh level of the reference, with the
-//!   change into it from the coarser level;
+//!   `convergence.csv`: one row per mesh level of the reference, with its
+//!   family (`mesher`, or `refined <level>` for one shape refined
+//!   uniformly) and the change into it from the family's coarser level;
 //! * `study.md`: the tables and the stability checks;
 //! * `error-vs-step-time.png`: RMS surface error against time per deformation
 //!   step, the Pareto front marked; `force-error-vs-step-time.png` likewise
@@ -415,6 +416,21 @@ fn richardson_text(r: &Richardson, unit: &str) -> String {
 
 fn convergence_markdown(md: &mut String, c: &Convergence) {
     let _ = writeln!(md, "### Convergence of the reference over the mesh\n");
+    if !c.levels.is_empty() {
+        let _ = writeln!(md, "The mesher's levels (each meshes the shape anew):\n");
+        chain_markdown(md, c);
+    }
+    for f in &c.refined {
+        let _ = writeln!(
+            md,
+            "One shape refined uniformly ({}: each tetrahedron into eight, h halved):\n",
+            f.levels.first().map_or("", |l| l.label.as_str())
+        );
+        chain_markdown(md, f);
+    }
+}
+
+fn chain_markdown(md: &mut String, c: &Convergence) {
     let _ = writeln!(
         md,
         "| level | tets | nodes | h (mm) | final force L / R (N) | peak force L / R (N) | ms/step | iterations (mean) | failed steps |"
@@ -489,7 +505,7 @@ fn convergence_markdown(md: &mut String, c: &Convergence) {
 fn incompressible_markdown(md: &mut String, n: &Incompressible) {
     let _ = writeln!(
         md,
-        "### Towards incompressibility on the reference's level ({})\n",
+        "### Towards incompressibility on the 204k level ({})\n",
         n.level
     );
     let _ = writeln!(
@@ -546,11 +562,21 @@ fn incompressible_markdown(md: &mut String, n: &Incompressible) {
     );
 }
 
-const CONVERGENCE_HEADER: &str = "label,tets,nodes,h_mm,final_force_left_n,final_force_right_n,peak_force_left_n,peak_force_right_n,ms_per_step,iterations_mean,failed_steps,final_change_left_pct,final_change_right_pct,peak_change_left_pct,peak_change_right_pct,rms_diff_mm,max_diff_mm,rest_rms_mm,rest_max_mm";
+const CONVERGENCE_HEADER: &str = "family,label,tets,nodes,h_mm,final_force_left_n,final_force_right_n,peak_force_left_n,peak_force_right_n,ms_per_step,iterations_mean,failed_steps,final_change_left_pct,final_change_right_pct,peak_change_left_pct,peak_change_right_pct,rms_diff_mm,max_diff_mm,rest_rms_mm,rest_max_mm";
 
 fn convergence_csv(c: &Convergence) -> String {
     let mut csv = String::from(CONVERGENCE_HEADER);
     csv.push('\n');
+    chain_csv(&mut csv, "mesher", c);
+    for f in &c.refined {
+        let family = f.levels.first().map_or("", |l| l.label.as_str());
+        chain_csv(&mut csv, &format!("refined {family}"), f);
+    }
+    csv
+}
+
+/// The rows of one chain of levels, each named by `family`.
+fn chain_csv(csv: &mut String, family: &str, c: &Convergence) {
     for (i, l) in c.levels.iter().enumerate() {
         // The change into this level from the coarser one (none for the first).
         let ch = i.checked_sub(1).and_then(|j| c.changes.get(j));
@@ -558,7 +584,7 @@ fn convergence_csv(c: &Convergence) -> String {
             |v: Option<f64>, digits: usize| v.map_or(String::new(), |v| format!("{v:.digits$}"));
         let _ = writeln!(
             csv,
-            "{},{},{},{:.4},{:.6},{:.6},{:.6},{:.6},{:.1},{:.2},{},{},{},{},{},{},{},{},{}",
+            "{family},{},{},{},{:.4},{:.6},{:.6},{:.6},{:.6},{:.1},{:.2},{},{},{},{},{},{},{},{},{}",
             l.label,
             l.tets,
             l.nodes,
@@ -580,7 +606,6 @@ fn convergence_csv(c: &Convergence) -> String {
             opt(ch.map(|c| c.rest_max_mm), 4),
         );
     }
-    csv
 }
 
 fn pareto_plot(

@@ -45,8 +45,10 @@ pub enum Role {
     Stability,
     /// A level of the reference's mesh convergence.
     Convergence,
+    /// A product mesh refined uniformly: one shape, a finer `h`.
+    Refined,
     /// A run of the Poisson's ratio sweep towards incompressibility on the
-    /// reference's level.
+    /// 204k level.
     Incompressible,
 }
 
@@ -107,15 +109,22 @@ pub struct PlanOptions {
     /// Skip the stability sweep.
     #[arg(long)]
     pub no_stability: bool,
-    /// Skip the convergence of the reference over the mesh levels and the
-    /// incompressibility sweep on the reference's level.
+    /// Skip the convergence of the reference over the mesh levels (the
+    /// reference is still run for the grid) and the incompressibility sweep
+    /// on the 204k level.
     #[arg(long)]
     pub no_convergence: bool,
     /// Only the convergence of the reference over the mesh levels and the
-    /// incompressibility sweep on the reference's level (no grid, no
-    /// stability sweep).
+    /// incompressibility sweep on the 204k level (no grid, no stability
+    /// sweep).
     #[arg(long, conflicts_with = "no_convergence")]
     pub convergence_only: bool,
+    /// Uniform refinements of paper-34k and paper-48k in the convergence
+    /// part (each splits every tetrahedron into eight; default 1, which
+    /// the reference needs: paper-48k refined once peaks at 16 GB; 2 adds
+    /// 2.2 M and 3.2 M tetrahedra, for a machine of well over 100 GB).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=fissure_engine::mesh::refine::MAX_REFINEMENTS as i64))]
+    pub refinements: Option<u32>,
 }
 
 fn io_err(path: &Path, e: impl std::fmt::Display) -> StudyError {
@@ -141,13 +150,16 @@ impl StudyPlan {
             rate_hz: plan.rate_hz,
             dt_s: plan.dt_s,
         };
+        if let (Some(n), false) = (options.refinements, plan.refined.is_empty()) {
+            plan.refined = super::convergence::refined(&Config::baseline(), n);
+        }
         let mut runs: Vec<(Role, Config, ScenarioSpec, bool)> = Vec::new();
         let grid = !options.no_grid && !options.convergence_only;
         let convergence = !options.no_convergence && !plan.convergence.is_empty();
-        // The full study's reference is one of its convergence levels: one
-        // run serves both.
-        let shared = plan.reference_level();
-        if grid || (convergence && shared.is_some()) {
+        // The full study's reference is one of its one-shape levels: one run
+        // serves both.
+        let shared = plan.refined.iter().any(|c| plan.is_reference(c));
+        if grid || (convergence && shared) {
             runs.push((Role::Reference, plan.reference.clone(), grid_spec, true));
         }
         if grid {
@@ -161,9 +173,14 @@ impl StudyPlan {
             runs.extend(
                 plan.convergence
                     .iter()
-                    .enumerate()
-                    .filter(|(i, _)| Some(*i) != shared)
-                    .map(|(_, c)| (Role::Convergence, c.clone(), grid_spec, true)),
+                    .filter(|c| !plan.is_reference(c))
+                    .map(|c| (Role::Convergence, c.clone(), grid_spec, true)),
+            );
+            runs.extend(
+                plan.refined
+                    .iter()
+                    .filter(|c| !plan.is_reference(c))
+                    .map(|c| (Role::Refined, c.clone(), grid_spec, true)),
             );
             runs.extend(
                 plan.incompressible
@@ -398,10 +415,16 @@ mod tests {
     }
 
     #[test]
-    fn the_full_reference_is_the_204k_level_planned_once_whatever_part_is_asked() {
-        let levels = Plan::new(false).convergence;
-        let level = levels[super::super::convergence::REFERENCE_LEVEL].clone();
-        assert!(level.label.starts_with("204k/"), "{}", level.label);
+    fn the_full_reference_is_paper_48k_refined_once_planned_once_whatever_part_is_asked() {
+        let planned = Plan::new(false);
+        let level = planned
+            .refined
+            .iter()
+            .find(|c| planned.is_reference(c))
+            .expect("the reference is a one-shape level")
+            .clone();
+        assert_eq!(level.label, "48k-r1/lin/n150/np/foundation");
+        assert_eq!(level.refine, 1);
         let count =
             |plan: &StudyPlan, role: Role| plan.runs.iter().filter(|r| r.role == role).count();
         for (options, grid) in [
@@ -420,16 +443,41 @@ mod tests {
             let reference = &plan.runs[0].config;
             assert_eq!(reference.label, level.label);
             assert_eq!(reference.sweep, "reference");
-            // The reference's level is not planned again as a level.
-            assert_eq!(count(&plan, Role::Convergence), levels.len() - 1);
-            assert!(
-                plan.runs
-                    .iter()
-                    .filter(|r| r.role == Role::Convergence)
-                    .all(|r| r.config.label != level.label)
-            );
+            // Every mesher level is planned; the reference's one-shape level
+            // is not planned again: paper-34k refined once is the other.
+            assert_eq!(count(&plan, Role::Convergence), planned.convergence.len());
+            let refined: Vec<&str> = plan
+                .runs
+                .iter()
+                .filter(|r| r.role == Role::Refined)
+                .map(|r| r.config.label.as_str())
+                .collect();
+            assert_eq!(refined, ["34k-r1/lin/n150/np/foundation"]);
             assert_eq!(count(&plan, Role::Grid) > 0, grid);
         }
+        // Two refinements add both families' second level, the reference
+        // still planned once.
+        let plan = StudyPlan::new(&PlanOptions {
+            convergence_only: true,
+            refinements: Some(2),
+            ..PlanOptions::default()
+        })
+        .expect("two refinements");
+        let refined: Vec<&str> = plan
+            .runs
+            .iter()
+            .filter(|r| r.role == Role::Refined)
+            .map(|r| r.config.label.as_str())
+            .collect();
+        assert_eq!(
+            refined,
+            [
+                "34k-r1/lin/n150/np/foundation",
+                "34k-r2/lin/n150/np/foundation",
+                "48k-r2/lin/n150/np/foundation"
+            ]
+        );
+        assert_eq!(count(&plan, Role::Reference), 1);
         // Without the convergence part the reference is still planned for
         // the grid; without the grid nor the convergence, it is not.
         let plan = StudyPlan::new(&PlanOptions {

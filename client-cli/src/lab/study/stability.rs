@@ -60,7 +60,7 @@ pub struct StrategySweep {
     /// nodal-pressure reference runs on [`REFERENCE_PRESET`]).
     pub preset: Option<String>,
     /// Mesh the preset with the proven mesher (the finest mesh's extremes:
-    /// paper-48k proven is the study's 204k reference level).
+    /// paper-48k proven is the study's 204k level).
     pub proven: bool,
     /// Poisson's ratios (0.45 is the nominal run).
     pub nus: Vec<f64>,
@@ -95,7 +95,7 @@ impl StrategySweep {
     }
 
     /// Young's modulus and speed at their extremes on the finest mesh the
-    /// study runs (the 204k reference level, paper-48k meshed by the proven
+    /// study sweeps (the 204k level, paper-48k meshed by the proven
     /// mesher) with the nodal-pressure element: a softer brain deforms its
     /// smallest elements most, a fast spatula crosses several of them
     /// between two samples.
