@@ -743,6 +743,15 @@ pub struct SkullSurfaceSpec {
     /// (default 1.5 mm).
     #[serde(default = "default_csf_gap_m")]
     pub csf_gap_m: f64,
+    /// How close to the skull a supported node must be, m, to take part in
+    /// a step's contact problem from its first solve (default
+    /// [`Self::band_m`]'s: half the CSF gap, at most `contact.band_m`). A
+    /// node beyond it that the solved shape pushes through the skull joins
+    /// the problem in the step's next solve (the frictionless answer is
+    /// unique, so the band sets the work, not the answer): a band as wide
+    /// as a thin gap would put every supported node in every step.
+    #[serde(default)]
+    pub band_m: Option<f64>,
     /// Regions with no skull (the craniotomy window, the fissure's walls): a
     /// surface node inside one of them is free to move outward.
     #[serde(default)]
@@ -751,6 +760,15 @@ pub struct SkullSurfaceSpec {
 
 fn default_csf_gap_m() -> f64 {
     DEFAULT_CSF_GAP_M
+}
+
+impl SkullSurfaceSpec {
+    /// The skull's own contact band, m: `band_m` when given, else half the
+    /// CSF gap, at most `contact_band_m`.
+    pub fn band_m(&self, contact_band_m: f64) -> f64 {
+        self.band_m
+            .unwrap_or_else(|| (0.5 * self.csf_gap_m).min(contact_band_m))
+    }
 }
 
 /// A sphere.
@@ -1190,6 +1208,9 @@ impl Scene {
             }
             if let Some(s) = &skull.surface {
                 positive("skull.surface.csf_gap_m", s.csf_gap_m)?;
+                if let Some(b) = s.band_m {
+                    positive("skull.surface.band_m", b)?;
+                }
                 for (i, r) in s.open.iter().enumerate() {
                     check_region(format!("skull.surface.open[{i}]"), r)?;
                 }
@@ -1432,6 +1453,32 @@ mod tests {
             let e = Scene::parse(&with(&format!("spacing_m = {bad}")), "p.toml").unwrap_err();
             let msg = e.to_string();
             assert!(msg.contains("model.spacing_m"), "{bad}: {msg}");
+        }
+    }
+
+    /// The skull's own band defaults to half the CSF gap, never beyond the
+    /// contact band; a given one is kept, and one that is not a positive
+    /// length is refused, naming the field.
+    #[test]
+    fn the_skull_band_defaults_to_half_the_gap_and_a_bad_one_is_named() {
+        let cube = include_str!("../../scenes/cube.toml");
+        let parse =
+            |extra: &str| Scene::parse(&format!("{cube}\n[skull.surface]\n{extra}"), "s.toml");
+        let band = |extra: &str| {
+            let scene = parse(extra).unwrap();
+            let surface = scene.skull.as_ref().unwrap().surface.as_ref().unwrap();
+            surface.band_m(scene.contact.band_m)
+        };
+        assert_eq!(band("csf_gap_m = 0.0002"), 0.0001);
+        // Half of 3 mm is beyond the 1 mm contact band.
+        assert_eq!(
+            band("csf_gap_m = 0.003"),
+            crate::collide::contact::DEFAULT_BAND_M
+        );
+        assert_eq!(band("csf_gap_m = 0.0002\nband_m = 0.00005"), 0.00005);
+        for bad in ["0", "-1e-4", "nan", "inf"] {
+            let msg = parse(&format!("band_m = {bad}")).unwrap_err().to_string();
+            assert!(msg.contains("skull.surface.band_m"), "{bad}: {msg}");
         }
     }
 

@@ -644,6 +644,51 @@ fn the_skull_surface_holds_every_node_inside_it_pushing_only_inwards_along_its_n
     assert!((bulge(&open.displacements) - bulge(&free.displacements)).abs() < 1e-12);
 }
 
+/// The skull's own band sets the work, not the answer: the cube pressed
+/// under a 50 um CSF gap with the skull band as wide as the contact band
+/// (every supported node has a row in every step), at its default (half
+/// the gap) and at 1 um (nodes join only once a solve pushes them through
+/// the skull) ends in the same shape (the frictionless contact problem has
+/// one solution), within 1e-9 of the largest displacement, and with fewer
+/// skull rows the narrower the band.
+#[test]
+fn the_skull_band_changes_the_rows_a_step_solves_not_its_answer() {
+    let skull_rows = |s: &fissure_engine::sim::core::snapshot::Snapshot| {
+        s.force_model
+            .step_rows
+            .iter()
+            .filter(|r| r.owner == fissure_engine::sim::core::rows::SKULL_OWNER)
+            .count()
+    };
+    let press = |band: &str| pressed_cube(&format!("[skull.surface]\ncsf_gap_m = 5e-5\n{band}"));
+    let (_, wide) = press("band_m = 1e-3");
+    let (_, default) = press("");
+    let (_, narrow) = press("band_m = 1e-6");
+    let scale = wide
+        .displacements
+        .iter()
+        .map(|u| u.norm())
+        .fold(0.0, f64::max);
+    assert!(scale > 1e-3, "the plate presses: {scale} m");
+    for (name, s) in [("default", &default), ("1 um", &narrow)] {
+        let diff = s
+            .displacements
+            .iter()
+            .zip(wide.displacements.iter())
+            .map(|(a, b)| (a - b).norm())
+            .fold(0.0, f64::max);
+        assert!(
+            diff <= 1e-9 * scale,
+            "band {name}: {diff} m from the wide band's shape"
+        );
+    }
+    let rows = [skull_rows(&wide), skull_rows(&default), skull_rows(&narrow)];
+    assert!(
+        rows[0] > rows[1] && rows[1] >= rows[2] && rows[2] > 0,
+        "skull rows wide / default / 1 um: {rows:?}"
+    );
+}
+
 /// The `sylvian` scene on the coarse phantom with one spatula (`left`),
 /// its fissure's walls joined by trabeculae of rupture strain `rupture`.
 fn sylvian_with_ties(rupture: f64) -> Scene {

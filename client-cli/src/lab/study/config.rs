@@ -267,6 +267,7 @@ impl Config {
                     excluding: None,
                     surface: Some(SkullSurfaceSpec {
                         csf_gap_m: DEFAULT_CSF_GAP_M,
+                        band_m: None,
                         open,
                     }),
                 });

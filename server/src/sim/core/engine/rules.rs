@@ -73,12 +73,14 @@ impl RowRule {
 ///   pushes inward (`dir = -r`, gap `R - r . (X + u - c)`), the excluding
 ///   one outward (`dir = r`, gap `r . (X + u - c) - R`).
 /// * The skull surface ([`fem::skull::SkullSurface`], on the model): each
-///   supported node whose gap `g - n . u` is within `band_m` gets a
+///   supported node whose gap `g - n . u` is within `surface_band_m` (the
+///   skull's own band, [`crate::scene::SkullSurfaceSpec::band_m`]) gets a
 ///   unilateral row along `-n` with free gap `g`.
 #[derive(Debug, Clone)]
 pub struct SkullRows {
     skull: fem::skull::Skull,
     pub(super) band_m: f64,
+    surface_band_m: f64,
 }
 
 impl SkullRows {
@@ -95,6 +97,10 @@ impl SkullRows {
                 excluding: skull.excluding.as_ref().map(sphere),
             },
             band_m: scene.contact.band_m,
+            surface_band_m: skull
+                .surface
+                .as_ref()
+                .map_or(scene.contact.band_m, |s| s.band_m(scene.contact.band_m)),
         })
     }
 
@@ -155,7 +161,7 @@ impl SkullRows {
                 .collect();
             for (k, &(v, n)) in s.nodes.iter().enumerate() {
                 let key = rows::key(v, SKULL_OWNER, 7, 2);
-                if (s.gap_m(k, &u[v as usize]) > self.band_m && !also.contains(&v))
+                if (s.gap_m(k, &u[v as usize]) > self.surface_band_m && !also.contains(&v))
                     || had.contains(&key)
                 {
                     continue;
