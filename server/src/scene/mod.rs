@@ -222,6 +222,14 @@ pub enum ModelSpec {
         /// Default 0.
         #[serde(default)]
         refine: u32,
+        /// One local refinement after `refine`: every tetrahedron whose
+        /// centroid lies in this ball split into eight at its edge midpoints,
+        /// its neighbours split into two or four so that the mesh stays
+        /// conforming ([`crate::mesh::refine::local`]); the shape is kept
+        /// exactly. Finer where the spatulas press at a fraction of a
+        /// uniform refinement's cost. Default: none.
+        #[serde(default)]
+        refine_near: Option<SphereSpec>,
     },
     /// A tetrahedral mesh file (MSH, VTK/VTU, TetGen), relative to the scene
     /// file. Its boundary must be a closed manifold, and it must be at most
@@ -942,6 +950,14 @@ impl Scene {
             ));
         }
         if let ModelSpec::Phantom {
+            refine_near: Some(b),
+            ..
+        } = &self.model
+        {
+            finite3("model.refine_near.centre_m".into(), &b.centre_m)?;
+            positive("model.refine_near.radius_m", b.radius_m)?;
+        }
+        if let ModelSpec::Phantom {
             spacing_m: Some(h), ..
         } = &self.model
         {
@@ -1402,6 +1418,7 @@ mod tests {
                 proven: true,
                 spacing_m: None,
                 refine: 0,
+                refine_near: None,
             }
         );
         let model = crate::sim::core::engine::Model::build(&scene).unwrap();
@@ -1479,6 +1496,41 @@ mod tests {
         for bad in ["0", "-1e-4", "nan", "inf"] {
             let msg = parse(&format!("band_m = {bad}")).unwrap_err().to_string();
             assert!(msg.contains("skull.surface.band_m"), "{bad}: {msg}");
+        }
+    }
+
+    /// `model.refine_near` refines the tetrahedra in its ball (and a
+    /// conforming closure), keeps the volume, and names a bad ball's field.
+    #[test]
+    fn a_phantom_refined_near_a_point_keeps_its_volume_and_a_bad_ball_is_named() {
+        let with = coarse_sylvian_with;
+        let plain = Scene::parse(&with(""), "p.toml").unwrap();
+        let near = Scene::parse(
+            &with("refine_near = { centre_m = [-0.0532, 0.010, 0.0], radius_m = 0.02 }"),
+            "p.toml",
+        )
+        .unwrap();
+        let plain = crate::sim::core::engine::Model::build(&plain).unwrap();
+        let near = crate::sim::core::engine::Model::build(&near).unwrap();
+        let (n0, n1) = (plain.mesh.tets.len(), near.mesh.tets.len());
+        assert!(n1 > n0 && n1 < 8 * n0, "{n1} against {n0}");
+        let volume = |m: &crate::mesh::TetMesh| -> f64 {
+            (0..m.tets.len()).map(|t| m.signed_volume(t)).sum()
+        };
+        let (v0, v1) = (volume(&plain.mesh), volume(&near.mesh));
+        assert!((v1 - v0).abs() <= 1e-12 * v0, "{v1} vs {v0}");
+        for (bad, field) in [
+            (
+                "refine_near = { centre_m = [0.0, 0.0, 0.0], radius_m = 0.0 }",
+                "model.refine_near.radius_m",
+            ),
+            (
+                "refine_near = { centre_m = [0.0, nan, 0.0], radius_m = 0.01 }",
+                "model.refine_near.centre_m",
+            ),
+        ] {
+            let msg = Scene::parse(&with(bad), "p.toml").unwrap_err().to_string();
+            assert!(msg.contains(field), "{bad}: {msg}");
         }
     }
 
@@ -1806,6 +1858,7 @@ mod tests {
                 proven: false,
                 spacing_m: None,
                 refine: 0,
+                refine_near: None,
             };
             let model = crate::sim::core::engine::Model::build(&coarse).unwrap();
             let springs = model.foundation.as_ref().unwrap();

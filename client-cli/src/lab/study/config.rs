@@ -123,6 +123,11 @@ pub struct Config {
     /// each tetrahedron into eight, the shape kept exactly); 0: none.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub refine: u32,
+    /// One local refinement after `refine`: the tetrahedra within this
+    /// radius, m, of [`FISSURE_CENTRE_M`] split into eight, closed
+    /// conformingly (`scene.model.refine_near`); `None`: none.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub refine_near_m: Option<f64>,
 }
 
 fn is_zero(n: &u32) -> bool {
@@ -180,6 +185,7 @@ impl Config {
             proven: false,
             spacing_m: None,
             refine: 0,
+            refine_near_m: None,
         }
         .labelled()
     }
@@ -203,6 +209,10 @@ impl Config {
         let preset = match self.refine {
             0 => preset,
             r => format!("{preset}-r{r}"),
+        };
+        let preset = match self.refine_near_m {
+            None => preset,
+            Some(r) => format!("{preset}-near{:.0}mm", r * 1e3),
         };
         let strategy = self.strategy.kind().label;
         let mut l = format!("{preset}/{strategy}");
@@ -278,6 +288,12 @@ impl Config {
             proven: self.proven,
             spacing_m: self.spacing_m,
             refine: self.refine,
+            refine_near: self
+                .refine_near_m
+                .map(|r| fissure_engine::scene::SphereSpec {
+                    centre_m: FISSURE_CENTRE_M,
+                    radius_m: r,
+                }),
         };
         scene.material.youngs_modulus_pa = self.youngs_pa;
         scene.material.poisson_ratio = self.nu;

@@ -105,10 +105,18 @@ impl Model {
                 proven,
                 spacing_m,
                 refine,
+                refine_near,
             } => {
                 let p = crate::mesh::phantom::preset_meshed(preset, *proven, *spacing_m)?;
                 landmarks = Some(p.landmarks);
-                crate::mesh::refine::uniform_times(p.mesh, *refine)?
+                let mesh = crate::mesh::refine::uniform_times(p.mesh, *refine)?;
+                match refine_near {
+                    Some(b) => {
+                        let c = nalgebra::Point3::from(b.centre_m);
+                        crate::mesh::refine::local(&mesh, |p| (p - c).norm() <= b.radius_m)?
+                    }
+                    None => mesh,
+                }
             }
             ModelSpec::File { path, scale } => crate::mesh::io::read_model(path, *scale)?,
         };
