@@ -64,6 +64,16 @@ fn key(a: u32, b: u32) -> (u32, u32) {
     (a.min(b), a.max(b))
 }
 
+/// The centroid of tetrahedron `t` of `mesh`.
+fn centroid(mesh: &TetMesh, t: &[u32; 4]) -> Point3<f64> {
+    Point3::from(
+        t.iter()
+            .map(|&v| mesh.nodes[v as usize].coords)
+            .sum::<nalgebra::Vector3<f64>>()
+            / 4.0,
+    )
+}
+
 /// `[a, b, c, d]`, or `[a, b, d, c]` where that one is positively oriented.
 fn oriented(nodes: &[Point3<f64>], [a, b, c, d]: [u32; 4]) -> [u32; 4] {
     let [pa, pb, pc, pd] = [a, b, c, d].map(|i| nodes[i as usize]);
@@ -92,12 +102,7 @@ pub fn local(mesh: &TetMesh, inside: impl Fn(&Point3<f64>) -> bool) -> Result<Te
     let tet_edge = |t: &[u32; 4], k: usize| key(t[EDGES[k][0]], t[EDGES[k][1]]);
     let mut marked: HashSet<(u32, u32)> = HashSet::new();
     for t in &mesh.tets {
-        let c = Point3::from(
-            t.iter()
-                .map(|&v| mesh.nodes[v as usize].coords)
-                .sum::<nalgebra::Vector3<f64>>()
-                / 4.0,
-        );
+        let c = centroid(mesh, t);
         if inside(&c) {
             marked.extend((0..6).map(|k| tet_edge(t, k)));
         }
@@ -360,12 +365,7 @@ mod tests {
         let new: HashSet<_> = r.nodes[m.nodes.len()..].iter().map(at).collect();
         let mut selected = 0;
         for t in &m.tets {
-            let c = Point3::from(
-                t.iter()
-                    .map(|&v| m.nodes[v as usize].coords)
-                    .sum::<nalgebra::Vector3<f64>>()
-                    / 4.0,
-            );
+            let c = centroid(&m, t);
             if !inside(&c) {
                 continue;
             }

@@ -427,6 +427,13 @@ mod tests {
         assert_eq!(level.refine, 1);
         let count =
             |plan: &StudyPlan, role: Role| plan.runs.iter().filter(|r| r.role == role).count();
+        let refined = |plan: &StudyPlan| -> Vec<String> {
+            plan.runs
+                .iter()
+                .filter(|r| r.role == Role::Refined)
+                .map(|r| r.config.label.clone())
+                .collect()
+        };
         for (options, grid) in [
             (PlanOptions::default(), true),
             (
@@ -446,13 +453,7 @@ mod tests {
             // Every mesher level is planned; the reference's one-shape level
             // is not planned again: paper-34k refined once is the other.
             assert_eq!(count(&plan, Role::Convergence), planned.convergence.len());
-            let refined: Vec<&str> = plan
-                .runs
-                .iter()
-                .filter(|r| r.role == Role::Refined)
-                .map(|r| r.config.label.as_str())
-                .collect();
-            assert_eq!(refined, ["34k-r1/lin/n150/np/foundation"]);
+            assert_eq!(refined(&plan), ["34k-r1/lin/n150/np/foundation"]);
             assert_eq!(count(&plan, Role::Grid) > 0, grid);
         }
         // Two refinements add both families' second level, the reference
@@ -463,14 +464,8 @@ mod tests {
             ..PlanOptions::default()
         })
         .expect("two refinements");
-        let refined: Vec<&str> = plan
-            .runs
-            .iter()
-            .filter(|r| r.role == Role::Refined)
-            .map(|r| r.config.label.as_str())
-            .collect();
         assert_eq!(
-            refined,
+            refined(&plan),
             [
                 "34k-r1/lin/n150/np/foundation",
                 "34k-r2/lin/n150/np/foundation",
