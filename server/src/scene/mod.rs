@@ -222,14 +222,17 @@ pub enum ModelSpec {
         /// Default 0.
         #[serde(default)]
         refine: u32,
-        /// One local refinement after `refine`: every tetrahedron whose
-        /// centroid lies in this ball split into eight at its edge midpoints,
-        /// its neighbours split into two or four so that the mesh stays
-        /// conforming ([`crate::mesh::refine::local`]); the shape is kept
-        /// exactly. Finer where the spatulas press at a fraction of a
-        /// uniform refinement's cost. Default: none.
-        #[serde(default)]
-        refine_near: Option<SphereSpec>,
+        /// Local refinements after `refine`, a ball or a list of balls
+        /// applied in order: every tetrahedron whose centroid lies in the
+        /// ball split into eight at its edge midpoints, its neighbours split
+        /// into two or four so that the mesh stays conforming
+        /// ([`crate::mesh::refine::local`]); the shape is kept exactly.
+        /// Finer where the spatulas press at a fraction of a uniform
+        /// refinement's cost. Nest a later ball well inside an earlier one
+        /// (by a few elements): the closure's split elements at an earlier
+        /// ball's rim should not be split again. Default: none.
+        #[serde(default, deserialize_with = "one_or_many")]
+        refine_near: Vec<SphereSpec>,
     },
     /// A tetrahedral mesh file (MSH, VTK/VTU, TetGen), relative to the scene
     /// file. Its boundary must be a closed manifold, and it must be at most
@@ -718,6 +721,20 @@ fn instrument_from_table(mut table: toml::Table, i: usize) -> Result<InstrumentS
     Ok(spec)
 }
 
+/// A table or an array of tables (read as TOML first, so that a bad field
+/// is named by the ball's own reader rather than lost in an untagged
+/// enum's "no variant matched").
+fn one_or_many<'de, D: serde::Deserializer<'de>>(de: D) -> Result<Vec<SphereSpec>, D::Error> {
+    use serde::de::Error;
+    match toml::Value::deserialize(de)? {
+        toml::Value::Array(v) => v
+            .into_iter()
+            .map(|b| SphereSpec::deserialize(b).map_err(D::Error::custom))
+            .collect(),
+        b => Ok(vec![SphereSpec::deserialize(b).map_err(D::Error::custom)?]),
+    }
+}
+
 fn identity_quaternion() -> [f64; 4] {
     [1.0, 0.0, 0.0, 0.0]
 }
@@ -949,13 +966,11 @@ impl Scene {
                 ),
             ));
         }
-        if let ModelSpec::Phantom {
-            refine_near: Some(b),
-            ..
-        } = &self.model
-        {
-            finite3("model.refine_near.centre_m".into(), &b.centre_m)?;
-            positive("model.refine_near.radius_m", b.radius_m)?;
+        if let ModelSpec::Phantom { refine_near, .. } = &self.model {
+            for (i, b) in refine_near.iter().enumerate() {
+                finite3(format!("model.refine_near[{i}].centre_m"), &b.centre_m)?;
+                positive(&format!("model.refine_near[{i}].radius_m"), b.radius_m)?;
+            }
         }
         if let ModelSpec::Phantom {
             spacing_m: Some(h), ..
@@ -1418,7 +1433,7 @@ mod tests {
                 proven: true,
                 spacing_m: None,
                 refine: 0,
-                refine_near: None,
+                refine_near: Vec::new(),
             }
         );
         let model = crate::sim::core::engine::Model::build(&scene).unwrap();
@@ -1519,14 +1534,35 @@ mod tests {
         };
         let (v0, v1) = (volume(&plain.mesh), volume(&near.mesh));
         assert!((v1 - v0).abs() <= 1e-12 * v0, "{v1} vs {v0}");
+        // Two nested balls: finer again within the inner one.
+        let twice = Scene::parse(
+            &with("refine_near = [{ centre_m = [-0.0532, 0.010, 0.0], radius_m = 0.02 }, { centre_m = [-0.0532, 0.010, 0.0], radius_m = 0.01 }]"),
+            "p.toml",
+        )
+        .unwrap();
+        let twice = crate::sim::core::engine::Model::build(&twice).unwrap();
+        assert!(
+            twice.mesh.tets.len() > n1,
+            "{} against {n1}",
+            twice.mesh.tets.len()
+        );
+        let v2 = volume(&twice.mesh);
+        assert!((v2 - v0).abs() <= 1e-12 * v0, "{v2} vs {v0}");
+        let typo = Scene::parse(
+            &with("refine_near = { centre_m = [0.0, 0.0, 0.0], radius = 0.01 }"),
+            "p.toml",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(typo.contains("radius"), "{typo}");
         for (bad, field) in [
             (
                 "refine_near = { centre_m = [0.0, 0.0, 0.0], radius_m = 0.0 }",
-                "model.refine_near.radius_m",
+                "model.refine_near[0].radius_m",
             ),
             (
                 "refine_near = { centre_m = [0.0, nan, 0.0], radius_m = 0.01 }",
-                "model.refine_near.centre_m",
+                "model.refine_near[0].centre_m",
             ),
         ] {
             let msg = Scene::parse(&with(bad), "p.toml").unwrap_err().to_string();
@@ -1858,7 +1894,7 @@ mod tests {
                 proven: false,
                 spacing_m: None,
                 refine: 0,
-                refine_near: None,
+                refine_near: Vec::new(),
             };
             let model = crate::sim::core::engine::Model::build(&coarse).unwrap();
             let springs = model.foundation.as_ref().unwrap();

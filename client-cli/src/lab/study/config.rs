@@ -123,11 +123,37 @@ pub struct Config {
     /// each tetrahedron into eight, the shape kept exactly); 0: none.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub refine: u32,
-    /// One local refinement after `refine`: the tetrahedra within this
-    /// radius, m, of [`FISSURE_CENTRE_M`] split into eight, closed
-    /// conformingly (`scene.model.refine_near`); `None`: none.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub refine_near_m: Option<f64>,
+    /// Local refinements after `refine`, in order: the tetrahedra within
+    /// each radius, m, of [`FISSURE_CENTRE_M`] split into eight, closed
+    /// conformingly (`scene.model.refine_near`); empty: none. Written as a
+    /// number when there is one.
+    #[serde(
+        default,
+        skip_serializing_if = "Vec::is_empty",
+        serialize_with = "ser_radii",
+        deserialize_with = "de_radii"
+    )]
+    pub refine_near_m: Vec<f64>,
+}
+
+fn ser_radii<S: serde::Serializer>(r: &[f64], ser: S) -> Result<S::Ok, S::Error> {
+    match r {
+        [one] => ser.serialize_f64(*one),
+        many => many.serialize(ser),
+    }
+}
+
+fn de_radii<'de, D: serde::Deserializer<'de>>(de: D) -> Result<Vec<f64>, D::Error> {
+    #[derive(Deserialize)]
+    #[serde(untagged)]
+    enum Radii {
+        One(f64),
+        Many(Vec<f64>),
+    }
+    Ok(match Radii::deserialize(de)? {
+        Radii::One(r) => vec![r],
+        Radii::Many(v) => v,
+    })
 }
 
 fn is_zero(n: &u32) -> bool {
@@ -185,7 +211,7 @@ impl Config {
             proven: false,
             spacing_m: None,
             refine: 0,
-            refine_near_m: None,
+            refine_near_m: Vec::new(),
         }
         .labelled()
     }
@@ -210,10 +236,10 @@ impl Config {
             0 => preset,
             r => format!("{preset}-r{r}"),
         };
-        let preset = match self.refine_near_m {
-            None => preset,
-            Some(r) => format!("{preset}-near{:.0}mm", r * 1e3),
-        };
+        let preset = self
+            .refine_near_m
+            .iter()
+            .fold(preset, |p, r| format!("{p}-near{:.0}mm", r * 1e3));
         let strategy = self.strategy.kind().label;
         let mut l = format!("{preset}/{strategy}");
         if !self.strategy.is_linear() {
@@ -290,10 +316,12 @@ impl Config {
             refine: self.refine,
             refine_near: self
                 .refine_near_m
-                .map(|r| fissure_engine::scene::SphereSpec {
+                .iter()
+                .map(|&r| fissure_engine::scene::SphereSpec {
                     centre_m: FISSURE_CENTRE_M,
                     radius_m: r,
-                }),
+                })
+                .collect(),
         };
         scene.material.youngs_modulus_pa = self.youngs_pa;
         scene.material.poisson_ratio = self.nu;
@@ -356,5 +384,38 @@ mod tests {
         map.remove("spacing_m");
         let back: Config = serde_json::from_value(json).expect("reads without the new fields");
         assert_eq!(back, Config::baseline());
+    }
+
+    /// Local refinement radii: one is written as a number (as the plans
+    /// and result files that had only one), several as a list; both read
+    /// back equal, and the label names each ball in order.
+    #[test]
+    fn refinement_radii_round_trip_as_a_number_or_a_list_and_name_the_label() {
+        for (radii, text, label) in [
+            (vec![0.02], "0.02", "48k-near20mm/"),
+            (vec![0.03, 0.02], "[0.03,0.02]", "48k-near30mm-near20mm/"),
+        ] {
+            let c = Config {
+                refine_near_m: radii.clone(),
+                ..Config::baseline()
+            }
+            .labelled();
+            assert!(c.label.starts_with(label), "{}", c.label);
+            let json = serde_json::to_string(&c).unwrap();
+            assert!(
+                json.contains(&format!("\"refine_near_m\":{text}")),
+                "{json}"
+            );
+            let back: Config = serde_json::from_str(&json).unwrap();
+            assert_eq!(back, c);
+            let scene = c.scene().unwrap();
+            assert!(matches!(
+                &scene.model,
+                fissure_engine::scene::ModelSpec::Phantom { refine_near, .. } if refine_near.len() == radii.len()
+            ));
+        }
+        // None: the field is left out.
+        let json = serde_json::to_string(&Config::baseline()).unwrap();
+        assert!(!json.contains("refine_near_m"), "{json}");
     }
 }

@@ -397,14 +397,14 @@ impl Plan {
                 v(
                     &|c| {
                         c.element = Element::Tet4NodalPressure;
-                        c.refine_near_m = Some(0.02);
+                        c.refine_near_m = vec![0.02];
                     },
                     "refine-near",
                 ),
                 v(
                     &|c| {
                         c.element = Element::Tet4NodalPressure;
-                        c.refine_near_m = Some(0.03);
+                        c.refine_near_m = vec![0.03];
                     },
                     "refine-near",
                 ),

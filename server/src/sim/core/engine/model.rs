@@ -110,13 +110,10 @@ impl Model {
                 let p = crate::mesh::phantom::preset_meshed(preset, *proven, *spacing_m)?;
                 landmarks = Some(p.landmarks);
                 let mesh = crate::mesh::refine::uniform_times(p.mesh, *refine)?;
-                match refine_near {
-                    Some(b) => {
-                        let c = nalgebra::Point3::from(b.centre_m);
-                        crate::mesh::refine::local(&mesh, |p| (p - c).norm() <= b.radius_m)?
-                    }
-                    None => mesh,
-                }
+                refine_near.iter().try_fold(mesh, |mesh, b| {
+                    let c = nalgebra::Point3::from(b.centre_m);
+                    crate::mesh::refine::local(&mesh, |p| (p - c).norm() <= b.radius_m)
+                })?
             }
             ModelSpec::File { path, scale } => crate::mesh::io::read_model(path, *scale)?,
         };
