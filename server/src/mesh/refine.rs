@@ -34,9 +34,10 @@
 //! and the marking repeats until every tetrahedron has one of those
 //! patterns (it ends: marks are only added). A face then has none, one or
 //! all three of its edges marked in both its tetrahedra, and both split it
-//! the same way, so the result is conforming. Only one level: green
-//! children of green children degrade without bound, so a second local
-//! level would have to undo the green closure first (not built).
+//! the same way, so the result is conforming. Green children split green
+//! again degrade without bound, and the closure does not undo them first,
+//! so a repeated local refinement (the scene's list of balls) keeps each
+//! later region well inside the red part of the earlier one.
 //!
 //! Hand-written because the mesh crates of the ecosystem either remesh
 //! (changing the surface) or do not keep our node order and labels; the
@@ -84,9 +85,14 @@ fn oriented(nodes: &[Point3<f64>], [a, b, c, d]: [u32; 4]) -> [u32; 4] {
     }
 }
 
-/// Edge masks (bits in [`EDGES`] order) of the four faces: the face
-/// opposite vertex 3, 2, 1, 0.
-const FACES: [(u8, usize); 4] = [(0b001011, 3), (0b010101, 2), (0b100110, 1), (0b111000, 0)];
+/// Edge masks (bits in [`EDGES`] order) of the four faces and their local
+/// vertices, ascending: the face opposite vertex 3, 2, 1, 0.
+const FACES: [(u8, [usize; 3]); 4] = [
+    (0b001011, [0, 1, 2]),
+    (0b010101, [0, 1, 3]),
+    (0b100110, [0, 2, 3]),
+    (0b111000, [1, 2, 3]),
+];
 
 /// Whether a marked-edge pattern has a conforming split (module
 /// documentation).
@@ -159,8 +165,7 @@ pub fn local(mesh: &TetMesh, inside: impl Fn(&Point3<f64>) -> bool) -> Result<Te
             }
         } else {
             // One face split in four, each piece joined to the apex.
-            let (_, apex) = *FACES.iter().find(|f| f.0 == mask).expect("a face mask");
-            let face: Vec<usize> = (0..4).filter(|&v| v != apex).collect();
+            let (_, [p, q, r]) = *FACES.iter().find(|f| f.0 == mask).expect("a face mask");
             let mid = |p: usize, q: usize| {
                 let k = EDGES
                     .iter()
@@ -168,7 +173,6 @@ pub fn local(mesh: &TetMesh, inside: impl Fn(&Point3<f64>) -> bool) -> Result<Te
                     .expect("an edge of the face");
                 m[k]
             };
-            let (p, q, r) = (face[0], face[1], face[2]);
             for (at, [x, y]) in [(p, [q, r]), (q, [p, r]), (r, [p, q])] {
                 let mut c = *t;
                 c[x] = mid(at, x);

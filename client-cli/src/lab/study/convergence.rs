@@ -450,14 +450,16 @@ pub fn evaluate(runs: &[&RunResult]) -> Convergence {
 }
 
 /// The one-shape families among `runs` (levels and refinements, in any
-/// order): each unrefined run with the refinements of its shape, coarsest
-/// first; a family needs its unrefined level and one refinement.
+/// order): each unrefined run with the uniform refinements of its shape,
+/// coarsest first; a family needs its unrefined level and one refinement.
+/// Locally refined runs (`refine_near_m`) belong to none.
 pub fn families<'a>(runs: &[&'a RunResult]) -> Vec<Vec<&'a RunResult>> {
+    let uniform = |r: &RunResult| r.config.refine_near_m.is_empty();
     let mut out = Vec::new();
-    for base in runs.iter().filter(|r| r.config.refine == 0) {
+    for base in runs.iter().filter(|r| r.config.refine == 0 && uniform(r)) {
         let mut family: Vec<&RunResult> = runs
             .iter()
-            .filter(|r| r.config.refine > 0 && same_shape(&r.config, &base.config))
+            .filter(|r| r.config.refine > 0 && uniform(r) && same_shape(&r.config, &base.config))
             .copied()
             .collect();
         if family.is_empty() {
@@ -603,6 +605,24 @@ mod tests {
         // A level without its unrefined run makes no family.
         let lone: Vec<&RunResult> = vec![&runs[3]];
         assert!(families(&lone).is_empty());
+        // A locally refined run is neither a family's base nor a member.
+        let near = run(&Config {
+            refine_near_m: vec![0.02],
+            ..levels[1].clone()
+        });
+        let near_r1 = run(&Config {
+            refine_near_m: vec![0.02],
+            ..refined[2].clone()
+        });
+        let mut with_near = refs.clone();
+        with_near.extend([&near, &near_r1]);
+        assert_eq!(families(&with_near).len(), 2);
+        assert!(
+            families(&with_near)
+                .iter()
+                .flatten()
+                .all(|r| r.config.refine_near_m.is_empty())
+        );
         // The reference is the product's shape refined once, with the
         // reference physics.
         assert_eq!(reference.label, "48k-r1/lin/n150/np/foundation");

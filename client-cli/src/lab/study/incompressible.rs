@@ -108,7 +108,7 @@ fn total_force_n(r: &RunResult) -> f64 {
 }
 
 fn same_level(a: &Config, b: &Config) -> bool {
-    convergence::same_shape(a, b) && a.refine == b.refine
+    convergence::same_shape(a, b) && a.refine == b.refine && a.refine_near_m == b.refine_near_m
 }
 
 /// Evaluates the sweep on the level `at` (its configuration) from the

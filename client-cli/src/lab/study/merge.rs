@@ -117,12 +117,7 @@ pub fn merge(dir: &Path, out: &Path, allow_missing: bool) -> Result<StudyResult,
     }
     let planned = Plan::new(plan.quick);
     // The reference is one of the levels when the plan made it one.
-    let shared = planned
-        .convergence
-        .iter()
-        .chain(&planned.refined)
-        .any(|c| planned.is_reference(c));
-    if let (true, Some(r), false) = (shared, reference, levels.is_empty()) {
+    if let (true, Some(r), false) = (planned.reference_is_a_level(), reference, levels.is_empty()) {
         levels.push(&r.result);
     }
     // The mesher's levels in the planned order; the one-shape families.

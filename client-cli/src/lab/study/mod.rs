@@ -442,6 +442,15 @@ impl Plan {
             ..c.clone()
         } == self.reference
     }
+
+    /// Whether the reference is one of the levels (a convergence level or
+    /// a refinement): one run then serves both.
+    pub fn reference_is_a_level(&self) -> bool {
+        self.convergence
+            .iter()
+            .chain(&self.refined)
+            .any(|c| self.is_reference(c))
+    }
 }
 
 /// Coulomb's friction coefficient of the study's `coulomb` runs: an assumed

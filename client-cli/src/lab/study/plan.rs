@@ -156,10 +156,7 @@ impl StudyPlan {
         let mut runs: Vec<(Role, Config, ScenarioSpec, bool)> = Vec::new();
         let grid = !options.no_grid && !options.convergence_only;
         let convergence = !options.no_convergence && !plan.convergence.is_empty();
-        // The full study's reference is one of its one-shape levels: one run
-        // serves both.
-        let shared = plan.refined.iter().any(|c| plan.is_reference(c));
-        if grid || (convergence && shared) {
+        if grid || (convergence && plan.reference_is_a_level()) {
             runs.push((Role::Reference, plan.reference.clone(), grid_spec, true));
         }
         if grid {
